@@ -1,0 +1,58 @@
+"""Typed errors. Library code raises these; only the CLI talks to a person."""
+from __future__ import annotations
+
+
+class CabError(Exception):
+    """Base of every error cab raises on purpose."""
+
+
+class ConfigError(CabError):
+    """A configuration value is missing, unknown or invalid."""
+
+
+class PluginError(CabError):
+    """A plugin is missing, duplicated or broken."""
+
+
+class MissingDependency(CabError):
+    """An optional dependency is not installed; the message carries the install command."""
+
+    def __init__(self, what: str, install: str):
+        super().__init__(f"{what} is not installed; install it with: {install}")
+        self.install = install
+
+
+class SimulatorError(CabError):
+    """The simulator failed."""
+
+
+class BadCommand(SimulatorError):
+    """A command to the simulator is malformed (wrong shape, unknown name, non-finite value)."""
+
+
+class RendererUnavailable(SimulatorError):
+    """No rendering device could be started; the message holds a diagnosis and the fix."""
+
+
+class PlannerError(CabError):
+    """The planner failed unexpectedly (not a refusal: refusals are results)."""
+
+
+class ToolArgumentError(CabError):
+    """A tool was called with invalid arguments. The call is still charged."""
+
+
+class BudgetExhausted(CabError):
+    """A budget ran out; ``reason`` is the termination reason (tool_budget, sim_budget, wall_budget)."""
+
+    def __init__(self, reason: str, message: str = ""):
+        super().__init__(message or reason)
+        self.reason = reason
+
+
+class SandboxUnavailable(CabError):
+    """Confinement was required but cannot be provided on this machine."""
+
+
+class AttemptEnded(CabError):
+    """Raised to an agent that calls a tool after its attempt ended."""

@@ -1,0 +1,152 @@
+"""The simulator contract. SAPIEN, PyBullet and MuJoCo backends implement it; the core never
+imports a simulator. All poses are world-frame [x,y,z,qw,qx,qy,qz]; cameras use OpenCV axes.
+
+Naming: rigid bodies and articulated objects keep their ``SceneSpec`` names; robot links are
+reported as ``"robot/<link>"``, links of an articulated object as ``"<object>/<link>"``, the ground
+as ``"ground"``. Names are privileged: they never reach the agent.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from .embodiment import EmbodimentSpec
+from .scene import SceneSpec
+
+ROBOT = "robot"
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Contact between two bodies during the last physics step."""
+    a: str
+    b: str
+    impulse: float  # N*s, summed over the contact points of the pair during the last step
+    point: tuple[float, float, float] | None = None  # mean world contact point, if known
+
+
+@dataclass(frozen=True)
+class SimState:
+    """An opaque, exact snapshot of the simulation (bodies, joints, drive targets, time)."""
+    backend: str
+    data: bytes
+
+
+class Simulator(ABC):
+    """One simulated world, built once per attempt. Not thread-safe: one owner thread."""
+
+    name: str = "abstract"
+
+    # -- life cycle ---------------------------------------------------------------------------
+    @abstractmethod
+    def build(self, scene: SceneSpec, embodiment: EmbodimentSpec) -> None:
+        """Create the world from a scene description plus the robot. Called once."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release native resources. Idempotent."""
+
+    @property
+    @abstractmethod
+    def timestep(self) -> float:
+        """Seconds per physics step (1/250 by default)."""
+
+    @abstractmethod
+    def step(self, n: int = 1) -> None:
+        """Advance physics ``n`` steps with the current drive targets. Hosts call this only
+        through the episode's step clock, which charges simulated time."""
+
+    # -- robot --------------------------------------------------------------------------------
+    @property
+    @abstractmethod
+    def joint_names(self) -> list[str]:
+        """Driven robot joints, in ``EmbodimentSpec.joint_order()``."""
+
+    @abstractmethod
+    def get_qpos(self) -> np.ndarray: ...
+
+    @abstractmethod
+    def get_qvel(self) -> np.ndarray: ...
+
+    @abstractmethod
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        """Teleport the robot joints (reset only) and set the drive targets to match."""
+
+    @abstractmethod
+    def set_drive_targets(self, targets: np.ndarray) -> None:
+        """Position targets for every driven joint (``joint_names`` order). Raises BadCommand on
+        a wrong shape or non-finite value."""
+
+    @abstractmethod
+    def get_drive_targets(self) -> np.ndarray: ...
+
+    @abstractmethod
+    def get_link_pose(self, link: str) -> np.ndarray:
+        """World pose of a robot link. Raises BadCommand for an unknown link."""
+
+    # -- objects ------------------------------------------------------------------------------
+    @abstractmethod
+    def object_names(self) -> list[str]:
+        """Rigid bodies and articulated objects of the scene."""
+
+    @abstractmethod
+    def get_object_pose(self, name: str) -> np.ndarray:
+        """World pose of a body or of an articulated object's root. BadCommand if unknown."""
+
+    @abstractmethod
+    def set_object_pose(self, name: str, pose) -> None: ...
+
+    @abstractmethod
+    def get_object_velocity(self, name: str) -> np.ndarray:
+        """[vx, vy, vz, wx, wy, wz] of a body (root link for articulations)."""
+
+    @abstractmethod
+    def get_object_qpos(self, name: str) -> np.ndarray:
+        """Joint positions of an articulated object (empty for rigid bodies)."""
+
+    @abstractmethod
+    def set_object_qpos(self, name: str, qpos) -> None: ...
+
+    @abstractmethod
+    def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
+        """World pose of a link of an articulated object."""
+
+    # -- contacts -----------------------------------------------------------------------------
+    @abstractmethod
+    def get_contacts(self) -> list[Contact]:
+        """Contacts of the last physics step, one entry per body pair with a non-zero impulse."""
+
+    # -- cameras ------------------------------------------------------------------------------
+    @abstractmethod
+    def camera_names(self) -> list[str]: ...
+
+    @abstractmethod
+    def camera_pose(self, name: str) -> np.ndarray:
+        """Current world pose of a camera (OpenCV axes)."""
+
+    @abstractmethod
+    def camera_intrinsics(self, name: str) -> np.ndarray:
+        """3x3 pinhole K."""
+
+    @abstractmethod
+    def camera_size(self, name: str) -> tuple[int, int]:
+        """(height, width)."""
+
+    @abstractmethod
+    def render(self, name: str) -> np.ndarray:
+        """RGB image, uint8 HxWx3, of the current state. BadCommand for an unknown camera."""
+
+    # -- state --------------------------------------------------------------------------------
+    @abstractmethod
+    def save_state(self) -> SimState: ...
+
+    @abstractmethod
+    def restore_state(self, state: SimState) -> None:
+        """Restore exactly; stepping after a restore reproduces the same trajectory."""
+
+    # -- provenance ---------------------------------------------------------------------------
+    @abstractmethod
+    def versions(self) -> dict[str, str]:
+        """Simulator, renderer (device, driver) and anything else that changes results."""

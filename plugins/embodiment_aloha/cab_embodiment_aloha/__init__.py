@@ -1,0 +1,1 @@
+"""aloha_agilex embodiment plugin."""

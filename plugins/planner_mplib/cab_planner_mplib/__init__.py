@@ -1,0 +1,1 @@
+"""mplib planner plugin."""

@@ -1,0 +1,1 @@
+"""SAPIEN backend plugin."""

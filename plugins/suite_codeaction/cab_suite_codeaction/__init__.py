@@ -1,0 +1,1 @@
+"""The CodeActionBench task suite."""
