@@ -1,0 +1,99 @@
+"""Command-line entry points: ``cab`` (Hydra app), ``cab-plugins``, ``cab-schemas``.
+Only this module talks to a person."""
+from __future__ import annotations
+
+import json
+import sys
+
+GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment")
+
+
+def normalise_overrides(argv: list[str]) -> list[str]:
+    """Accept both ``+group=option`` and ``group=option`` for the groups that have a default.
+
+    Hydra refuses ``+sim=x`` when ``sim`` is in the defaults list; every group here has a
+    default, so the ``+`` is dropped for them (DESIGN.md, Hydra note)."""
+    out = []
+    for a in argv:
+        if a.startswith("+") and not a.startswith("++"):
+            key = a[1:].split("=", 1)[0]
+            if key in GROUPS:
+                a = a[1:]
+        out.append(a)
+    return out
+
+
+def main() -> None:
+    sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
+    _hydra_entry()
+
+
+def _hydra_entry() -> None:
+    import hydra
+
+    @hydra.main(version_base=None, config_path="conf", config_name="config")
+    def _app(cfg) -> None:
+        from hydra.core.hydra_config import HydraConfig
+
+        from .errors import CabError, ConfigError, MissingDependency, RendererUnavailable
+        from .runner import attempt_spec, run_attempt
+
+        out = HydraConfig.get().runtime.output_dir
+        try:
+            spec = attempt_spec(cfg, out)
+            result = run_attempt(spec)
+        except RendererUnavailable as e:
+            print(f"cab: renderer unavailable: {e}", file=sys.stderr)
+            sys.exit(3)
+        except (ConfigError, MissingDependency) as e:
+            print(f"cab: {e}", file=sys.stderr)
+            sys.exit(2)
+        except CabError as e:
+            print(f"cab: {type(e).__name__}: {e}", file=sys.stderr)
+            sys.exit(1)
+        v = result["verdict"]
+        b = result["budget"]
+        print(f"cab: {result['task']} seed={result['seed']} attempt={result['attempt']} model={result['model']} "
+              f"sim={result['sim']}: success={v.get('success')} termination={result['termination']['reason']} "
+              f"calls={b['tool_calls_used']}/{b['tool_calls_limit']} sim_s={b['sim_seconds_used']:.2f}/{b['sim_seconds_limit']:g} "
+              f"wall_s={result['timing']['wall_seconds']:.1f} -> {out}/result.json")
+
+    _app()
+
+
+def plugins_main() -> None:
+    """List installed plugins, their versions and what each provides."""
+    import argparse
+
+    from .plugins import describe
+
+    ap = argparse.ArgumentParser(prog="cab-plugins", description=plugins_main.__doc__)
+    ap.add_argument("--json", action="store_true", help="print JSON")
+    a = ap.parse_args()
+    rows = describe()
+    if a.json:
+        print(json.dumps(rows, indent=2))
+        return
+    for r in rows:
+        print(f"{r['plugin']:<22} {r['distribution']} {r['version']}")
+        for kind, names in r["provides"].items():
+            if names:
+                print(f"    {kind:<18} {', '.join(names)}")
+
+
+def schemas_main() -> None:
+    """Print the JSON Schemas of every tool (from the pydantic argument models)."""
+    import argparse
+
+    from .tools import schemas
+
+    ap = argparse.ArgumentParser(prog="cab-schemas", description=schemas_main.__doc__)
+    ap.add_argument("tool", nargs="?", help="only this tool")
+    a = ap.parse_args()
+    rows = schemas()
+    if a.tool:
+        rows = [r for r in rows if r["name"] == a.tool]
+        if not rows:
+            print(f"cab-schemas: unknown tool {a.tool!r}", file=sys.stderr)
+            sys.exit(2)
+    print(json.dumps(rows, indent=2))

@@ -1,0 +1,82 @@
+"""From a composed config to a finished, recorded attempt."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from .episode import AttemptSpec, Episode
+from .errors import ConfigError
+
+log = logging.getLogger("cab")
+
+
+def _plain(cfg: Any) -> dict:
+    try:
+        from omegaconf import OmegaConf
+
+        if OmegaConf.is_config(cfg):
+            return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    except ImportError:  # pragma: no cover
+        pass
+    return dict(cfg)
+
+
+def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
+    """Validate a composed config into one AttemptSpec (budgets and seed from the catalog)."""
+    from .catalog import task_info
+
+    c = _plain(cfg)
+    for key in ("task", "sim", "embodiment", "planner", "harness", "model"):
+        if not isinstance(c.get(key), dict) or not c[key].get("name"):
+            raise ConfigError(f"config group {key!r} is missing or has no name")
+    info = task_info(c["task"]["name"])
+    b = c.get("budget") or {}
+    seed = c.get("seed")
+    seed = info.seed if seed is None else seed
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    attempt = c.get("attempt", 1)
+    if not isinstance(attempt, int) or attempt < 1:
+        raise ConfigError(f"attempt must be a positive integer, got {attempt!r}")
+    harness = c["harness"]["name"]
+    if harness == "auto":
+        harness = c["model"].get("harness") or "reference"
+    tool_calls = b.get("tool_calls") or info.budget_tool_calls
+    sim_s = b.get("sim_seconds") or info.budget_sim_s
+    wall_s = b.get("wall_seconds") or info.budget_wall_s
+    for k, v in (("budget.tool_calls", tool_calls), ("budget.sim_seconds", sim_s), ("budget.wall_seconds", wall_s)):
+        if not isinstance(v, (int, float)) or v <= 0:
+            raise ConfigError(f"{k} must be positive, got {v!r}")
+    return AttemptSpec(
+        task=info.name, seed=int(seed), attempt=int(attempt), sim=c["sim"]["name"], embodiment=c["embodiment"]["name"],
+        planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
+        budget_tool_calls=int(tool_calls), budget_sim_seconds=float(sim_s), budget_wall_seconds=float(wall_s),
+        run_code_max_internal_calls=int(b.get("run_code_max_internal_calls") or 500),
+        sandbox=dict(c.get("sandbox") or {}), record=dict(c.get("record") or {}),
+        sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
+    )
+
+
+def run_attempt(spec: AttemptSpec) -> dict:
+    """Build everything through the plugin registry, run the harness, score, record."""
+    from .plugins import all_tasks, create
+
+    tasks = all_tasks()
+    if spec.task not in tasks:
+        raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
+                          f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
+    harness = create("harnesses", spec.harness, {"name": spec.harness})
+    emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
+    planner = create("planners", spec.planner, spec.planner_cfg)
+    sim = create("simulators", spec.sim, spec.sim_cfg)
+    episode = Episode(spec, tasks[spec.task], sim, planner, emb)
+    try:
+        try:
+            harness.run(episode, spec.model_cfg)
+        except Exception as e:
+            log.exception("harness failed")
+            episode.end("error", f"harness: {e!r}")
+        return episode.finish()
+    finally:
+        episode.close()
