@@ -1,0 +1,277 @@
+"""Scene pieces shared by the CodeActionBench tasks: table, wall, lighting, the seeded pose sampler,
+generated assets (OBJ meshes, URDFs) and a small base class.
+
+World frame (FACTS B.2): metres, z up, ground at z = 0, +y away from the robot toward the wall,
+-x on the left arm's side; quaternions are (w, x, y, z). The head camera and the robot belong to the
+embodiment, not to the task scene.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from cab_core.catalog import task_info
+from cab_core.errors import CabError
+from cab_core.geometry import euler_quat, quat_mul, quat_normalize, quat_to_mat
+from cab_core.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
+from cab_core.task import Task, TaskInfo, ToolCaller
+from cab_core.verifier import WorldView
+
+# --- world constants (FACTS B.2) ---------------------------------------------------------------
+TABLE_TOP_Z = 0.74
+TABLE_SIZE = (1.2, 0.7, 0.05)  # x, y, thickness
+WALL_CENTER = (0.0, 1.0, 1.5)
+WALL_HALF_SIZE = (3.0, 0.6, 1.5)  # near face at y = 0.4
+DEFAULT_SPAWN_Z = 0.741  # rand_pose's default z
+DESTRUCTIVE_DROP = 0.08  # a guarded object below table_z - 0.08 is knocked off (FACTS A.13)
+ARMS = ("left", "right")
+
+
+class LayoutError(CabError):
+    """No layout satisfying a task's placement constraints was found."""
+
+
+# --- colours -----------------------------------------------------------------------------------
+def srgb(r: float, g: float, b: float, a: float = 1.0) -> tuple[float, float, float, float]:
+    """Linear RGBA (what :class:`Material` holds) from display sRGB components in 0..1."""
+    def lin(c: float) -> float:
+        return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
+
+    return (round(lin(r), 5), round(lin(g), 5), round(lin(b), 5), a)
+
+
+WOOD = Material(color=srgb(0.66, 0.47, 0.30), roughness=0.7)
+WOOD_DARK = Material(color=srgb(0.42, 0.28, 0.16), roughness=0.7)
+WALL = Material(color=srgb(0.86, 0.86, 0.84), roughness=0.9)
+RED = Material(color=srgb(0.85, 0.10, 0.10), roughness=0.5)
+GREEN = Material(color=srgb(0.10, 0.70, 0.15), roughness=0.5)
+BLUE = Material(color=srgb(0.10, 0.25, 0.90), roughness=0.5)
+
+
+# --- table, wall, lighting ---------------------------------------------------------------------
+def table_top_z(z_bias: float = 0.0) -> float:
+    return TABLE_TOP_Z + z_bias
+
+
+def table(x_bias: float = 0.0, z_bias: float = 0.0, legs: bool = True) -> Body:
+    """The static table ``"table"``: a 1.2 x 0.7 x 0.05 m top whose surface is at 0.74 + z_bias,
+    centred at (x_bias, 0); optional legs down to the ground (same body)."""
+    sx, sy, th = TABLE_SIZE
+    top = table_top_z(z_bias)
+    shapes = [Shape(Box((sx / 2, sy / 2, th / 2)), material=WOOD)]
+    if legs:
+        leg_h = top - th
+        for lx in (-1, 1):
+            for ly in (-1, 1):
+                shapes.append(Shape(
+                    Box((0.025, 0.025, leg_h / 2)),
+                    pose=(lx * (sx / 2 - 0.06), ly * (sy / 2 - 0.06), -th / 2 - leg_h / 2, 1.0, 0.0, 0.0, 0.0),
+                    material=WOOD_DARK))
+    return Body("table", shapes, pose=(x_bias, 0.0, top - th / 2, 1.0, 0.0, 0.0, 0.0), kind="static")
+
+
+def wall() -> Body:
+    """The static back wall ``"wall"``: centre (0, 1, 1.5), half-size (3, 0.6, 1.5); near face y = 0.4."""
+    return Body("wall", [Shape(Box(WALL_HALF_SIZE), material=WALL)], pose=(*WALL_CENTER, 1.0, 0.0, 0.0, 0.0),
+                kind="static")
+
+
+def lighting() -> Lighting:
+    """Ambient 0.5, one directional light, point lights at (+-1, 0, 1.8) (FACTS B.2)."""
+    return Lighting(
+        ambient=(0.5, 0.5, 0.5),
+        directional=(((0.0, 0.5, -1.0), (0.5, 0.5, 0.5)),),
+        points=(((1.0, 0.0, 1.8), (1.0, 1.0, 1.0)), ((-1.0, 0.0, 1.8), (1.0, 1.0, 1.0))),
+    )
+
+
+def base_scene(table_x: float = 0.0, table_z_bias: float = 0.0, legs: bool = True) -> SceneSpec:
+    """Table + wall + lighting at the benchmark's 1/250 s timestep."""
+    return SceneSpec(bodies=[table(table_x, table_z_bias, legs), wall()], lighting=lighting(),
+                     timestep=1.0 / 250.0)
+
+
+# --- sampling ----------------------------------------------------------------------------------
+def rand_pose(rng: np.random.Generator, xlim: Sequence[float], ylim: Sequence[float],
+              zlim: Sequence[float] = (DEFAULT_SPAWN_Z,), *, ylim_prop: bool = False,
+              rotate_rand: bool = False, rotate_lim: Sequence[float] = (0.0, 0.0, 0.0),
+              qpos: Sequence[float] = (1.0, 0.0, 0.0, 0.0)) -> np.ndarray:
+    """RoboTwin's ``rand_pose`` (FACTS B.5) over ``rng``: uniform x, y, z in their limits (a
+    one-element limit is fixed); with ``ylim_prop``, while |x| < 0.15 and y > 0, y is redrawn in
+    [ylim[0], 0]; the random Euler rotation (static x-y-z, each within +-rotate_lim) is composed
+    after the base quaternion ``qpos`` (in its local frame). Returns [x, y, z, qw, qx, qy, qz]."""
+    def uni(lim: Sequence[float]) -> float:
+        lim = tuple(float(v) for v in lim)
+        return lim[0] if len(lim) == 1 else float(rng.uniform(lim[0], lim[1]))
+
+    x, y = uni(xlim), uni(ylim)
+    while ylim_prop and abs(x) < 0.15 and y > 0:
+        y = float(rng.uniform(float(ylim[0]), 0.0))
+    z = uni(zlim)
+    q = quat_normalize(qpos)
+    if rotate_rand:
+        angles = [float(rng.uniform(-lim, lim)) if lim > 0 else 0.0 for lim in rotate_lim]
+        q = quat_normalize(quat_mul(q, euler_quat(*angles)))
+    if q[0] < 0:
+        q = -q
+    return np.array([x, y, z, *q], dtype=float)
+
+
+def sample_until(draw: Callable[[], np.ndarray], accept: Callable[[np.ndarray], bool], *,
+                 what: str, max_tries: int = 10_000) -> np.ndarray:
+    """Redraw until ``accept`` holds (RoboTwin's resample-until loops), failing loudly."""
+    for _ in range(max_tries):
+        p = draw()
+        if accept(p):
+            return p
+    raise LayoutError(f"no valid placement for {what} after {max_tries} draws")
+
+
+def yaw_of(q: Sequence[float]) -> float:
+    """Heading (rotation about world z) of the body's local x axis."""
+    m = quat_to_mat(q)
+    return float(np.arctan2(m[1, 0], m[0, 0]))
+
+
+def pose_list(p: Iterable[float]) -> list[float]:
+    """A pose as a JSON-friendly list of rounded floats."""
+    return [round(float(v), 6) for v in p]
+
+
+# --- geometry of shape lists -------------------------------------------------------------------
+def lowest_point_z(shapes: Sequence[Shape], quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)) -> float:
+    """Lowest z, in a frame rotated by ``quat`` about the body origin, over all collision shapes
+    (boxes, spheres, capsules, cylinders). The body rests on a plane at height h when its origin
+    is at h - lowest_point_z(...)."""
+    r_body = quat_to_mat(quat)
+    low = np.inf
+    for s in shapes:
+        if not s.collision:
+            continue
+        r = r_body @ quat_to_mat(s.pose[3:7])
+        c = r_body @ np.asarray(s.pose[:3], dtype=float)
+        g = s.geometry
+        if isinstance(g, Box):
+            h = np.asarray(g.half_size)
+            low = min(low, c[2] - float(np.abs(r[2, :]) @ h))
+        elif isinstance(g, Sphere):
+            low = min(low, c[2] - g.radius)
+        elif isinstance(g, Capsule):
+            low = min(low, c[2] - abs(r[2, 0]) * g.half_length - g.radius)
+        elif isinstance(g, Cylinder):
+            az = abs(r[2, 0])  # axis along local x
+            low = min(low, c[2] - az * g.half_length - g.radius * np.sqrt(max(0.0, 1 - az * az)))
+        else:
+            raise TypeError(f"lowest_point_z does not handle {type(g).__name__}")
+    return float(low)
+
+
+# --- generated assets --------------------------------------------------------------------------
+def assets_dir() -> Path:
+    p = cache_dir() / "assets"
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def write_asset(stem: str, data: bytes, suffix: str) -> Path:
+    """Store ``data`` as ``<cache>/assets/<stem>-<sha256[:12]><suffix>``: content-addressed (the same
+    content always gets the same name) and written atomically (temp file + rename), so concurrent
+    builders never see a partial file."""
+    digest = hashlib.sha256(data).hexdigest()[:12]
+    path = assets_dir() / f"{stem}-{digest}{suffix}"
+    if path.is_file() and path.stat().st_size == len(data):
+        return path
+    fd, tmp = tempfile.mkstemp(prefix=f".{stem}-", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def mesh_asset(stem: str, mesh: Any) -> str:
+    """Write a ``trimesh.Trimesh`` as an OBJ asset; returns its path (for :class:`Mesh`)."""
+    data = mesh.export(file_type="obj", include_normals=True).encode("utf-8")
+    return str(write_asset(stem, data, ".obj"))
+
+
+def mesh_shape(stem: str, mesh: Any, *, convex: bool = True, **shape_kw: Any) -> Shape:
+    return Shape(Mesh(mesh_asset(stem, mesh), convex=convex), **shape_kw)
+
+
+def urdf_asset(stem: str, text: str) -> str:
+    """Write a URDF (which refers to other assets by bare file name, in the same folder)."""
+    return str(write_asset(stem, text.encode("utf-8"), ".urdf"))
+
+
+# --- URDF text helpers --------------------------------------------------------------------------
+def _f(v: Iterable[float]) -> str:
+    return " ".join(f"{float(x):.6g}" for x in v)
+
+
+def urdf_geometry(kind: str, dims: Sequence[float]) -> str:
+    if kind == "box":
+        return f'<box size="{_f(dims)}"/>'
+    if kind == "cylinder":  # URDF cylinders lie along the link's z axis
+        return f'<cylinder radius="{float(dims[0]):.6g}" length="{float(dims[1]):.6g}"/>'
+    if kind == "sphere":
+        return f'<sphere radius="{float(dims[0]):.6g}"/>'
+    raise ValueError(kind)
+
+
+def urdf_part(kind: str, dims: Sequence[float], xyz: Sequence[float], *, rgba: Sequence[float],
+              rpy: Sequence[float] = (0.0, 0.0, 0.0), material: str, collision: bool = True,
+              visual: bool = True) -> str:
+    """One primitive of a link, as visual and/or collision elements."""
+    origin = f'<origin xyz="{_f(xyz)}" rpy="{_f(rpy)}"/>'
+    geom = f"<geometry>{urdf_geometry(kind, dims)}</geometry>"
+    out = []
+    if visual:
+        out.append(f'<visual>{origin}{geom}<material name="{material}"><color rgba="{_f(rgba)}"/>'
+                   f"</material></visual>")
+    if collision:
+        out.append(f"<collision>{origin}{geom}</collision>")
+    return "\n    ".join(out)
+
+
+def urdf_inertial(mass: float, com: Sequence[float], diag: Sequence[float]) -> str:
+    ixx, iyy, izz = (max(float(v), 1e-7) for v in diag)
+    return (f'<inertial><origin xyz="{_f(com)}" rpy="0 0 0"/><mass value="{mass:.6g}"/>'
+            f'<inertia ixx="{ixx:.6g}" ixy="0" ixz="0" iyy="{iyy:.6g}" iyz="0" izz="{izz:.6g}"/></inertial>')
+
+
+def box_inertia(mass: float, size: Sequence[float]) -> tuple[float, float, float]:
+    x, y, z = size
+    return (mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12)
+
+
+# --- task base ---------------------------------------------------------------------------------
+def arm_names(embodiment: Any) -> list[str]:
+    """The embodiment's arm names (tasks read declarations, never a robot's name)."""
+    arms = getattr(embodiment, "arms", None)
+    return sorted(arms) if arms else list(ARMS)
+
+
+class CodeActionTask(Task):
+    """A catalog task of this suite: ``name`` selects the catalog entry (instruction, seed,
+    scoring, budgets). Oracles are written once the robot API exists."""
+
+    name: str = ""
+
+    def __init__(self) -> None:
+        self.info: TaskInfo = task_info(self.name)
+
+    def oracle(self, call: ToolCaller, world: WorldView) -> None:
+        raise NotImplementedError(f"the reference solution of {self.name} is not written yet")
+
+    def __repr__(self) -> str:
+        return f"<task {self.name}>"

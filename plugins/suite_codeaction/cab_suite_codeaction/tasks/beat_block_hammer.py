@@ -1,0 +1,192 @@
+"""beat_block_hammer: grab the hammer and strike the block with it.
+
+Description
+    A hammer (wooden handle; steel head with a round striking face and a flat peen) lies on its side at the middle front
+    of the table, handle along world +x with the head on the right; a red 5 cm cube stands fixed on
+    the table. The robot must grasp the hammer and bring its striking face onto the block's top.
+
+Randomisation (per seed)
+    The hammer's pose is fixed: (0, -0.06) on the table (FACTS B.6), yaw 0, resting height computed
+    from its geometry. The block (static, half-size 0.025) is drawn with ``rand_pose``:
+    x in [-0.25, 0.25] with |x| >= 0.05, y in [-0.05, 0.15], yaw in +-0.5 rad. This hammer's own
+    footprint adds one constraint: the block's centre keeps >= 0.065 m from the hammer's footprint
+    (upstream's mesh and ours differ; without it a few draws would put the block through the head).
+    The block stands on the table (centre z = 0.765; upstream's 0.76 sinks a static cube 5 mm).
+
+Success (latch: any physics step, polled every step)
+    ``face_over_block``: the hammer's striking-face centre (functional point 0) lies within 0.02 m
+    of the block's top-face centre (functional point 1) in x and in y, and
+    ``hammer_touches_block``: the hammer and the block are in contact.
+    Guard: the hammer must stay on the table (not below table top - 0.08 m).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.geometry import transform_point
+from cab_core.scene import Body, Box, Capsule, Cylinder, Material, Shape
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, base_scene, lowest_point_z, pose_list,
+                      rand_pose, sample_until, srgb, table_top_z, yaw_of)
+
+NAME = "beat_block_hammer"
+
+# --- the hammer, in its body frame ---------------------------------------------------------------
+# Origin on the handle axis; +x runs along the handle toward the head; +y is the striking face's
+# outward normal (the head's long axis); +z is up while the hammer lies on the table.
+HANDLE_RADIUS = 0.014  # 2.8 cm thick: fits the 8 cm gripper with room
+HANDLE_X = (-0.125, 0.095)  # capsule extent incl. its rounded end (0.22 m)
+HEAD_X = (0.085, 0.115)  # 3 cm square steel head ...
+HEAD_Y = (-0.055, 0.05)  # ... 10.5 cm long: peen -y, striking face +y
+FACE_LEN = 0.025  # the round striking end
+HEAD_HALF_Z = 0.014  # head bottom flush with the handle bottom: rests on both
+PEEN_HALF = (0.015, 0.0125, 0.009)
+HAMMER_MASS = 0.1  # kg; see HAMMER_MASS_NOTE
+HAMMER_MASS_NOTE = (
+    "Upstream sets 0.001 kg so the grasp never fails; that is 1000x lighter than the 1 kg robot links "
+    "and makes contacts jitter. 0.1 kg is light enough for a friction grasp to hold the tool while "
+    "it is turned face-down, and close enough to the links' mass for a stable solver.")
+HAMMER_GRASP_FRICTION = 0.8  # varnished wood against rubber finger pads
+
+HANDLE_HALF_LEN = (HANDLE_X[1] - HANDLE_X[0]) / 2 - HANDLE_RADIUS
+HEAD_CX = (HEAD_X[0] + HEAD_X[1]) / 2
+FACE_POINT = (HEAD_CX, HEAD_Y[1], 0.0)  # functional point 0: centre of the striking face
+GRASP_POINT = (-0.03, 0.0, 0.0)  # middle of the free handle length
+
+WOOD_HANDLE = Material(color=srgb(0.72, 0.50, 0.27), roughness=0.6, static_friction=HAMMER_GRASP_FRICTION,
+                       dynamic_friction=HAMMER_GRASP_FRICTION)
+STEEL = Material(color=srgb(0.42, 0.44, 0.48), roughness=0.35, metallic=0.8)
+STEEL_FACE = Material(color=srgb(0.62, 0.64, 0.68), roughness=0.3, metallic=0.9)
+
+# --- the block ------------------------------------------------------------------------------------
+BLOCK_HALF = 0.025
+BLOCK_TOP_POINT = (0.0, 0.0, BLOCK_HALF)  # functional point 1: centre of the top face
+HAMMER_XY = (0.0, -0.06)
+BLOCK_CLEARANCE = 0.065  # block centre to hammer footprint
+XY_TOLERANCE = 0.02
+
+
+def hammer_shapes() -> list[Shape]:
+    """Handle (capsule along x), head block, round striking end, peen; all collide."""
+    rz90 = (float(np.cos(np.pi / 4)), 0.0, 0.0, float(np.sin(np.pi / 4)))  # local x -> y
+    head_box_y = (HEAD_Y[0] + PEEN_HALF[1] * 2, HEAD_Y[1] - FACE_LEN)
+    return [
+        Shape(Capsule(HANDLE_RADIUS, HANDLE_HALF_LEN),
+              pose=((HANDLE_X[0] + HANDLE_X[1]) / 2, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0), material=WOOD_HANDLE),
+        Shape(Box(((HEAD_X[1] - HEAD_X[0]) / 2, (head_box_y[1] - head_box_y[0]) / 2, HEAD_HALF_Z)),
+              pose=(HEAD_CX, (head_box_y[0] + head_box_y[1]) / 2, 0.0, 1.0, 0.0, 0.0, 0.0), material=STEEL),
+        Shape(Cylinder(HEAD_HALF_Z, FACE_LEN / 2),
+              pose=(HEAD_CX, HEAD_Y[1] - FACE_LEN / 2, 0.0, *rz90), material=STEEL_FACE),
+        Shape(Box(PEEN_HALF), pose=(HEAD_CX, HEAD_Y[0] + PEEN_HALF[1], 0.0, 1.0, 0.0, 0.0, 0.0), material=STEEL),
+    ]
+
+
+def _footprint_rects() -> list[tuple[float, float, float, float]]:
+    """Hammer footprint as axis-aligned rectangles (xmin, xmax, ymin, ymax) in the hammer frame."""
+    return [(HANDLE_X[0], HANDLE_X[1], -HANDLE_RADIUS, HANDLE_RADIUS), (HEAD_X[0], HEAD_X[1], HEAD_Y[0], HEAD_Y[1])]
+
+
+def _distance_to_footprint(p_local: np.ndarray) -> float:
+    d = np.inf
+    for x0, x1, y0, y1 in _footprint_rects():
+        dx = max(x0 - p_local[0], 0.0, p_local[0] - x1)
+        dy = max(y0 - p_local[1], 0.0, p_local[1] - y1)
+        d = min(d, float(np.hypot(dx, dy)))
+    return d
+
+
+class BeatBlockHammerVerifier(Verifier):
+    scoring = "latch"
+    poll_every = 1
+
+    def __init__(self, info: dict[str, Any]):
+        self.hammer = info["hammer"]["name"]
+        self.block = info["block"]["name"]
+        self.face_local = np.asarray(info["hammer"]["face_point"], dtype=float)
+        self.top_local = np.asarray(info["block"]["top_point"], dtype=float)
+        self.tol = float(info["xy_tolerance"])
+        self.guarded_objects = (self.hammer,)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        face = transform_point(w.pose(self.hammer), self.face_local)
+        top = transform_point(w.pose(self.block), self.top_local)
+        d = face - top
+        over = bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol)
+        touch = bool(w.in_contact(self.hammer, self.block))
+        return Evaluation(
+            success=over and touch,
+            predicates={"face_over_block": over, "hammer_touches_block": touch},
+            values={"face_dx": float(d[0]), "face_dy": float(d[1]), "face_dz": float(d[2])},
+        )
+
+
+class BeatBlockHammer(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+
+        shapes = hammer_shapes()
+        hammer_pose = np.array([HAMMER_XY[0], HAMMER_XY[1], top - lowest_point_z(shapes) + 2e-4, 1.0, 0.0, 0.0, 0.0])
+
+        def ok(p: np.ndarray) -> bool:
+            local = p[:2] - hammer_pose[:2]  # the hammer has yaw 0
+            return abs(p[0]) >= 0.05 and _distance_to_footprint(local) >= BLOCK_CLEARANCE
+
+        block_pose = sample_until(
+            lambda: rand_pose(rng, (-0.25, 0.25), (-0.05, 0.15), (top + BLOCK_HALF,), rotate_rand=True,
+                              rotate_lim=(0.0, 0.0, 0.5)),
+            ok, what="the block")
+
+        scene.bodies.append(Body("hammer", shapes, pose=tuple(hammer_pose), kind="dynamic", mass=HAMMER_MASS,
+                                 angular_damping=0.05))
+        scene.bodies.append(Body("block", [Shape(Box((BLOCK_HALF,) * 3), material=RED)], pose=tuple(block_pose),
+                                 kind="static"))
+
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "xy_tolerance": XY_TOLERANCE,
+            "hammer": {
+                "name": "hammer",
+                "frame": "hammer body: origin on the handle axis; +x handle->head, +y striking-face normal, "
+                         "+z up while lying on the table",
+                "initial_pose": pose_list(hammer_pose),
+                "mass_kg": HAMMER_MASS,
+                "grasp_point": list(GRASP_POINT),
+                "handle_axis": [1.0, 0.0, 0.0],
+                "handle_radius": HANDLE_RADIUS,
+                "handle_x_range": [HANDLE_X[0], HEAD_X[0]],  # graspable length (handle end to head)
+                "head_center": [HEAD_CX, (HEAD_Y[0] + HEAD_Y[1]) / 2, 0.0],
+                "head_size": [HEAD_X[1] - HEAD_X[0], HEAD_Y[1] - HEAD_Y[0], 2 * HEAD_HALF_Z],
+                "face_point": list(FACE_POINT),  # functional point 0
+                "face_normal": [0.0, 1.0, 0.0],
+                "face_radius": HEAD_HALF_Z,
+                "length": HEAD_X[1] - HANDLE_X[0],
+            },
+            "block": {
+                "name": "block",
+                "frame": "block body: centre of the cube, axes along its faces",
+                "pose": pose_list(block_pose),
+                "yaw": yaw_of(block_pose[3:]),
+                "half_size": BLOCK_HALF,
+                "top_point": list(BLOCK_TOP_POINT),  # functional point 1
+            },
+            # upstream's expert uses the arm on the block's side
+            "suggested_arm": "right" if block_pose[0] > 0 else "left",
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return BeatBlockHammerVerifier(instance.info)
+
+
+TASK = BeatBlockHammer

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Sets up cab on a fresh Debian 12 machine: system packages (CPU Vulkan stack, bubblewrap, ffmpeg),
+# a virtual environment in .venv, and cab with its plugins (editable). Idempotent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup-system.sh
+PY="${PYTHON:-python3}"
+if ! "$PY" -c 'import venv, ensurepip' >/dev/null 2>&1; then
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get install -y -qq python3-venv python3-pip >/dev/null
+fi
+if [ ! -x .venv/bin/python ]; then
+  "$PY" -m venv .venv
+fi
+. .venv/bin/activate
+python -m pip install -q --upgrade pip
+python -m pip install -q -e ".[test]" -e plugins/embodiment_aloha -e plugins/planner_mplib \
+  -e plugins/sim_sapien -e plugins/suite_codeaction 2>&1 | grep -v '^WARNING: Location' || true
+python -c "import cab_core, sapien, mplib" || { echo "install check failed" >&2; exit 1; }
+echo "cab installed in $(pwd)/.venv"
