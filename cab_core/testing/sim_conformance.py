@@ -354,8 +354,6 @@ def check_snapshot_restore_exact(factory: SimFactory, n_steps: int = 150) -> Non
 
 def check_bad_commands(factory: SimFactory) -> None:
     """Malformed commands raise BadCommand and change nothing."""
-    import pytest  # noqa: PLC0415  (the suite runs under pytest)
-
     sim = build(factory)
     try:
         before = world_state(sim)
@@ -391,8 +389,13 @@ def check_bad_commands(factory: SimFactory) -> None:
             lambda: sim.restore_state(SimState(backend=sim.save_state().backend, data=b"garbage")),
         ]
         for i, call in enumerate(bad_calls):
-            with pytest.raises(BadCommand):
+            try:
                 call()
+            except BadCommand:
+                continue
+            except Exception as e:  # noqa: BLE001
+                raise AssertionError(f"bad call #{i} raised {type(e).__name__}, not BadCommand: {e}") from e
+            raise AssertionError(f"bad call #{i} was accepted")
         _assert_bit_equal(before, world_state(sim), "after rejected commands")
         sim.step(0)  # a no-op, not an error
     finally:
@@ -411,7 +414,7 @@ def check_drive_tracking(factory: SimFactory) -> None:
         assert np.all(err[:2] < 0.01), f"arm joints off target by {err[:2]} rad after 1 s"
         assert np.all(err[2:] < 0.002), f"finger joints off target by {err[2:]} m after 1 s"
         assert np.all(np.abs(sim.get_qvel()) < 0.05), f"not settled: qvel {sim.get_qvel()}"
-        q = np.array([0.3, -0.2, 0.02, 0.02])
+        q = np.array([0.3, 0.2, 0.02, 0.02])
         sim.set_qpos(q)
         np.testing.assert_allclose(sim.get_qpos(), q, atol=1e-6)
         np.testing.assert_allclose(sim.get_drive_targets(), q, atol=1e-7)

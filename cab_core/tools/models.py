@@ -103,7 +103,8 @@ class CaptureHeadArgs(Args):
 
 class CaptureWristArgs(Args):
     active_arm: Literal["left", "right", "none"] = Field(
-        description="Arm whose wrist camera is the 'active' view; 'none' only with views='both' (both wrists, no roles).")
+        description=("Arm whose wrist camera is the 'active' view; 'none' only with views='both' (both wrists, no "
+                     "roles)."))
     views: Literal["active", "both"] = Field(
         default="active", description="'active': the active arm's wrist image only; 'both': also the opposite wrist.")
 
@@ -116,7 +117,8 @@ class CaptureWristArgs(Args):
 
 class CaptureEvidenceViewsArgs(Args):
     active_arm: Optional[Arm] = Field(
-        default=None, description="Optional arm whose wrist view is additionally labelled role 'active' (the other 'opposite').")
+        default=None,
+            description=("Optional arm whose wrist view is additionally labelled role 'active' (the other 'opposite')."))
     views: list[EvidenceView] = Field(
         default_factory=lambda: ["overview", "left_wrist", "right_wrist"], min_length=1, max_length=3,
         description="Unique, non-empty subset of 'overview' (head camera), 'left_wrist', 'right_wrist'; "
@@ -130,11 +132,15 @@ class CaptureEvidenceViewsArgs(Args):
 
 
 class DrawMarksArgs(Args):
-    obs_id: ObsId = Field(description="Observation to annotate (an obs_id returned by a capture tool). It is not modified; a new observation is returned.")
+    obs_id: ObsId = Field(
+        description=("Observation to annotate (an obs_id returned by a capture tool). It is not modified; a new "
+                     "observation is returned."))
     pixels: list[Pixel] = Field(min_length=1, max_length=MAX_MARKS,
-                                description="1-12 pixel points [u, v] in that observation's image (u right, v down, zero-based).")
+                                description=("1-12 pixel points [u, v] in that observation's image (u right, v "
+                                             "down, zero-based)."))
     labels: list[Annotated[str, Field(max_length=40)]] = Field(
-        min_length=1, max_length=MAX_MARKS, description="One short text label per pixel (same length as pixels, at most 40 characters each).")
+        min_length=1, max_length=MAX_MARKS,
+            description=("One short text label per pixel (same length as pixels, at most 40 characters each)."))
 
     @model_validator(mode="after")
     def _same_length(self):
@@ -158,11 +164,14 @@ class PlaneIntersectArgs(Args):
     obs_id: ObsId = Field(description="Observation whose calibration snapshot defines the viewing ray.")
     px: Pixel = Field(description="Pixel [u, v] in that observation's image.")
     plane_point_xyz: Vec3 = Field(description="Any world point on the plane [x, y, z], metres.")
-    plane_normal_xyz: Direction3 = Field(description="Plane normal in world coordinates (non-zero; normalised internally).")
+    plane_normal_xyz: Direction3 = Field(
+        description=("Plane normal in world coordinates (non-zero; normalised internally)."))
     plane_offset_sigma_m: FiniteFloat = Field(ge=0, le=10.0,
-                                              description="Your 1-sigma uncertainty of the plane's position along its normal, metres (>= 0).")
+                                              description=("Your 1-sigma uncertainty of the plane's position along"
+                                                           " its normal, metres (>= 0)."))
     pixel_sigma_px: FiniteFloat = Field(default=2.0, ge=0, le=100.0,
-                                        description="Your 1-sigma uncertainty of the pixel location, pixels (default 2.0).")
+                                        description=("Your 1-sigma uncertainty of the pixel location, pixels "
+                                                     "(default 2.0)."))
 
 
 class CaptureMotionPairArgs(Args):
@@ -173,11 +182,13 @@ class CaptureMotionPairArgs(Args):
 
 
 class TriangulateCorrespondenceArgs(Args):
-    pair_id: Annotated[str, Field(min_length=1, max_length=64)] = Field(description="pair_id returned by capture_motion_pair.")
+    pair_id: Annotated[str, Field(min_length=1, max_length=64)] = Field(
+        description=("pair_id returned by capture_motion_pair."))
     px_before: Pixel = Field(description="Pixel [u, v] of the scene point in the pair's 'before' image.")
     px_after: Pixel = Field(description="Pixel [u, v] of the same scene point in the pair's 'after' image.")
     pixel_sigma_px: FiniteFloat = Field(default=2.0, ge=0, le=100.0,
-                                        description="Your 1-sigma pixel uncertainty for both points, pixels (default 2.0).")
+                                        description=("Your 1-sigma pixel uncertainty for both points, pixels "
+                                                     "(default 2.0)."))
 
 
 class ScaleFromObjectSizeArgs(Args):
@@ -186,9 +197,11 @@ class ScaleFromObjectSizeArgs(Args):
         description="Object bounding box [x1, y1, x2, y2] in pixels of that image (x1 < x2, y1 < y2).")
     extent_axis: Literal["width", "height", "diagonal"] = Field(
         description="Which box extent corresponds to the known size: 'width' (u), 'height' (v) or 'diagonal'.")
-    known_extent_m: FiniteFloat = Field(ge=1e-6, le=10.0, description="Your prior for the object's physical extent along that axis, metres.")
+    known_extent_m: FiniteFloat = Field(ge=1e-6, le=10.0,
+        description=("Your prior for the object's physical extent along that axis, metres."))
     known_extent_sigma_m: Optional[FiniteFloat] = Field(
-        default=None, ge=0, le=10.0, description="Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null.")
+        default=None, ge=0, le=10.0,
+            description=("Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null."))
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -220,10 +233,12 @@ class GraspQuatCandidatesArgs(Args):
 
 
 class CameraAimPoseArgs(Args):
-    camera: WristCamera = Field(description="Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm).")
+    camera: WristCamera = Field(
+        description=("Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm)."))
     target_xyz: Vec3 = Field(description="World point [x, y, z] (metres) the camera should look at.")
     pitch: FiniteFloat = Field(default=80.0, ge=60.0, le=90.0,
-                               description="Approach tilt below horizontal in degrees (60-90; 90 = approach straight down, "
+                               description=("Approach tilt below horizontal in degrees (60-90; 90 = approach "
+                                            "straight down, ")
                                            "the top-down family); applied as a rotation about world Y before the heading.")
     standoff: FiniteFloat = Field(default=0.28, ge=0.05, le=1.0,
                                   description="Height of the TCP above the target's z, metres (default 0.28).")
@@ -232,24 +247,29 @@ class CameraAimPoseArgs(Args):
 class TcpCandidate(Args):
     arm: Arm = Field(description="Arm this TCP pose is for.")
     tcp_xyz: Vec3 = Field(description="Proposed TCP (nominal grasp centre) position, world metres.")
-    quat_wxyz: QuatWXYZ = Field(description="Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally).")
+    quat_wxyz: QuatWXYZ = Field(
+        description=("Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."))
     finger_gap_m: Optional[FiniteFloat] = Field(
         default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1],
         description="Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap.")
 
 
 class PreviewTcpPoseArgs(Args):
-    obs_id: ObsId = Field(description="Observation to draw into; it must be from the current tick (capture a fresh one after any motion).")
+    obs_id: ObsId = Field(
+        description=("Observation to draw into; it must be from the current tick (capture a fresh one after any "
+                     "motion)."))
     arm: Arm = Field(description="Arm whose gripper geometry to draw.")
     tcp_xyz: Vec3 = Field(description="Proposed TCP (nominal grasp centre) position, world metres.")
-    quat_wxyz: QuatWXYZ = Field(description="Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally).")
+    quat_wxyz: QuatWXYZ = Field(
+        description=("Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."))
     finger_gap_m: Optional[FiniteFloat] = Field(
         default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1],
         description="Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap.")
     reference_px: Optional[Pixel] = Field(
         default=None, description="Optional pixel [u, v] to report offsets to; exclusive with reference_xyz_world.")
     reference_xyz_world: Optional[Vec3] = Field(
-        default=None, description="Optional world point [x, y, z] (m) to report offsets to; exclusive with reference_px.")
+        default=None,
+            description=("Optional world point [x, y, z] (m) to report offsets to; exclusive with reference_px."))
 
     @model_validator(mode="after")
     def _one_reference(self):
@@ -261,14 +281,17 @@ class PreviewTcpPoseArgs(Args):
 class CompareTcpPosesArgs(Args):
     obs_id: ObsId = Field(description="Observation to draw into; it must be from the current tick.")
     candidates: list[TcpCandidate] = Field(min_length=2, max_length=4,
-                                           description="2-4 proposed TCP poses, drawn and numbered 1..n in this order.")
+                                           description=("2-4 proposed TCP poses, drawn and numbered 1..n in this "
+                                                        "order."))
 
 
 class CheckTcpPoseReachabilityArgs(Args):
     arm: Arm = Field(description="Arm to plan for.")
     target_xyz: Vec3 = Field(description="Target TCP position, world metres.")
     target_quat: Optional[QuatWXYZ] = Field(
-        default=None, description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the current orientation.")
+        default=None,
+            description=("Target TCP orientation, world quaternion [w, x, y, z]; default keeps the current "
+                         "orientation."))
 
 
 # -- motion ------------------------------------------------------------------------------------
@@ -279,7 +302,8 @@ class MoveDeltaArgs(Args):
     dz: FiniteFloat = Field(default=0.0, description="TCP displacement along world +z (up), metres.")
     path: Literal["waypoint_legs", "single_plan"] = Field(
         default="waypoint_legs",
-        description="'waypoint_legs': guarded legs of at most contact_leg_m (0.03 m), each re-aimed from the measured TCP; "
+        description=("'waypoint_legs': guarded legs of at most contact_leg_m (0.03 m), each re-aimed from the "
+                     "measured TCP; ")
                     "'single_plan': one planned trajectory.")
 
 
@@ -290,40 +314,49 @@ class MoveBothDeltaArgs(Args):
 
 class ReachTcpArgs(Args):
     arm: Arm = Field(description="Arm to move.")
-    target_xyz: Vec3 = Field(description="Target TCP position, world metres (workspace x,y in [-0.8, 0.8], z in [0.4, 1.5]).")
+    target_xyz: Vec3 = Field(
+        description=("Target TCP position, world metres (workspace x,y in [-0.8, 0.8], z in [0.4, 1.5])."))
     target_quat: Optional[QuatWXYZ] = Field(
-        default=None, description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the call-start orientation.")
+        default=None,
+            description=("Target TCP orientation, world quaternion [w, x, y, z]; default keeps the call-start "
+                         "orientation."))
 
 
 class ReachBothTcpArgs(Args):
     left_xyz: Vec3 = Field(description="Left arm target TCP position, world metres.")
     right_xyz: Vec3 = Field(description="Right arm target TCP position, world metres.")
-    left_quat: Optional[QuatWXYZ] = Field(default=None, description="Left target orientation [w, x, y, z]; default keeps the current one.")
-    right_quat: Optional[QuatWXYZ] = Field(default=None, description="Right target orientation [w, x, y, z]; default keeps the current one.")
+    left_quat: Optional[QuatWXYZ] = Field(default=None,
+        description=("Left target orientation [w, x, y, z]; default keeps the current one."))
+    right_quat: Optional[QuatWXYZ] = Field(default=None,
+        description=("Right target orientation [w, x, y, z]; default keeps the current one."))
 
 
 class ProbeContactAlongArgs(Args):
     arm: Arm = Field(description="Arm to move.")
     direction_xyz: Direction3 = Field(description="World direction of travel (non-zero; normalised internally).")
     distance_m: FiniteFloat = Field(gt=0, description="Maximum travel, metres (> 0; clamped to 0.30).")
-    step_m: FiniteFloat = Field(ge=0.002, description="Step between contact checks, metres (>= 0.002; clamped to 0.03).")
+    step_m: FiniteFloat = Field(ge=0.002,
+        description=("Step between contact checks, metres (>= 0.002; clamped to 0.03)."))
 
 
 class SetGripperArgs(Args):
     arm: Arm = Field(description="Arm whose gripper to actuate.")
-    pos: FiniteFloat = Field(ge=0.0, le=1.0, description="Normalised opening command: 1 = fully open, 0 = fully closed.")
+    pos: FiniteFloat = Field(ge=0.0, le=1.0,
+        description=("Normalised opening command: 1 = fully open, 0 = fully closed."))
 
 
 # -- composition and control -------------------------------------------------------------------
 class RunCodeArgs(Args):
     code: str = Field(min_length=1, max_length=200_000,
-                      description="Python source run in the persistent sandbox (numpy as np, math, load_image and every robot "
+                      description=("Python source run in the persistent sandbox (numpy as np, math, load_image and"
+                                   " every robot ")
                                   "tool as a keyword-only function); assign `result` to return a value.")
 
 
 class DoneArgs(Args):
     report: str = Field(max_length=20_000, description="Your account of what you did and the final state.")
-    success_claim: Optional[bool] = Field(default=None, description="Whether you judge the task accomplished (true/false).")
+    success_claim: Optional[bool] = Field(default=None,
+        description=("Whether you judge the task accomplished (true/false)."))
 
 
 # -- result models (documentation of payloads) ------------------------------------------------------
@@ -333,18 +366,22 @@ class Result(BaseModel):
 
 
 class Failure(Result):
-    stage: Optional[str] = Field(default=None, description="Where it failed, e.g. planner_query, execution, workspace_prefilter.")
+    stage: Optional[str] = Field(default=None,
+        description=("Where it failed, e.g. planner_query, execution, workspace_prefilter."))
     code: str = Field(description="Stable failure code, e.g. goal_pose_unreachable, stalled, RAY_PARALLEL_TO_PLANE.")
-    category: Optional[str] = Field(default=None, description="planner / stall / deviation / allowance / workspace / contact / other.")
+    category: Optional[str] = Field(default=None,
+        description=("planner / stall / deviation / allowance / workspace / contact / other."))
     message: str = Field(default="", description="Short human-readable explanation.")
 
 
 class Planning(Result):
-    status: Literal["NOT_APPLICABLE", "NOT_RUN", "SUCCEEDED", "FAILED", "NOT_REPORTED"] = Field(description="Planner outcome.")
+    status: Literal["NOT_APPLICABLE", "NOT_RUN", "SUCCEEDED", "FAILED", "NOT_REPORTED"] = Field(
+        description=("Planner outcome."))
 
 
 class Execution(Result):
-    status: Literal["NOT_STARTED", "COMPLETED", "INTERRUPTED", "FAILED", "UNKNOWN"] = Field(description="Execution outcome.")
+    status: Literal["NOT_STARTED", "COMPLETED", "INTERRUPTED", "FAILED", "UNKNOWN"] = Field(
+        description=("Execution outcome."))
     post_state_observed: bool = Field(description="Whether the robot state was read after execution.")
     state_changed: bool = Field(description="Whether the robot measurably moved.")
     physics_steps: int = Field(description="Physics steps consumed (1/250 s each).")
@@ -354,11 +391,15 @@ class Execution(Result):
 class ActionResult(Result):
     """Result of every motion and gripper tool (and the motion inside capture_motion_pair)."""
     action_id: str = Field(description="Unique id of this action.")
-    status: Literal["SUCCESS", "FAILED", "ABORTED"] = Field(description="SUCCESS: executed as specified; FAILED: refused or not achieved; ABORTED: stopped by a guard.")
-    abort_reason: Optional[str] = Field(default=None, description="stalled / trajectory_deviation / leg_budget / arm_lock, when ABORTED.")
+    status: Literal["SUCCESS", "FAILED", "ABORTED"] = Field(
+        description=("SUCCESS: executed as specified; FAILED: refused or not achieved; ABORTED: stopped by a guard."))
+    abort_reason: Optional[str] = Field(default=None,
+        description=("stalled / trajectory_deviation / leg_budget / arm_lock, when ABORTED."))
     commanded: dict[str, Any] = Field(description="What was asked, after clamping (e.g. delta, target, path mode).")
-    achieved: dict[str, Any] = Field(description="Measured outcome: guard, contact, stall evidence, planner status, mode details.")
-    resulting_pose: dict[str, Any] = Field(description="Measured TCP pose(s) after the action: {tcp} or {left_tcp, right_tcp}.")
+    achieved: dict[str, Any] = Field(
+        description=("Measured outcome: guard, contact, stall evidence, planner status, mode details."))
+    resulting_pose: dict[str, Any] = Field(
+        description=("Measured TCP pose(s) after the action: {tcp} or {left_tcp, right_tcp}."))
     planning: Planning = Field(description="Planner outcome.")
     execution: Execution = Field(description="Execution outcome.")
     failure: Optional[Failure] = Field(default=None, description="Why it failed or aborted; null on SUCCESS.")
@@ -369,21 +410,26 @@ class ActionResult(Result):
 
 
 class EstimateFailure(Result):
-    code: Literal["RAY_PARALLEL_TO_PLANE", "BEHIND_CAMERA", "DEGENERATE_GEOMETRY", "ESTIMATE_UNAVAILABLE"] = Field(description="Failure code.")
+    code: Literal["RAY_PARALLEL_TO_PLANE", "BEHIND_CAMERA", "DEGENERATE_GEOMETRY", "ESTIMATE_UNAVAILABLE"] = Field(
+        description=("Failure code."))
     message: str = Field(description="What went wrong.")
 
 
 class Estimate(Result):
     """A geometric estimate: value plus its uncertainty and how it was obtained."""
-    value: Any = Field(description="The estimate (pixel [u,v], ray {origin, dir}, world point [x,y,z], depth), or null on failure.")
+    value: Any = Field(
+        description=("The estimate (pixel [u,v], ray {origin, dir}, world point [x,y,z], depth), or null on failure."))
     kind: Literal["pixel_point", "ray", "world_point", "depth"] = Field(description="What value is.")
-    uncertainty: Optional[dict[str, Any]] = Field(description="Propagated 1-sigma terms from your declared sigmas; null when none was given.")
-    coarse: bool = Field(description="True when the estimate rests on an assumption (plane, size prior) and should be checked.")
+    uncertainty: Optional[dict[str, Any]] = Field(
+        description=("Propagated 1-sigma terms from your declared sigmas; null when none was given."))
+    coarse: bool = Field(
+        description=("True when the estimate rests on an assumption (plane, size prior) and should be checked."))
     valid: bool = Field(description="False when value is null or its preconditions do not hold.")
     frame: str = Field(description="Frame of value: 'world' or 'image:<obs_id>' or 'camera:<obs_id>'.")
     units: str = Field(description="Units of value: m or px.")
     failure: Optional[EstimateFailure] = Field(default=None, description="Why value is null or invalid.")
-    provenance: dict[str, Any] = Field(description="Inputs and intermediate quantities (rays, ranges, angles, Jacobians).")
+    provenance: dict[str, Any] = Field(
+        description=("Inputs and intermediate quantities (rays, ranges, angles, Jacobians)."))
 
 
 class CamPoseSnapshot(Result):
@@ -438,7 +484,8 @@ class CodeResult(Result):
     obs_ids: list[str] = Field(default_factory=list, description="Observations produced by the program.")
     internal_trace: list[TraceEntry] = Field(default_factory=list, description="One entry per internal tool call.")
     filesystem_policy: str = Field(default="structurally_denied", description="Programs cannot reach a filesystem.")
-    namespace_reset: bool = Field(default=False, description="True when a timeout or an aborted action reset the program state.")
+    namespace_reset: bool = Field(default=False,
+        description=("True when a timeout or an aborted action reset the program state."))
 
 
 class DoneResult(Result):

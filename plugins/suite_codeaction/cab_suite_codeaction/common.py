@@ -139,8 +139,11 @@ def yaw_of(q: Sequence[float]) -> float:
 
 
 def pose_list(p: Iterable[float]) -> list[float]:
-    """A pose as a JSON-friendly list of rounded floats."""
+    """A pose (or any vector) as a JSON-friendly list of floats rounded to the micrometre."""
     return [round(float(v), 6) for v in p]
+
+
+vec = pose_list
 
 
 # --- geometry of shape lists -------------------------------------------------------------------

@@ -1,9 +1,10 @@
 """beat_block_hammer: grab the hammer and strike the block with it.
 
 Description
-    A hammer (wooden handle; steel head with a round striking face and a flat peen) lies on its side at the middle front
-    of the table, handle along world +x with the head on the right; a red 5 cm cube stands fixed on
-    the table. The robot must grasp the hammer and bring its striking face onto the block's top.
+    A hammer (wooden handle; steel head with a round striking face and a flat peen) lies on its
+    side at the middle front of the table, handle along world x with the head on the right and the
+    striking face toward the robot (so a top-down grasp followed by a forward roll of the wrist
+    turns the face down); a red 5 cm cube stands fixed on the table. The robot must grasp the hammer and bring its striking face onto the block's top.
 
 Randomisation (per seed)
     The hammer's pose is fixed: (0, -0.06) on the table (FACTS B.6), yaw 0, resting height computed
@@ -31,17 +32,18 @@ from cab_core.task import SceneInstance, rng_for
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
 from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, base_scene, lowest_point_z, pose_list,
-                      rand_pose, sample_until, srgb, table_top_z, yaw_of)
+                      rand_pose, sample_until, srgb, table_top_z, vec, yaw_of)
 
 NAME = "beat_block_hammer"
 
 # --- the hammer, in its body frame ---------------------------------------------------------------
-# Origin on the handle axis; +x runs along the handle toward the head; +y is the striking face's
-# outward normal (the head's long axis); +z is up while the hammer lies on the table.
+# Origin on the handle axis; +x runs along the handle toward the head; the head's long axis is y,
+# the striking face at its -y end (outward normal -y), the peen at +y; +z is up while the hammer
+# lies on the table.
 HANDLE_RADIUS = 0.014  # 2.8 cm thick: fits the 8 cm gripper with room
 HANDLE_X = (-0.125, 0.095)  # capsule extent incl. its rounded end (0.22 m)
 HEAD_X = (0.085, 0.115)  # 3 cm square steel head ...
-HEAD_Y = (-0.055, 0.05)  # ... 10.5 cm long: peen -y, striking face +y
+HEAD_Y = (-0.05, 0.055)  # ... 10.5 cm long: striking face at -y, peen at +y
 FACE_LEN = 0.025  # the round striking end
 HEAD_HALF_Z = 0.014  # head bottom flush with the handle bottom: rests on both
 PEEN_HALF = (0.015, 0.0125, 0.009)
@@ -54,7 +56,7 @@ HAMMER_GRASP_FRICTION = 0.8  # varnished wood against rubber finger pads
 
 HANDLE_HALF_LEN = (HANDLE_X[1] - HANDLE_X[0]) / 2 - HANDLE_RADIUS
 HEAD_CX = (HEAD_X[0] + HEAD_X[1]) / 2
-FACE_POINT = (HEAD_CX, HEAD_Y[1], 0.0)  # functional point 0: centre of the striking face
+FACE_POINT = (HEAD_CX, HEAD_Y[0], 0.0)  # functional point 0: centre of the striking face
 GRASP_POINT = (-0.03, 0.0, 0.0)  # middle of the free handle length
 
 WOOD_HANDLE = Material(color=srgb(0.72, 0.50, 0.27), roughness=0.6, static_friction=HAMMER_GRASP_FRICTION,
@@ -73,15 +75,15 @@ XY_TOLERANCE = 0.02
 def hammer_shapes() -> list[Shape]:
     """Handle (capsule along x), head block, round striking end, peen; all collide."""
     rz90 = (float(np.cos(np.pi / 4)), 0.0, 0.0, float(np.sin(np.pi / 4)))  # local x -> y
-    head_box_y = (HEAD_Y[0] + PEEN_HALF[1] * 2, HEAD_Y[1] - FACE_LEN)
+    head_box_y = (HEAD_Y[0] + FACE_LEN, HEAD_Y[1] - PEEN_HALF[1] * 2)
     return [
         Shape(Capsule(HANDLE_RADIUS, HANDLE_HALF_LEN),
               pose=((HANDLE_X[0] + HANDLE_X[1]) / 2, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0), material=WOOD_HANDLE),
         Shape(Box(((HEAD_X[1] - HEAD_X[0]) / 2, (head_box_y[1] - head_box_y[0]) / 2, HEAD_HALF_Z)),
               pose=(HEAD_CX, (head_box_y[0] + head_box_y[1]) / 2, 0.0, 1.0, 0.0, 0.0, 0.0), material=STEEL),
         Shape(Cylinder(HEAD_HALF_Z, FACE_LEN / 2),
-              pose=(HEAD_CX, HEAD_Y[1] - FACE_LEN / 2, 0.0, *rz90), material=STEEL_FACE),
-        Shape(Box(PEEN_HALF), pose=(HEAD_CX, HEAD_Y[0] + PEEN_HALF[1], 0.0, 1.0, 0.0, 0.0, 0.0), material=STEEL),
+              pose=(HEAD_CX, HEAD_Y[0] + FACE_LEN / 2, 0.0, *rz90), material=STEEL_FACE),
+        Shape(Box(PEEN_HALF), pose=(HEAD_CX, HEAD_Y[1] - PEEN_HALF[1], 0.0, 1.0, 0.0, 0.0, 0.0), material=STEEL),
     ]
 
 
@@ -157,28 +159,28 @@ class BeatBlockHammer(CodeActionTask):
             "xy_tolerance": XY_TOLERANCE,
             "hammer": {
                 "name": "hammer",
-                "frame": "hammer body: origin on the handle axis; +x handle->head, +y striking-face normal, "
-                         "+z up while lying on the table",
+                "frame": "hammer body: origin on the handle axis; +x handle->head; head along y with the "
+                         "striking face at -y (normal -y) and the peen at +y; +z up while lying on the table",
                 "initial_pose": pose_list(hammer_pose),
                 "mass_kg": HAMMER_MASS,
-                "grasp_point": list(GRASP_POINT),
+                "grasp_point": vec(GRASP_POINT),
                 "handle_axis": [1.0, 0.0, 0.0],
                 "handle_radius": HANDLE_RADIUS,
-                "handle_x_range": [HANDLE_X[0], HEAD_X[0]],  # graspable length (handle end to head)
-                "head_center": [HEAD_CX, (HEAD_Y[0] + HEAD_Y[1]) / 2, 0.0],
-                "head_size": [HEAD_X[1] - HEAD_X[0], HEAD_Y[1] - HEAD_Y[0], 2 * HEAD_HALF_Z],
-                "face_point": list(FACE_POINT),  # functional point 0
-                "face_normal": [0.0, 1.0, 0.0],
+                "handle_x_range": vec([HANDLE_X[0], HEAD_X[0]]),  # graspable length (handle end to head)
+                "head_center": vec([HEAD_CX, (HEAD_Y[0] + HEAD_Y[1]) / 2, 0.0]),
+                "head_size": vec([HEAD_X[1] - HEAD_X[0], HEAD_Y[1] - HEAD_Y[0], 2 * HEAD_HALF_Z]),
+                "face_point": vec(FACE_POINT),  # functional point 0
+                "face_normal": [0.0, -1.0, 0.0],
                 "face_radius": HEAD_HALF_Z,
-                "length": HEAD_X[1] - HANDLE_X[0],
+                "length": round(HEAD_X[1] - HANDLE_X[0], 6),
             },
             "block": {
                 "name": "block",
                 "frame": "block body: centre of the cube, axes along its faces",
                 "pose": pose_list(block_pose),
-                "yaw": yaw_of(block_pose[3:]),
+                "yaw": round(yaw_of(block_pose[3:]), 6),
                 "half_size": BLOCK_HALF,
-                "top_point": list(BLOCK_TOP_POINT),  # functional point 1
+                "top_point": vec(BLOCK_TOP_POINT),  # functional point 1
             },
             # upstream's expert uses the arm on the block's side
             "suggested_arm": "right" if block_pose[0] > 0 else "left",

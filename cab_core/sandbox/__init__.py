@@ -1,0 +1,24 @@
+"""run_code: agent programs in a separate, confined process that reaches the host only through tool RPC.
+
+Layers, outermost first (each must hold on its own):
+
+1. bubblewrap (``mode="required"`` refuses to run without it): new user, pid, network, ipc, uts and
+   cgroup namespaces; no network; a read-only view of ``/usr`` and the Python installation; numpy
+   alone mounted as the only third-party package; a private ``/tmp``; no project source, virtual
+   environment, records or host ``/proc``; killed with its parent.
+2. seccomp (in the child, every thread): no exec, fork or ptrace, no IP/netlink sockets, signals and
+   rlimit changes only to itself, no namespaces, mounts, io_uring, bpf or keyrings.
+3. Landlock where the kernel has it: reads only below the mounted system paths, no TCP, no signals
+   or abstract sockets beyond the sandbox. Without bubblewrap it is what keeps files private.
+4. rlimits: address space (``memory_mb``), CPU seconds, file size, open files, no core dumps; the
+   host enforces the wall-clock timeout by killing the process group.
+5. The Python layer (FACTS A.7): an AST policy (imports of numpy and math only, no dunders,
+   frames, classes or async; no eval/exec/open/getattr/...), restricted builtins, a numpy namespace
+   without file I/O or ctypes.
+
+Use ``python -m cab_core.sandbox`` to see which layers this machine provides and how fast they are.
+"""
+from ..errors import SandboxUnavailable
+from .host import FILESYSTEM_POLICY, DispatchResult, Sandbox, SandboxConfig
+
+__all__ = ["Sandbox", "SandboxConfig", "DispatchResult", "SandboxUnavailable", "FILESYSTEM_POLICY"]

@@ -1,0 +1,662 @@
+"""The run_code child: executes agent programs in a confined process.
+
+This file is copied, alone, into a private directory and started with ``python -I -S -B`` (under
+bubblewrap where available). It imports only the standard library and numpy, and never anything from
+``cab_core``: the host does not even need to be importable from here.
+
+Wire protocol (both directions, over the child's stdin/stdout pipes): a frame is
+``struct.pack(">II", len(json_bytes), len(blob)) + json_bytes + blob``; ``blob`` carries raw image
+bytes (HxWx3 uint8, C order) and is empty otherwise.
+
+host -> child: init, run, reply (to call), image (to load_image), exit
+child -> host: ready, out (captured print text), call (a tool call), load_image, done
+
+Start-up order, so that nothing the program can do runs before the confinement is in place:
+rlimits -> parent-death signal -> import numpy -> build the namespace -> Landlock -> seccomp ->
+``ready``. Every layer that could not be applied is reported in ``ready`` (the host decides whether
+that is acceptable: ``mode="required"`` refuses to run without bubblewrap and seccomp).
+"""
+from __future__ import annotations
+
+import ast
+import json
+import linecache
+import math
+import os
+import resource
+import struct
+import sys
+import traceback
+import types
+
+_HEADER = struct.Struct(">II")
+_MAX_FRAME = 256 * 1024 * 1024  # the host never sends more than one image plus a JSON reply
+
+
+# --------------------------------------------------------------------------------------------- wire
+class _Wire:
+    def __init__(self, rfd: int, wfd: int):
+        self.rfd = rfd
+        self.wfd = wfd
+
+    def _read_exact(self, n: int) -> bytearray:
+        buf = bytearray(n)
+        view = memoryview(buf)
+        got = 0
+        while got < n:
+            k = os.readv(self.rfd, [view[got:]])
+            if k == 0:
+                raise EOFError("host closed the pipe")
+            got += k
+        return buf
+
+    def recv(self):
+        jl, bl = _HEADER.unpack(bytes(self._read_exact(_HEADER.size)))
+        if jl > _MAX_FRAME or bl > _MAX_FRAME:
+            raise EOFError("oversized frame from host")
+        msg = json.loads(bytes(self._read_exact(jl)).decode("utf-8"))
+        blob = self._read_exact(bl) if bl else None
+        return msg, blob
+
+    def send(self, msg: dict) -> None:
+        data = json.dumps(msg, separators=(",", ":")).encode("utf-8")
+        frame = _HEADER.pack(len(data), 0) + data
+        view = memoryview(frame)
+        while view:
+            k = os.write(self.wfd, view)
+            view = view[k:]
+
+
+# ------------------------------------------------------------------------------------- AST policy
+ALLOWED_IMPORTS = {"numpy", "math", "numpy.linalg", "numpy.random", "numpy.fft", "numpy.polynomial"}
+BANNED_NAMES = {
+    "eval", "exec", "open", "compile", "__import__", "getattr", "setattr", "delattr", "globals",
+    "locals", "vars", "input", "breakpoint", "exit", "quit", "memoryview", "type", "super", "object",
+    "classmethod", "staticmethod", "property", "help", "dir", "id",
+}
+# Attributes that lead from ordinary objects to frames, code, globals, files or raw memory. Every
+# attribute starting with "_" is refused as well (dunders and numpy's private modules).
+BANNED_ATTRS = {
+    "gi_frame", "gi_code", "gi_yieldfrom", "gi_suspended", "cr_frame", "cr_code", "cr_await",
+    "cr_origin", "ag_frame", "ag_code", "ag_await", "f_globals", "f_locals", "f_builtins", "f_back",
+    "f_code", "f_trace", "tb_frame", "tb_next", "co_code", "co_consts", "func_globals", "func_code",
+    "mro", "ctypes", "ctypeslib", "tofile", "dump", "dumps", "load", "loads", "loadtxt", "fromfile",
+    "fromregex", "genfromtxt", "save", "savez", "savez_compressed", "savetxt", "memmap", "DataSource",
+    "lib", "core", "testing", "distutils", "f2py", "os", "sys", "modules", "builtins",
+}
+_BANNED_NODES = {
+    ast.ImportFrom: "from-imports are not allowed; use `import numpy` or `import math`",
+    ast.ClassDef: "class definitions are not allowed",
+    ast.AsyncFunctionDef: "async code is not allowed",
+    ast.AsyncFor: "async code is not allowed",
+    ast.AsyncWith: "async code is not allowed",
+    ast.Await: "async code is not allowed",
+}
+
+
+def check_tree(tree: ast.AST) -> list[str]:
+    """Return the policy violations in ``tree`` (empty when the program may run)."""
+    problems: list[str] = []
+    for node in ast.walk(tree):
+        line = getattr(node, "lineno", "?")
+        for kind, why in _BANNED_NODES.items():
+            if isinstance(node, kind):
+                problems.append(f"line {line}: {why}")
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name not in ALLOWED_IMPORTS:
+                    problems.append(f"line {line}: import of '{alias.name}' is not allowed "
+                                    "(only numpy and math can be imported)")
+        elif isinstance(node, ast.Attribute):
+            if node.attr.startswith("_") or node.attr in BANNED_ATTRS:
+                problems.append(f"line {line}: access to attribute '.{node.attr}' is not allowed")
+        elif isinstance(node, ast.Name):
+            if node.id in BANNED_NAMES or node.id.startswith("__"):
+                problems.append(f"line {line}: name '{node.id}' is not allowed")
+        elif isinstance(node, (ast.FunctionDef, ast.Lambda, ast.arg)):
+            name = getattr(node, "name", None) or getattr(node, "arg", None)
+            if name and name.startswith("__"):
+                problems.append(f"line {line}: name '{name}' is not allowed")
+        elif isinstance(node, ast.alias) and node.asname and node.asname.startswith("__"):
+            problems.append(f"line {line}: name '{node.asname}' is not allowed")
+    seen: set[str] = set()
+    return [p for p in problems if not (p in seen or seen.add(p))]
+
+
+# ------------------------------------------------------------------------------------ safe numpy
+_NP_DENY = {
+    "load", "loads", "save", "savez", "savez_compressed", "savetxt", "loadtxt", "genfromtxt",
+    "fromfile", "fromregex", "memmap", "DataSource", "recfromcsv", "recfromtxt", "ctypeslib", "info",
+    "source", "lookfor", "who", "show_config", "show_runtime", "get_include", "test", "safe_eval",
+    "deprecate", "deprecate_with_doc", "add_newdoc", "add_docstring", "add_newdoc_ufunc", "disp",
+    "set_string_function", "seterrcall", "geterrcall",
+}
+_NP_MODULES = {
+    "numpy.linalg", "numpy.random", "numpy.fft", "numpy.polynomial", "numpy.lib.scimath",
+    "numpy.polynomial.polynomial", "numpy.polynomial.chebyshev", "numpy.polynomial.legendre",
+    "numpy.polynomial.hermite", "numpy.polynomial.hermite_e", "numpy.polynomial.laguerre",
+}
+
+
+def _filtered_module(mod, cache: dict):
+    """A plain module holding ``mod``'s public names minus file access and foreign modules."""
+    if mod.__name__ in cache:
+        return cache[mod.__name__]
+    out = types.ModuleType(mod.__name__, getattr(mod, "__doc__", None))
+    cache[mod.__name__] = out
+    for key, value in list(vars(mod).items()):
+        if key.startswith("_") or key in _NP_DENY:
+            continue
+        if isinstance(value, types.ModuleType):
+            if value.__name__ in _NP_MODULES:
+                setattr(out, key, _filtered_module(value, cache))
+            continue
+        setattr(out, key, value)
+    return out
+
+
+# ------------------------------------------------------------------------------- JSON conversion
+_MAX_NODES = 20000
+_MAX_STR = 20000
+_MAX_ARRAY = 20000
+_TRUNC = "__codeaction_truncated"
+
+
+def to_jsonable(value, np, budget=None, depth=0):
+    """Convert a program value to plain JSON data (bounded; non-finite floats become strings)."""
+    if budget is None:
+        budget = [_MAX_NODES]
+    budget[0] -= 1
+    if budget[0] < 0 or depth > 64:
+        return {f"{_TRUNC}_value__": "too large or too deep"}
+    if value is None or isinstance(value, bool):
+        return value
+    if isinstance(value, int):
+        return value if abs(value) < 2**63 else str(value)
+    if isinstance(value, float):
+        return value if math.isfinite(value) else repr(value)
+    if isinstance(value, str):
+        if len(value) > _MAX_STR:
+            return value[:_MAX_STR] + f"...[{_TRUNC}_chars__: {len(value) - _MAX_STR}]"
+        return value
+    if isinstance(value, np.ndarray):
+        if value.size > _MAX_ARRAY:
+            return {f"{_TRUNC}_array__": {"shape": list(value.shape), "dtype": str(value.dtype),
+                                         "head": to_jsonable(value.ravel()[:32].tolist(), np, budget, depth + 1)}}
+        return to_jsonable(value.tolist(), np, budget, depth + 1)
+    if isinstance(value, np.generic):
+        return to_jsonable(value.item(), np, budget, depth + 1)
+    if isinstance(value, complex):
+        return {"real": to_jsonable(value.real, np, budget), "imag": to_jsonable(value.imag, np, budget)}
+    if isinstance(value, dict):
+        return {(k if isinstance(k, str) else str(to_jsonable(k, np, budget, depth + 1))):
+                to_jsonable(v, np, budget, depth + 1) for k, v in value.items()}
+    if isinstance(value, (set, frozenset)):
+        try:
+            items = sorted(value)
+        except TypeError:
+            items = sorted(value, key=repr)
+        return [to_jsonable(v, np, budget, depth + 1) for v in items]
+    if isinstance(value, (list, tuple, range)):
+        return [to_jsonable(v, np, budget, depth + 1) for v in value]
+    if isinstance(value, (bytes, bytearray)):
+        return to_jsonable(repr(bytes(value[:_MAX_STR])), np, budget, depth + 1)
+    return to_jsonable(repr(value), np, budget, depth + 1)
+
+
+# ------------------------------------------------------------------------------- OS confinement
+_ARCH = {
+    # machine: (AUDIT_ARCH, syscall numbers)
+    "x86_64": (0xC000003E, dict(
+        seccomp=317, landlock_create_ruleset=444, landlock_add_rule=445, landlock_restrict_self=446,
+        execve=59, execveat=322, fork=57, vfork=58, clone=56, clone3=435, socket=41, ptrace=101,
+        process_vm_readv=310, process_vm_writev=311, kill=62, tkill=200, tgkill=234,
+        rt_sigqueueinfo=129, rt_tgsigqueueinfo=297, pidfd_open=434, pidfd_send_signal=424,
+        pidfd_getfd=438, prlimit64=302, unshare=272, setns=308, mount=165, umount2=166,
+        pivot_root=155, chroot=161, bpf=321, perf_event_open=298, userfaultfd=323, keyctl=250,
+        add_key=248, request_key=249, io_uring_setup=425, io_uring_enter=426, io_uring_register=427,
+        open_tree=428, move_mount=429, fsopen=430, fsconfig=431, fsmount=432, fspick=433,
+        mount_setattr=442, kcmp=312, process_madvise=440, process_mrelease=448,
+        name_to_handle_at=303, open_by_handle_at=304, kexec_load=246, init_module=175,
+        finit_module=313, delete_module=176, reboot=169, swapon=167, swapoff=168, acct=163,
+        quotactl=179, personality=135, setpriority=141, ioprio_set=251, sched_setaffinity=203,
+        sched_setscheduler=144, sched_setparam=142, sched_setattr=314,
+    )),
+    "aarch64": (0xC00000B7, dict(
+        seccomp=277, landlock_create_ruleset=444, landlock_add_rule=445, landlock_restrict_self=446,
+        execve=221, execveat=281, clone=220, clone3=435, socket=198, ptrace=117,
+        process_vm_readv=270, process_vm_writev=271, kill=129, tkill=130, tgkill=131,
+        rt_sigqueueinfo=138, rt_tgsigqueueinfo=240, pidfd_open=434, pidfd_send_signal=424,
+        pidfd_getfd=438, prlimit64=261, unshare=97, setns=268, mount=40, umount2=39,
+        pivot_root=41, chroot=51, bpf=280, perf_event_open=241, userfaultfd=282, keyctl=219,
+        add_key=217, request_key=218, io_uring_setup=425, io_uring_enter=426, io_uring_register=427,
+        open_tree=428, move_mount=429, fsopen=430, fsconfig=431, fsmount=432, fspick=433,
+        mount_setattr=442, kcmp=272, process_madvise=440, process_mrelease=448,
+        name_to_handle_at=264, open_by_handle_at=265, kexec_load=104, init_module=105,
+        finit_module=273, delete_module=106, reboot=142, swapon=224, swapoff=225, acct=89,
+        quotactl=60, personality=92, setpriority=140, ioprio_set=30, sched_setaffinity=122,
+        sched_setscheduler=119, sched_setparam=118, sched_setattr=274,
+    )),
+}
+# Refused outright (EPERM): new programs, new processes, other processes' memory, namespaces,
+# mounts, kernel objects that widen the attack surface.
+_DENY = (
+    "execve", "execveat", "fork", "vfork", "ptrace", "process_vm_readv", "process_vm_writev", "tkill",
+    "pidfd_open", "pidfd_send_signal", "pidfd_getfd", "unshare", "setns", "mount", "umount2",
+    "pivot_root", "chroot", "bpf", "perf_event_open", "userfaultfd", "keyctl", "add_key",
+    "request_key", "io_uring_setup", "io_uring_enter", "io_uring_register", "open_tree",
+    "move_mount", "fsopen", "fsconfig", "fsmount", "fspick", "mount_setattr", "kcmp",
+    "process_madvise", "process_mrelease", "name_to_handle_at", "open_by_handle_at", "kexec_load",
+    "init_module", "finit_module", "delete_module", "reboot", "swapon", "swapoff", "acct",
+    "quotactl", "personality", "setpriority", "ioprio_set", "sched_setaffinity",
+    "sched_setscheduler", "sched_setparam", "sched_setattr",
+)
+_EPERM, _ENOSYS = 1, 38
+_RET_ALLOW, _RET_ERRNO, _RET_KILL_PROCESS = 0x7FFF0000, 0x00050000, 0x80000000
+_CLONE_THREAD = 0x00010000
+_AF_UNIX = 1
+
+
+def _bpf_program(machine: str, mypid: int) -> list[tuple[int, int, int, int]]:
+    audit_arch, nr = _ARCH[machine]
+    LD, JEQ, JGE, JSET, RET = 0x20, 0x15, 0x35, 0x45, 0x06
+    deny = _RET_ERRNO | _EPERM
+
+    def ld(off):
+        return (LD, 0, 0, off)
+
+    def ret(k):
+        return (RET, 0, 0, k)
+
+    arg0 = 16  # low 32 bits of args[0] (little-endian)
+    prog = [ld(4), (JEQ, 1, 0, audit_arch), ret(_RET_KILL_PROCESS), ld(0)]
+    if machine == "x86_64":  # the x32 ABI: syscall numbers with bit 30 set
+        prog += [(JGE, 0, 1, 0x40000000), ret(deny)]
+
+    def arg0_in(name, values):
+        body = [ld(arg0)]
+        for i, v in enumerate(values):
+            body.append((JEQ, len(values) - i, 0, v & 0xFFFFFFFF))
+        body += [ret(deny), ret(_RET_ALLOW)]
+        return [(JEQ, 0, len(body), nr[name])] + body
+
+    for name in _DENY:
+        if name in nr:
+            prog += [(JEQ, 0, 1, nr[name]), ret(deny)]
+    prog += [(JEQ, 0, 1, nr["clone3"]), ret(_RET_ERRNO | _ENOSYS)]  # libc falls back to clone
+    # clone: threads only (CLONE_THREAD set); fork/posix_spawn/subprocess are refused.
+    prog += [(JEQ, 0, 4, nr["clone"]), ld(arg0), (JSET, 0, 1, _CLONE_THREAD), ret(_RET_ALLOW), ret(deny)]
+    prog += arg0_in("socket", [_AF_UNIX])  # no IP, netlink, packet or other socket families
+    for name in ("kill", "tgkill", "rt_sigqueueinfo", "rt_tgsigqueueinfo"):
+        prog += arg0_in(name, [mypid])  # signals only to itself
+    prog += arg0_in("prlimit64", [0, mypid])  # its own limits only
+    prog.append(ret(_RET_ALLOW))
+    return prog
+
+
+def _libc():
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.syscall.restype = ctypes.c_long
+    libc.prctl.restype = ctypes.c_int
+    return ctypes, libc
+
+
+def _no_new_privs(ctypes, libc) -> None:
+    if libc.prctl(38, ctypes.c_ulong(1), ctypes.c_ulong(0), ctypes.c_ulong(0), ctypes.c_ulong(0)) != 0:
+        raise OSError(ctypes.get_errno(), "PR_SET_NO_NEW_PRIVS failed")
+
+
+def install_seccomp() -> str:
+    machine = os.uname().machine
+    if machine not in _ARCH:
+        raise OSError(f"no seccomp filter for architecture {machine}")
+    ctypes, libc = _libc()
+
+    class SockFilter(ctypes.Structure):
+        _fields_ = [("code", ctypes.c_uint16), ("jt", ctypes.c_uint8), ("jf", ctypes.c_uint8),
+                    ("k", ctypes.c_uint32)]
+
+    class SockFprog(ctypes.Structure):
+        _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.POINTER(SockFilter))]
+
+    insns = _bpf_program(machine, os.getpid())
+    arr = (SockFilter * len(insns))(*[SockFilter(*i) for i in insns])
+    prog = SockFprog(len(insns), arr)
+    _no_new_privs(ctypes, libc)
+    nr = _ARCH[machine][1]["seccomp"]
+    # SECCOMP_SET_MODE_FILTER with SECCOMP_FILTER_FLAG_TSYNC: every thread (BLAS workers too).
+    if libc.syscall(ctypes.c_long(nr), ctypes.c_ulong(1), ctypes.c_ulong(1), ctypes.byref(prog)) != 0:
+        raise OSError(ctypes.get_errno(), "seccomp(SET_MODE_FILTER) failed")
+    return f"ok ({len(insns)} instructions)"
+
+
+def install_landlock(read_paths: list[str]) -> str:
+    """Allow reading (and mapping) only ``read_paths``; deny all other file access, TCP and signals
+    or abstract sockets reaching outside the sandbox."""
+    machine = os.uname().machine
+    if machine not in _ARCH:
+        raise OSError(f"no Landlock support for architecture {machine}")
+    nr = _ARCH[machine][1]
+    ctypes, libc = _libc()
+    abi = libc.syscall(ctypes.c_long(nr["landlock_create_ruleset"]), None, ctypes.c_ulong(0), ctypes.c_ulong(1))
+    if abi < 1:
+        raise OSError(ctypes.get_errno(), "Landlock is not available in this kernel")
+    fs = (1 << 13) - 1
+    if abi >= 2:
+        fs |= 1 << 13  # REFER
+    if abi >= 3:
+        fs |= 1 << 14  # TRUNCATE
+    if abi >= 5:
+        fs |= 1 << 15  # IOCTL_DEV
+    net = 0x3 if abi >= 4 else 0  # BIND_TCP | CONNECT_TCP
+    scoped = 0x3 if abi >= 6 else 0  # ABSTRACT_UNIX_SOCKET | SIGNAL
+    size = 24 if abi >= 6 else (16 if abi >= 4 else 8)
+    attr = ctypes.create_string_buffer(struct.pack("=QQQ", fs, net, scoped)[:size], size)
+    rfd = libc.syscall(ctypes.c_long(nr["landlock_create_ruleset"]), attr, ctypes.c_ulong(size), ctypes.c_ulong(0))
+    if rfd < 0:
+        raise OSError(ctypes.get_errno(), "landlock_create_ruleset failed")
+    read_file, read_dir, execute = 1 << 2, 1 << 3, 1 << 0
+    try:
+        for path in read_paths:
+            try:
+                pfd = os.open(path, os.O_PATH | os.O_CLOEXEC)
+            except OSError:
+                continue
+            try:
+                is_dir = os.path.isdir(path)
+                access = (read_file | execute | read_dir) if is_dir else (read_file | execute)
+                rule = ctypes.create_string_buffer(struct.pack("=Qi", access, pfd), 12)
+                if libc.syscall(ctypes.c_long(nr["landlock_add_rule"]), ctypes.c_int(rfd), ctypes.c_int(1), rule,
+                                ctypes.c_ulong(0)) != 0:
+                    raise OSError(ctypes.get_errno(), f"landlock_add_rule({path}) failed")
+            finally:
+                os.close(pfd)
+        _no_new_privs(ctypes, libc)
+        if libc.syscall(ctypes.c_long(nr["landlock_restrict_self"]), ctypes.c_int(rfd), ctypes.c_ulong(0)) != 0:
+            raise OSError(ctypes.get_errno(), "landlock_restrict_self failed")
+    finally:
+        os.close(rfd)
+    return f"ok (ABI {abi})"
+
+
+def apply_rlimits(limits: dict) -> str:
+    pairs = {
+        "as_bytes": resource.RLIMIT_AS, "cpu_s": resource.RLIMIT_CPU, "fsize_bytes": resource.RLIMIT_FSIZE,
+        "nofile": resource.RLIMIT_NOFILE, "core": resource.RLIMIT_CORE,
+    }
+    done = []
+    for key, res in pairs.items():
+        if key in limits and limits[key] is not None:
+            value = int(limits[key])
+            resource.setrlimit(res, (value, value))
+            done.append(f"{key}={value}")
+    return "ok (" + ", ".join(done) + ")"
+
+
+def set_parent_death_signal(expected_ppid: int) -> str:
+    ctypes, libc = _libc()
+    if libc.prctl(1, ctypes.c_ulong(9), ctypes.c_ulong(0), ctypes.c_ulong(0), ctypes.c_ulong(0)) != 0:  # PR_SET_PDEATHSIG, SIGKILL
+        raise OSError(ctypes.get_errno(), "PR_SET_PDEATHSIG failed")
+    if expected_ppid and os.getppid() != expected_ppid:
+        os._exit(70)  # the host already died
+    return "ok"
+
+
+# --------------------------------------------------------------------------------------- program
+class ProgramStopped(BaseException):
+    """Raised into a program by the host (internal call limit, attempt ended). Not an Exception, so
+    ``except Exception`` in the program does not swallow it; a later tool call raises it again."""
+
+    def __init__(self, kind: str, message: str):
+        super().__init__(message)
+        self.kind = kind
+
+
+class _Out:
+    """Captured stdout: streamed to the host as it is printed, up to the cap."""
+
+    def __init__(self, wire: _Wire, cap: int):
+        self.wire = wire
+        self.cap = cap
+        self.sent = 0
+
+    def reset(self):
+        self.sent = 0
+
+    def write(self, text) -> int:
+        text = str(text)
+        room = self.cap - self.sent
+        if room > 0 and text:
+            self.wire.send({"op": "out", "text": text[:room]})
+        self.sent += len(text)  # past the cap only counted; the total goes back with ``done``
+        return len(text)
+
+    def flush(self):
+        pass
+
+
+_SAFE_BUILTIN_NAMES = (
+    "abs", "min", "max", "sum", "round", "sorted", "reversed", "enumerate", "zip", "len", "range",
+    "map", "filter", "any", "all", "isinstance", "repr", "list", "dict", "tuple", "set", "str", "int",
+    "float", "bool",
+    # harmless additions (not in the upstream list) that numeric scripts use routinely
+    "pow", "divmod", "iter", "next", "frozenset", "slice", "format", "callable", "chr", "ord",
+    "complex", "bytes", "issubclass", "hash", "ascii", "bin", "hex", "oct",
+    # exceptions
+    "Exception", "ArithmeticError", "AssertionError", "AttributeError", "FloatingPointError",
+    "IndexError", "KeyError", "LookupError", "MemoryError", "NameError", "NotImplementedError",
+    "OverflowError", "RecursionError", "RuntimeError", "StopIteration", "TypeError",
+    "UnboundLocalError", "ValueError", "ZeroDivisionError", "Warning", "UserWarning",
+    "RuntimeWarning", "DeprecationWarning",
+)
+
+
+class Runner:
+    def __init__(self, wire: _Wire, init: dict):
+        self.wire = wire
+        self.tools = [t for t in init["tools"] if t not in ("run_code", "done")]
+        self.max_calls = int(init["max_internal_calls"])
+        self.python_layer = bool(init.get("python_layer", True))
+        self.out = _Out(wire, int(init["stdout_cap"]))
+        self.calls = 0
+        self.stopped: ProgramStopped | None = None
+        self.run_id = 0
+        import numpy
+
+        self.np = numpy
+        for name in ("linalg", "random", "fft", "polynomial"):
+            __import__("numpy." + name)
+        self.safe_np = _filtered_module(numpy, {})
+        self.ns = self._namespace()
+
+    # -- the program's world
+    def _restricted_import(self, name, globals=None, locals=None, fromlist=(), level=0):
+        if level != 0 or fromlist:
+            raise ImportError("only `import numpy` and `import math` are allowed")
+        if name == "math":
+            return math
+        if name in ALLOWED_IMPORTS:
+            return self.safe_np
+        raise ImportError(f"import of '{name}' is not allowed (only numpy and math can be imported)")
+
+    def _namespace(self) -> dict:
+        if self.python_layer:
+            import builtins
+
+            safe = {k: getattr(builtins, k) for k in _SAFE_BUILTIN_NAMES}
+            safe["__import__"] = self._restricted_import
+            safe["print"] = self._print
+            safe["None"] = None
+            np_mod = self.safe_np
+        else:  # test-only: the OS layer alone must hold
+            import builtins
+
+            safe = dict(vars(builtins))
+            safe["print"] = self._print
+            np_mod = self.np
+        ns = {"__builtins__": safe, "__name__": "__main__", "np": np_mod, "math": math,
+              "print": self._print, "load_image": self._load_image}
+        for name in self.tools:
+            ns[name] = self._make_tool(name)
+        return ns
+
+    def _print(self, *args, sep=" ", end="\n", file=None, flush=False):
+        sep = " " if sep is None else str(sep)
+        end = "\n" if end is None else str(end)
+        self.out.write(sep.join(str(a) for a in args) + end)
+
+    def _make_tool(self, name: str):
+        runner = self
+
+        def tool(*args, **kwargs):
+            if args:
+                raise TypeError(f"{name}() takes keyword arguments only, e.g. {name}(arm='left')")
+            return runner._call(name, kwargs)
+
+        tool.__name__ = tool.__qualname__ = name
+        tool.__doc__ = f"Robot tool {name}: keyword arguments as in its schema; returns a dict."
+        return tool
+
+    def _check_stopped(self):
+        if self.stopped is not None:
+            raise ProgramStopped(self.stopped.kind, str(self.stopped))
+
+    def _call(self, name: str, kwargs: dict):
+        self._check_stopped()
+        if self.calls >= self.max_calls:
+            self.stopped = ProgramStopped(
+                "call_cap", f"internal tool-call limit reached: at most {self.max_calls} tool calls per "
+                f"run_code; the program was stopped before call {self.calls + 1} ({name})")
+            raise ProgramStopped(self.stopped.kind, str(self.stopped))
+        self.calls += 1
+        args = {str(k): to_jsonable(v, self.np) for k, v in kwargs.items()}
+        self.wire.send({"op": "call", "tool": name, "kwargs": args})
+        msg, _ = self.wire.recv()
+        if msg.get("stop"):
+            self.stopped = ProgramStopped(msg["stop"], msg.get("message") or msg["stop"])
+            raise ProgramStopped(self.stopped.kind, str(self.stopped))
+        return msg["payload"]
+
+    def _load_image(self, obs_id):
+        self._check_stopped()
+        if not isinstance(obs_id, str):
+            raise TypeError("load_image(obs_id) takes an obs_id string, e.g. load_image('obs_3')")
+        self.wire.send({"op": "load_image", "obs_id": obs_id})
+        msg, blob = self.wire.recv()
+        if msg.get("stop"):
+            self.stopped = ProgramStopped(msg["stop"], msg.get("message") or msg["stop"])
+            raise ProgramStopped(self.stopped.kind, str(self.stopped))
+        if msg.get("error"):
+            raise ValueError(msg["error"])
+        arr = self.np.frombuffer(blob, dtype=self.np.uint8).reshape(msg["shape"])
+        return arr  # frombuffer over a private bytearray: writable, not shared with anything
+
+    # -- running
+    def _format_error(self, exc: BaseException, filename_prefix: str = "<run_code:") -> str:
+        if isinstance(exc, SyntaxError):
+            return "".join(traceback.format_exception_only(type(exc), exc)).rstrip()
+        frames = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename.startswith(filename_prefix)]
+        lines = ["Traceback (most recent call last):"] if frames else []
+        for f in frames:
+            lines.append(f'  File "{f.filename}", line {f.lineno}, in {f.name}')
+            if f.line:
+                lines.append(f"    {f.line.strip()}")
+        lines.append("".join(traceback.format_exception_only(type(exc), exc)).rstrip())
+        return "\n".join(lines)
+
+    def run(self, code: str) -> dict:
+        self.run_id += 1
+        self.calls = 0
+        self.stopped = None
+        self.out.reset()
+        self.ns.pop("result", None)
+        filename = f"<run_code:{self.run_id}>"
+        reply = {"op": "done", "ok": True, "error": None, "value": None, "result_assigned": False, "stopped": None}
+        try:
+            tree = ast.parse(code, filename, "exec")
+        except SyntaxError as exc:
+            reply.update(ok=False, error=self._format_error(exc))
+            return reply
+        if self.python_layer:
+            problems = check_tree(tree)
+            if problems:
+                reply.update(ok=False, error="code rejected by the sandbox policy:\n" + "\n".join(problems[:20]))
+                return reply
+        lines = code.splitlines(True)
+        linecache.cache[filename] = (len(code), None, lines, filename)
+        old = linecache.cache.pop(f"<run_code:{self.run_id - 64}>", None)  # keep the last 64 programs
+        del old
+        saved = sys.stdout, sys.stderr
+        sys.stdout = sys.stderr = self.out  # numpy warnings and library prints are captured too
+        try:
+            exec(compile(tree, filename, "exec"), self.ns)
+        except ProgramStopped as exc:
+            reply.update(ok=False, error=str(exc), stopped=exc.kind)
+        except BaseException as exc:  # noqa: BLE001 - every program failure is reported, not raised
+            reply.update(ok=False, error=self._format_error(exc))
+        finally:
+            sys.stdout, sys.stderr = saved
+        if self.stopped is not None and reply["stopped"] is None:  # the program swallowed the stop
+            reply.update(ok=False, error=str(self.stopped), stopped=self.stopped.kind)
+        reply["stdout_chars"] = self.out.sent
+        if "result" in self.ns:
+            reply["result_assigned"] = True
+            try:
+                reply["value"] = to_jsonable(self.ns["result"], self.np)
+            except BaseException as exc:  # noqa: BLE001
+                reply["value"] = {f"{_TRUNC}_value__": f"result could not be converted: {type(exc).__name__}"}
+        return reply
+
+
+def main(argv: list[str]) -> int:
+    # The RPC pipes move to private descriptors; fd 0 reads /dev/null and fd 1 joins stderr, so a
+    # stray write to stdout (a C library, an escaped program) cannot corrupt the protocol.
+    rfd, wfd = os.dup(0), os.dup(1)
+    devnull = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(devnull, 0)
+    os.close(devnull)
+    os.dup2(2, 1)
+    wire = _Wire(rfd, wfd)
+    init, _ = wire.recv()
+    layers: dict[str, str] = {}
+
+    def attempt(name, fn, *args):
+        try:
+            layers[name] = fn(*args)
+        except Exception as exc:  # noqa: BLE001 - reported to the host, which decides
+            layers[name] = f"failed: {exc}"
+
+    attempt("rlimits", apply_rlimits, init.get("limits", {}))
+    if init.get("parent_death_signal"):
+        attempt("parent_death_signal", set_parent_death_signal, init.get("host_pid", 0))
+    for path in reversed(init.get("sys_path", [])):
+        sys.path.insert(0, path)
+    runner = Runner(wire, init)
+    import numpy
+
+    if init.get("landlock_read"):
+        attempt("landlock", install_landlock, init["landlock_read"])
+    if init.get("seccomp"):
+        attempt("seccomp", install_seccomp)
+    wire.send({"op": "ready", "pid": os.getpid(), "layers": layers, "python": sys.version.split()[0],
+               "numpy": numpy.__version__, "python_layer": runner.python_layer})
+    while True:
+        try:
+            msg, _ = wire.recv()
+        except EOFError:
+            return 0
+        if msg.get("op") == "run":
+            try:
+                reply = runner.run(msg["code"])
+            except MemoryError:
+                reply = {"op": "done", "ok": False, "error": "MemoryError", "value": None,
+                         "result_assigned": False, "stopped": None}
+            wire.send(reply)
+        elif msg.get("op") == "exit":
+            return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,11 @@
+"""cab plugin: registers the ``aloha_agilex`` embodiment."""
+from __future__ import annotations
+
+import cab_core
+
+
+@cab_core.hookimpl
+def cab_embodiments():
+    from .embodiment import factory
+
+    return {"aloha_agilex": factory}

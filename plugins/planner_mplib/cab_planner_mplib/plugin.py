@@ -1,0 +1,11 @@
+"""cab plugin: registers the ``mplib`` motion planner (mplib is imported only when it is built)."""
+from __future__ import annotations
+
+import cab_core
+
+
+@cab_core.hookimpl
+def cab_planners():
+    from .planner import factory
+
+    return {"mplib": factory}

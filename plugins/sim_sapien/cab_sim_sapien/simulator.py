@@ -1,0 +1,757 @@
+"""The SAPIEN 3 backend of :class:`cab_core.simulator.Simulator`.
+
+One ``sapien.Scene`` per attempt with a CPU PhysX system and, unless ``render: false``, a Vulkan
+render system (on a CPU-only machine: Mesa lavapipe). Built once from a ``SceneSpec`` plus an
+``EmbodimentSpec``; see :meth:`SapienSimulator.build` for what is created and how.
+
+Options (the ``cfg`` dict of the plugin factory):
+
+``render`` (bool, default true)
+    Create the render system, visual shapes and cameras. With ``false`` the world is physics only:
+    camera poses, intrinsics and sizes still work, :meth:`render` raises ``RendererUnavailable``.
+``timestep`` (float, default: the scene's, 1/250 s)
+    Overrides ``SceneSpec.timestep``.
+``shader`` (str, default ``"default"``)
+    SAPIEN camera shader directory (``default``, ``minimal``, ``rt``...).
+``shadows`` (bool, default true)
+    Shadow maps for the scene's lights (RoboTwin renders with shadows).
+
+Conventions: poses are numpy float64 ``[x, y, z, qw, qx, qy, qz]`` (SAPIEN's ``Pose.q`` is wxyz too);
+SAPIEN stores everything in float32, so values read back are float32-exact.
+"""
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import sapien
+
+from cab_core.embodiment import EmbodimentSpec
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
+from cab_core.geometry import intrinsics, mat_to_quat
+from cab_core.scene import (Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere,
+                            as_pose)
+from cab_core.simulator import ROBOT, Contact, SimState, Simulator
+
+from . import renderer as _renderer
+
+log = logging.getLogger(__name__)
+
+BACKEND = "sapien"
+STATE_FORMAT = 1
+_KNOWN_OPTIONS = {"render", "timestep", "shader", "shadows", "name"}
+
+# Rotation taking SAPIEN camera axes (x forward, y left, z up) into OpenCV camera axes
+# (x right, y down, z forward): the columns are SAPIEN's axes written in the OpenCV frame.
+_CV_FROM_SAPIEN = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+_CV_TO_SAPIEN_POSE = sapien.Pose([0.0, 0.0, 0.0], mat_to_quat(_CV_FROM_SAPIEN).astype(np.float32))
+_SAPIEN_TO_CV_POSE = _CV_TO_SAPIEN_POSE.inv()
+
+
+def _sp(pose) -> sapien.Pose:
+    """cab pose (7-vector, wxyz) -> sapien.Pose."""
+    return sapien.Pose(np.asarray(pose[:3], dtype=np.float32), np.asarray(pose[3:7], dtype=np.float32))
+
+
+def _np(pose: sapien.Pose) -> np.ndarray:
+    """sapien.Pose -> float64 7-vector."""
+    out = np.empty(7)
+    out[:3] = pose.p
+    out[3:] = pose.q
+    return out
+
+
+def _pose_or_bad(pose) -> tuple[float, ...]:
+    try:
+        return as_pose(pose)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(str(e)) from None
+
+
+def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
+    if a.shape != (n,):
+        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
+    return a
+
+
+@dataclass
+class _Rigid:
+    kind: str  # static | dynamic | kinematic
+    entity: "sapien.Entity"
+    component: object  # PhysxRigidDynamicComponent | PhysxRigidStaticComponent
+
+
+@dataclass
+class _Camera:
+    spec: CameraSpec
+    K: np.ndarray
+    component: object | None  # RenderCameraComponent (None without rendering)
+    link: object | None  # PhysxArticulationLinkComponent of a mounted camera
+    local: sapien.Pose  # cv pose: world pose (fixed) or pose in the mount link (mounted)
+
+
+class SapienSimulator(Simulator):
+    """SAPIEN 3.0 (CPU PhysX, Vulkan renderer). Not thread-safe: one owner thread."""
+
+    name = BACKEND
+
+    def __init__(self, cfg: dict | None = None):
+        cfg = dict(cfg or {})
+        unknown = sorted(k for k in cfg if k not in _KNOWN_OPTIONS and not str(k).startswith("_"))
+        if unknown:
+            raise ConfigError(f"unknown sapien simulator option(s) {unknown}; known: {sorted(_KNOWN_OPTIONS)}")
+        self._render_enabled = bool(cfg.get("render", True))
+        ts = cfg.get("timestep")
+        if ts is not None and (not isinstance(ts, (int, float)) or not ts > 0):
+            raise ConfigError(f"sapien timestep must be a positive number, got {ts!r}")
+        self._timestep_override = None if ts is None else float(ts)
+        self._shader = str(cfg.get("shader", "default"))
+        self._shadows = bool(cfg.get("shadows", True))
+        self._scene = None
+        self._closed = False
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def build(self, scene: SceneSpec, embodiment: EmbodimentSpec) -> None:
+        """Create the world: ground, lights, bodies, articulated objects, the robot, cameras.
+
+        - Ground: a static plane at ``scene.ground_z`` named ``"ground"``.
+        - Bodies: primitives and OBJ meshes (convex hulls; non-convex triangle meshes only for
+          static and kinematic bodies). ``mass`` rescales the density-derived mass and inertia.
+        - Articulated objects: SAPIEN's URDF loader; a non-zero ``joint_friction`` /
+          ``joint_damping`` overrides the URDF's ``<dynamics>`` (damping is a zero-stiffness drive).
+        - Robot: fixed root at ``base_pose``, gravity off on its links (the drives then track
+          targets without sag), position drives on every joint of ``joint_order()`` (arm joints with
+          ``drive_*``, gripper joints with ``gripper_*``); any other active joint is held where it
+          starts. Arms start at ``home_qpos`` with the grippers open; targets equal the start.
+        - Cameras: scene cameras at their world pose, embodiment cameras on their ``mount_link``.
+        """
+        if self._scene is not None or self._closed:
+            raise SimulatorError("build() is called once per simulator")
+        self._timestep = self._timestep_override or float(scene.timestep)
+        self._scene = self._create_scene(scene)
+        try:
+            self._build_world(scene, embodiment)
+        except Exception:
+            self.close()
+            raise
+
+    def _create_scene(self, scene: SceneSpec):
+        # PhysxCpuSystem reads the process-wide scene config when it is created; set gravity for
+        # this scene only, then put the previous config back.
+        previous = sapien.physx.get_scene_config()
+        cfg = sapien.physx.get_scene_config()
+        cfg.gravity = np.asarray(scene.gravity, dtype=np.float32)
+        sapien.physx.set_scene_config(cfg)
+        try:
+            physx = sapien.physx.PhysxCpuSystem()
+        finally:
+            sapien.physx.set_scene_config(previous)
+        systems = [physx]
+        self._rs = None
+        if self._render_enabled:
+            try:
+                sapien.render.set_camera_shader_dir(self._shader)
+                rs = sapien.render.RenderSystem()
+            except RuntimeError as e:
+                raise RendererUnavailable(_renderer.diagnose(e)) from e
+            systems.append(rs)
+            self._rs = rs
+        s = sapien.Scene(systems)
+        s.physx_system.timestep = self._timestep
+        self._px = physx
+        return s
+
+    def _build_world(self, scene: SceneSpec, emb: EmbodimentSpec) -> None:
+        s = self._scene
+        self._materials: dict[tuple, object] = {}
+        self._names_by_ptr: dict[int, str] = {}
+        self._bodies: dict[str, _Rigid] = {}
+        self._arts: dict[str, object] = {}  # articulated objects
+        self._art_links: dict[str, dict[str, object]] = {}
+        self._object_order: list[str] = []
+        self._steps = 0
+        self._version = 0
+        self._rendered_version = -1
+        self._contacts: list[Contact] | None = []
+
+        default = scene.default_material
+        ground_mat = self._physx_material(default)
+        ground = s.add_ground(float(scene.ground_z), render=self._rs is not None, material=ground_mat,
+                              render_material=self._render_material(Material(color=scene.ground_color))
+                              if self._rs is not None else None)
+        self._register(ground.find_component_by_type(sapien.physx.PhysxRigidStaticComponent), "ground")
+
+        if self._rs is not None:
+            lt = scene.lighting
+            s.ambient_light = list(lt.ambient)
+            for direction, color in lt.directional:
+                s.add_directional_light(list(direction), list(color), shadow=self._shadows)
+            for position, color in lt.points:
+                s.add_point_light(list(position), list(color), shadow=self._shadows)
+
+        seen: set[str] = set()
+        for name in scene.names():
+            if not name or "/" in name or name in (ROBOT, "ground") or name in seen:
+                raise BadCommand(f"invalid or duplicate object name {name!r} (names are unique, "
+                                 f"non-empty, without '/', and not 'robot' or 'ground')")
+            seen.add(name)
+        for body in scene.bodies:
+            self._build_body(body)
+        for obj in scene.articulations:
+            self._build_articulated_object(obj, default)
+        self._object_order = scene.names()
+        self._build_robot(emb, default)
+        self._build_cameras(list(scene.cameras) + list(emb.cameras))
+
+    # -- building helpers ---------------------------------------------------------------------
+    def _register(self, component, name: str) -> None:
+        self._names_by_ptr[component._physx_pointer] = name
+
+    def _physx_material(self, m: Material):
+        key = (float(m.static_friction), float(m.dynamic_friction), float(m.restitution))
+        mat = self._materials.get(key)
+        if mat is None:
+            mat = self._materials[key] = sapien.physx.PhysxMaterial(*key)
+        return mat
+
+    @staticmethod
+    def _render_material(m: Material):
+        return sapien.render.RenderMaterial(base_color=[float(c) for c in m.color],
+                                            roughness=float(m.roughness), metallic=float(m.metallic))
+
+    def _build_body(self, body) -> None:
+        if body.kind not in ("static", "dynamic", "kinematic"):
+            raise BadCommand(f"body {body.name!r}: unknown kind {body.kind!r}")
+        b = self._scene.create_actor_builder()
+        b.set_physx_body_type(body.kind)
+        n_collision = 0
+        for shape in body.shapes:
+            g = shape.geometry
+            pose = _sp(_pose_or_bad(shape.pose))
+            if isinstance(g, Mesh) and not os.path.isfile(g.path):
+                raise BadCommand(f"body {body.name!r}: mesh file not found: {g.path}")
+            if shape.collision:
+                mat = self._physx_material(shape.material)
+                dens = float(body.density)
+                if isinstance(g, Box):
+                    b.add_box_collision(pose, half_size=tuple(g.half_size), material=mat, density=dens)
+                elif isinstance(g, Sphere):
+                    b.add_sphere_collision(pose, radius=g.radius, material=mat, density=dens)
+                elif isinstance(g, Capsule):
+                    b.add_capsule_collision(pose, radius=g.radius, half_length=g.half_length, material=mat,
+                                            density=dens)
+                elif isinstance(g, Cylinder):
+                    b.add_cylinder_collision(pose, radius=g.radius, half_length=g.half_length, material=mat,
+                                             density=dens)
+                elif isinstance(g, Mesh) and g.convex:
+                    b.add_convex_collision_from_file(g.path, pose, scale=tuple(g.scale), material=mat,
+                                                     density=dens)
+                elif isinstance(g, Mesh):
+                    if body.kind == "dynamic":
+                        raise BadCommand(f"body {body.name!r}: a non-convex mesh collides only on static or "
+                                         f"kinematic bodies; use convex=True or split the mesh")
+                    b.add_nonconvex_collision_from_file(g.path, pose, scale=tuple(g.scale), material=mat)
+                else:
+                    raise BadCommand(f"body {body.name!r}: unsupported geometry {type(g).__name__}")
+                n_collision += 1
+            if shape.visual and self._rs is not None:
+                rm = self._render_material(shape.material)
+                if isinstance(g, Box):
+                    b.add_box_visual(pose, half_size=tuple(g.half_size), material=rm)
+                elif isinstance(g, Sphere):
+                    b.add_sphere_visual(pose, radius=g.radius, material=rm)
+                elif isinstance(g, Capsule):
+                    b.add_capsule_visual(pose, radius=g.radius, half_length=g.half_length, material=rm)
+                elif isinstance(g, Cylinder):
+                    b.add_cylinder_visual(pose, radius=g.radius, half_length=g.half_length, material=rm)
+                elif isinstance(g, Mesh):
+                    b.add_visual_from_file(g.path, pose, scale=tuple(g.scale), material=rm)
+        b.set_initial_pose(_sp(_pose_or_bad(body.pose)))
+        entity = b.build(name=body.name)
+        cls = (sapien.physx.PhysxRigidStaticComponent if body.kind == "static"
+               else sapien.physx.PhysxRigidDynamicComponent)
+        comp = entity.find_component_by_type(cls)
+        if len(comp.collision_shapes) != n_collision:  # the builder skips shapes that fail to cook
+            raise SimulatorError(f"body {body.name!r}: {n_collision - len(comp.collision_shapes)} collision "
+                                 f"shape(s) failed to build (bad mesh?)")
+        if body.kind == "dynamic":
+            comp.linear_damping = float(body.linear_damping)
+            comp.angular_damping = float(body.angular_damping)
+            if body.mass is not None:
+                if not body.mass > 0:
+                    raise BadCommand(f"body {body.name!r}: mass must be positive, got {body.mass}")
+                if comp.mass > 0:
+                    comp.inertia = comp.inertia * (float(body.mass) / comp.mass)
+                comp.mass = float(body.mass)
+        self._bodies[body.name] = _Rigid(body.kind, entity, comp)
+        self._register(comp, body.name)
+
+    def _load_urdf(self, urdf: str, srdf: str | None, fix_root: bool, material: Material, pose):
+        if not os.path.isfile(urdf):
+            raise BadCommand(f"URDF not found: {urdf}")
+        loader = self._scene.create_urdf_loader()
+        loader.fix_root_link = bool(fix_root)
+        loader.set_material(float(material.static_friction), float(material.dynamic_friction),
+                            float(material.restitution))
+        try:
+            builder = loader.load_file_as_articulation_builder(urdf, srdf if srdf and os.path.isfile(srdf) else None)
+        except Exception as e:  # the URDF parser raises plain Exceptions
+            raise BadCommand(f"cannot load URDF {urdf}: {e}") from e
+        if self._rs is None:
+            for lb in builder.link_builders:
+                lb.visual_records = []
+        builder.set_initial_pose(_sp(_pose_or_bad(pose)))
+        return builder.build()
+
+    def _build_articulated_object(self, obj, default: Material) -> None:
+        art = self._load_urdf(obj.urdf, None, obj.fix_root, default, obj.pose)
+        art.name = obj.name
+        joints = art.get_active_joints()
+        for j in joints:
+            if obj.joint_friction > 0:
+                j.set_friction(float(obj.joint_friction))
+            if obj.joint_damping > 0:
+                j.set_drive_property(0.0, float(obj.joint_damping))
+        if obj.qpos is not None:
+            q = _vector_or_bad(obj.qpos, art.dof, f"initial qpos of {obj.name!r}")
+            art.set_qpos(q.astype(np.float32))
+        links = {}
+        for link in art.get_links():
+            links[link.name] = link
+            self._register(link, f"{obj.name}/{link.name}")
+        self._arts[obj.name] = art
+        self._art_links[obj.name] = links
+
+    def _build_robot(self, emb: EmbodimentSpec, default: Material) -> None:
+        art = self._load_urdf(emb.urdf, emb.srdf, True, default, emb.base_pose)
+        art.name = ROBOT
+        self._robot = art
+        self._robot_links = {}
+        for link in art.get_links():
+            link.disable_gravity = True
+            self._robot_links[link.name] = link
+            self._register(link, f"{ROBOT}/{link.name}")
+        active = art.get_active_joints()
+        index = {j.name: i for i, j in enumerate(active)}
+        order = emb.joint_order()
+        missing = [n for n in order if n not in index]
+        if missing:
+            raise BadCommand(f"embodiment {emb.name!r}: joints {missing} are not active joints of {emb.urdf}")
+        self._joint_names = list(order)
+        self._qidx = np.array([index[n] for n in order], dtype=np.int64)
+        self._drives = [active[index[n]] for n in order]
+        gripper = {j for arm in emb.arms.values() for j in arm.gripper.joints}
+        for n, j in zip(order, self._drives):
+            if n in gripper:
+                j.set_drive_property(float(emb.gripper_stiffness), float(emb.gripper_damping))
+            else:
+                j.set_drive_property(float(emb.drive_stiffness), float(emb.drive_damping))
+        q = art.get_qpos().astype(np.float64)
+        start = q[self._qidx].copy()
+        pos = {n: i for i, n in enumerate(order)}
+        for arm in emb.arms.values():
+            home = tuple(arm.home_qpos)
+            if len(home) == len(arm.joints):
+                values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
+            elif len(home) == len(arm.joints) + len(arm.gripper.joints):
+                values = list(home)
+            else:
+                raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for "
+                                 f"{len(arm.joints)} joints")
+            for n, v in zip(list(arm.joints) + list(arm.gripper.joints), values):
+                start[pos[n]] = v
+        q[self._qidx] = start
+        art.set_qpos(q.astype(np.float32))
+        # active joints outside joint_order (none in a well-formed embodiment) hold their start
+        for i, j in enumerate(active):
+            if j.name not in pos:
+                log.warning("robot joint %r is not in the embodiment's joint order; holding it at %.4f",
+                            j.name, q[i])
+                j.set_drive_property(float(emb.drive_stiffness), float(emb.drive_damping))
+                j.set_drive_target(float(q[i]))
+        self._targets = np.zeros(len(order))
+        self._apply_targets(start)
+
+    def _build_cameras(self, specs: list[CameraSpec]) -> None:
+        self._cameras: dict[str, _Camera] = {}
+        for spec in specs:
+            if spec.name in self._cameras:
+                raise BadCommand(f"duplicate camera name {spec.name!r}")
+            if spec.width <= 0 or spec.height <= 0 or not 0 < spec.fovy_deg < 180:
+                raise BadCommand(f"camera {spec.name!r}: bad size or field of view")
+            local = _sp(_pose_or_bad(spec.pose))
+            link = None
+            if spec.mount_link is not None:
+                link = self._robot_links.get(spec.mount_link)
+                if link is None:
+                    raise BadCommand(f"camera {spec.name!r}: mount link {spec.mount_link!r} is not a robot link")
+            comp = None
+            if self._rs is not None:
+                comp = sapien.render.RenderCameraComponent(int(spec.width), int(spec.height))
+                comp.set_fovy(math.radians(spec.fovy_deg), compute_x=True)
+                comp.near, comp.far = float(spec.near), float(spec.far)
+                comp.name = spec.name
+                if link is None:
+                    entity = sapien.Entity()
+                    entity.name = spec.name
+                    entity.add_component(comp)
+                    entity.set_pose(local * _CV_TO_SAPIEN_POSE)
+                    self._scene.add_entity(entity)
+                else:
+                    link.entity.add_component(comp)
+                    comp.local_pose = local * _CV_TO_SAPIEN_POSE
+            K = intrinsics(int(spec.width), int(spec.height), float(spec.fovy_deg))
+            self._cameras[spec.name] = _Camera(spec, K, comp, link, local)
+
+    def close(self) -> None:
+        """Release the scene and every reference into it. Idempotent."""
+        self._closed = True
+        scene, self._scene = self._scene, None
+        if scene is None:
+            return
+        for attr in ("_cameras", "_bodies", "_arts", "_art_links", "_robot", "_robot_links", "_drives",
+                     "_names_by_ptr", "_materials", "_contacts", "_px", "_rs"):
+            if hasattr(self, attr):
+                setattr(self, attr, None)
+        try:
+            scene.clear()
+        except Exception:  # noqa: BLE001 (best effort at teardown)
+            log.debug("scene.clear() failed during close", exc_info=True)
+        del scene
+
+    def _live(self):
+        if self._scene is None:
+            raise SimulatorError("the simulator is closed" if self._closed else "build() was not called")
+        return self._scene
+
+    @property
+    def timestep(self) -> float:
+        self._live()
+        return self._timestep
+
+    def step(self, n: int = 1) -> None:
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+        self._live()
+        if n == 0:
+            return
+        step = self._px.step
+        for _ in range(int(n)):
+            step()
+        self._steps += int(n)
+        self._contacts = None  # computed lazily from the last step's PhysX contacts
+        self._version += 1
+
+    # -- robot --------------------------------------------------------------------------------
+    @property
+    def joint_names(self) -> list[str]:
+        self._live()
+        return list(self._joint_names)
+
+    def get_qpos(self) -> np.ndarray:
+        self._live()
+        return self._robot.get_qpos()[self._qidx].astype(np.float64)
+
+    def get_qvel(self) -> np.ndarray:
+        self._live()
+        return self._robot.get_qvel()[self._qidx].astype(np.float64)
+
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        self._live()
+        q = _vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        full = self._robot.get_qpos()
+        full[self._qidx] = q
+        self._robot.set_qpos(full)
+        self._robot.set_qvel(np.zeros_like(full))
+        self._apply_targets(q)
+        self._touched()
+
+    def set_drive_targets(self, targets: np.ndarray) -> None:
+        self._live()
+        self._apply_targets(_vector_or_bad(targets, len(self._joint_names), "drive targets"))
+
+    def _apply_targets(self, t: np.ndarray) -> None:
+        for j, v in zip(self._drives, t.tolist()):
+            j.set_drive_target(v)
+        self._targets[:] = t
+
+    def get_drive_targets(self) -> np.ndarray:
+        self._live()
+        return self._targets.copy()
+
+    def get_link_pose(self, link: str) -> np.ndarray:
+        self._live()
+        comp = self._robot_links.get(link)
+        if comp is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
+            comp = self._robot_links.get(link[len(ROBOT) + 1:])
+        if comp is None:
+            raise BadCommand(f"unknown robot link {link!r}")
+        return _np(comp.entity_pose)
+
+    # -- objects ------------------------------------------------------------------------------
+    def object_names(self) -> list[str]:
+        self._live()
+        return list(self._object_order)
+
+    def _object(self, name: str):
+        self._live()
+        if isinstance(name, str):
+            body = self._bodies.get(name)
+            if body is not None:
+                return body, None
+            art = self._arts.get(name)
+            if art is not None:
+                return None, art
+        raise BadCommand(f"unknown object {name!r}")
+
+    def get_object_pose(self, name: str) -> np.ndarray:
+        body, art = self._object(name)
+        return _np(body.entity.pose) if body is not None else _np(art.get_root_pose())
+
+    def set_object_pose(self, name: str, pose) -> None:
+        """Teleport a body (or an articulated object's root) and zero its velocity."""
+        body, art = self._object(name)
+        p = _sp(_pose_or_bad(pose))
+        if body is not None:
+            body.entity.set_pose(p)
+            if body.kind == "dynamic":
+                body.component.set_linear_velocity([0.0, 0.0, 0.0])
+                body.component.set_angular_velocity([0.0, 0.0, 0.0])
+        else:
+            art.set_root_pose(p)
+            art.set_root_linear_velocity([0.0, 0.0, 0.0])
+            art.set_root_angular_velocity([0.0, 0.0, 0.0])
+            art.set_qvel(np.zeros(art.dof, dtype=np.float32))
+        self._touched()
+
+    def get_object_velocity(self, name: str) -> np.ndarray:
+        body, art = self._object(name)
+        if body is None:
+            return np.concatenate([art.get_root_linear_velocity(), art.get_root_angular_velocity()]).astype(np.float64)
+        if body.kind == "static":
+            return np.zeros(6)
+        c = body.component
+        return np.concatenate([c.get_linear_velocity(), c.get_angular_velocity()]).astype(np.float64)
+
+    def get_object_qpos(self, name: str) -> np.ndarray:
+        body, art = self._object(name)
+        return np.zeros(0) if art is None else art.get_qpos().astype(np.float64)
+
+    def set_object_qpos(self, name: str, qpos) -> None:
+        """Set an articulated object's joints (and zero their velocities)."""
+        body, art = self._object(name)
+        if art is None:
+            raise BadCommand(f"{name!r} is a rigid body; it has no joints")
+        q = _vector_or_bad(qpos, art.dof, f"qpos of {name!r}")
+        art.set_qpos(q.astype(np.float32))
+        art.set_qvel(np.zeros(art.dof, dtype=np.float32))
+        self._touched()
+
+    def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
+        body, art = self._object(name)
+        links = self._art_links.get(name, {})
+        comp = links.get(link) if isinstance(link, str) else None
+        if comp is None:
+            raise BadCommand(f"unknown link {link!r} of object {name!r}")
+        return _np(comp.entity_pose)
+
+    def _touched(self) -> None:
+        """State changed without a step: images must be re-rendered; contacts keep the last step's."""
+        self._version += 1
+
+    # -- contacts -----------------------------------------------------------------------------
+    def get_contacts(self) -> list[Contact]:
+        """One entry per body pair in contact during the last step, names sorted within the pair,
+        pairs sorted; impulse = sum of the point impulse magnitudes (N*s); point = mean position
+        of the points that carried impulse."""
+        self._live()
+        if self._contacts is None:
+            self._contacts = self._compute_contacts()
+        return list(self._contacts)
+
+    def _compute_contacts(self) -> list[Contact]:
+        names = self._names_by_ptr
+        acc: dict[tuple[str, str], list] = {}
+        for c in self._px.get_contacts():
+            b0, b1 = c.bodies
+            n0 = names.get(b0._physx_pointer)
+            n1 = names.get(b1._physx_pointer)
+            if n0 is None or n1 is None or n0 == n1:
+                continue
+            impulse, k = 0.0, 0
+            psum = np.zeros(3)
+            for p in c.points:
+                m = float(np.linalg.norm(p.impulse))
+                if m > 0.0:
+                    impulse += m
+                    psum += p.position
+                    k += 1
+            if k == 0:
+                continue
+            key = (n0, n1) if n0 <= n1 else (n1, n0)
+            e = acc.get(key)
+            if e is None:
+                acc[key] = [impulse, psum, k]
+            else:
+                e[0] += impulse
+                e[1] += psum
+                e[2] += k
+        return [Contact(a, b, float(e[0]), tuple(float(v) for v in e[1] / e[2]))
+                for (a, b), e in sorted(acc.items())]
+
+    # -- cameras ------------------------------------------------------------------------------
+    def _camera(self, name: str) -> _Camera:
+        self._live()
+        cam = self._cameras.get(name) if isinstance(name, str) else None
+        if cam is None:
+            raise BadCommand(f"unknown camera {name!r}")
+        return cam
+
+    def camera_names(self) -> list[str]:
+        self._live()
+        return list(self._cameras)
+
+    def camera_pose(self, name: str) -> np.ndarray:
+        cam = self._camera(name)
+        if cam.link is None:
+            return _np(cam.local)
+        return _np(cam.link.entity_pose * cam.local)
+
+    def camera_intrinsics(self, name: str) -> np.ndarray:
+        return self._camera(name).K.copy()
+
+    def camera_size(self, name: str) -> tuple[int, int]:
+        spec = self._camera(name).spec
+        return int(spec.height), int(spec.width)
+
+    def render(self, name: str) -> np.ndarray:
+        cam = self._camera(name)
+        if cam.component is None:
+            raise RendererUnavailable("this SAPIEN simulator was built with render: false (physics only); "
+                                      "build it with render: true to capture images")
+        if self._rendered_version != self._version:
+            self._scene.update_render()
+            self._rendered_version = self._version
+        cam.component.take_picture()
+        rgba = cam.component.get_picture("Color")  # float32 RGBA in [0, 1]
+        return (np.clip(rgba[..., :3], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+    # -- state --------------------------------------------------------------------------------
+    def _layout(self) -> str:
+        arts = [(ROBOT, int(self._robot.dof))] + [(n, int(a.dof)) for n, a in self._arts.items()]
+        bodies = [(n, b.kind) for n, b in self._bodies.items()]
+        return json.dumps({"format": STATE_FORMAT, "bodies": bodies, "articulations": arts,
+                           "joints": self._joint_names})
+
+    def save_state(self) -> SimState:
+        """Snapshot: body poses/velocities/sleep flags, articulation root poses/velocities and
+        qpos/qvel (float32, exactly as PhysX holds them), drive targets, step count, and the last
+        step's contacts. Encoded as an ``.npz`` archive (no pickle)."""
+        self._live()
+        bodies = list(self._bodies.values())
+        pose = np.zeros((len(bodies), 7), np.float32)
+        vel = np.zeros((len(bodies), 6), np.float32)
+        asleep = np.zeros(len(bodies), np.bool_)
+        for i, b in enumerate(bodies):
+            p = b.entity.pose
+            pose[i, :3], pose[i, 3:] = p.p, p.q
+            if b.kind == "dynamic":
+                c = b.component
+                vel[i, :3], vel[i, 3:] = c.get_linear_velocity(), c.get_angular_velocity()
+                asleep[i] = c.is_sleeping
+        arts = [self._robot] + list(self._arts.values())
+        root = np.zeros((len(arts), 13), np.float32)
+        for i, a in enumerate(arts):
+            p = a.get_root_pose()
+            root[i, :3], root[i, 3:7] = p.p, p.q
+            root[i, 7:10], root[i, 10:] = a.get_root_linear_velocity(), a.get_root_angular_velocity()
+        qpos = np.concatenate([a.get_qpos() for a in arts]).astype(np.float32)
+        qvel = np.concatenate([a.get_qvel() for a in arts]).astype(np.float32)
+        contacts = json.dumps([[c.a, c.b, c.impulse, c.point] for c in self.get_contacts()])
+        d = dict(layout=np.array(self._layout()), body_pose=pose, body_vel=vel, body_asleep=asleep,
+                 root=root, qpos=qpos, qvel=qvel, targets=self._targets.copy(),
+                 steps=np.array(self._steps, np.int64), contacts=np.array(contacts))
+        # Re-apply the snapshot to this world at once. PhysX keeps float32 internals that the API
+        # does not expose (centre-of-mass frames, link spatial velocities); writing the state back
+        # puts them in exactly the form a later restore produces, so "save, do anything, restore,
+        # step" replays "save, step" bit for bit. The price: a snapshot perturbs the run it is taken
+        # from by float32 rounding (about 1e-9 to 1e-6 m), identically on every run that takes it.
+        self._apply_state(d)
+        buf = io.BytesIO()
+        np.savez(buf, **d)
+        return SimState(backend=BACKEND, data=buf.getvalue())
+
+    def restore_state(self, state: SimState) -> None:
+        """Restore a snapshot of this world (or of another build of the same scene and robot)."""
+        self._live()
+        if not isinstance(state, SimState) or state.backend != BACKEND:
+            raise BadCommand(f"not a {BACKEND} state: {getattr(state, 'backend', type(state).__name__)!r}")
+        try:
+            with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+            layout = str(d["layout"])
+        except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
+            raise BadCommand(f"corrupt {BACKEND} state: {e}") from None
+        if layout != self._layout():
+            raise BadCommand("the state was saved from a different scene or robot")
+        self._apply_state(d)
+
+    def _apply_state(self, d: dict) -> None:
+        for i, b in enumerate(self._bodies.values()):
+            row = d["body_pose"][i]
+            b.entity.set_pose(sapien.Pose(row[:3], row[3:]))
+            if b.kind == "dynamic":
+                c = b.component
+                c.set_linear_velocity(d["body_vel"][i, :3])
+                c.set_angular_velocity(d["body_vel"][i, 3:])
+                if d["body_asleep"][i]:
+                    c.put_to_sleep()
+        arts = [self._robot] + list(self._arts.values())
+        k = 0
+        for i, a in enumerate(arts):
+            r = d["root"][i]
+            a.set_root_pose(sapien.Pose(r[:3], r[3:7]))
+            n = a.dof
+            a.set_qpos(d["qpos"][k:k + n])
+            a.set_qvel(d["qvel"][k:k + n])
+            a.set_root_linear_velocity(r[7:10])
+            a.set_root_angular_velocity(r[10:])
+            k += n
+        self._apply_targets(np.asarray(d["targets"], np.float64))
+        self._steps = int(d["steps"])
+        self._contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
+                          for a, b, imp, pt in json.loads(str(d["contacts"]))]
+        self._touched()
+
+    # -- provenance ---------------------------------------------------------------------------
+    def versions(self) -> dict[str, str]:
+        self._live()
+        out = {"simulator": BACKEND, "sapien": str(sapien.__version__), "physx": str(sapien.physx.version()),
+               "timestep": repr(self._timestep), "render": "on" if self._rs is not None else "off"}
+        if self._rs is not None:
+            out["shader"] = self._shader
+            out["shadows"] = "on" if self._shadows else "off"
+            try:
+                device = self._rs.device.name
+            except Exception:  # noqa: BLE001
+                device = None
+            out.update(_renderer.describe_device(device))
+        return out
+
+    # -- extras (not part of the contract) ----------------------------------------------------
+    @property
+    def steps(self) -> int:
+        """Physics steps taken since build (restored with a snapshot)."""
+        self._live()
+        return self._steps

@@ -1,0 +1,29 @@
+"""The suite's tasks, one module each, registered explicitly (no import-time side effects).
+
+Each module defines ``TASK``, a :class:`~cab_suite_codeaction.common.CodeActionTask` subclass whose
+``name`` is its catalog entry.
+"""
+from __future__ import annotations
+
+import importlib
+
+from cab_core.errors import PluginError
+from cab_core.task import Task
+
+#: modules under ``cab_suite_codeaction.tasks`` whose ``TASK`` is registered, in catalog order
+TASK_MODULES: tuple[str, ...] = (
+    "beat_block_hammer",
+    "stack_blocks_three",
+    "open_microwave",
+)
+
+
+def load_tasks(modules: tuple[str, ...] = TASK_MODULES) -> dict[str, Task]:
+    """``{name: Task}`` for the registered modules; a task id defined twice is an error."""
+    tasks: dict[str, Task] = {}
+    for mod in modules:
+        task = importlib.import_module(f"{__name__}.{mod}").TASK()
+        if task.name in tasks:
+            raise PluginError(f"task {task.name!r} is registered twice (module {mod})")
+        tasks[task.name] = task
+    return tasks

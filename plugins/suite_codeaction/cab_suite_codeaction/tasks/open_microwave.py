@@ -1,0 +1,258 @@
+"""open_microwave: open the microwave door wide with one arm.
+
+Description
+    A countertop microwave oven stands on the table, its front toward the robot (-y). Its door is
+    hinged on the left side (seen from the robot), covers the cooking cavity and carries a vertical
+    handle bar on its free (right) edge, standing out from the door so a gripper can grasp or hook
+    it; the control panel with a display and buttons is to the right of the door. The robot must
+    swing the door open.
+
+Randomisation (per seed)
+    Model variant 0 or 1 (as upstream's ``044_microwave`` ids {0, 1}): a white oven
+    0.44 x 0.32 x 0.26 m or a steel one 0.46 x 0.33 x 0.27 m (w x d x h, with feet; the door and
+    handle add 5.6 cm in front). The height keeps the front face inside the head camera's view. Fixed root, no rotation,
+    body centre at x in [-0.12, -0.02], y in [0.15, 0.20], standing on the table top (FACTS gives
+    z 0.8 and a 90 deg quaternion for upstream's mesh frame; this model's frame has its origin at
+    the bottom centre, front toward -y). The door starts closed.
+
+Success (final state)
+    ``door_open``: door joint position >= 0.6 x its upper limit (2.0 rad), i.e. >= 1.2 rad.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cab_core.geometry import transform_point
+from cab_core.scene import ArticulatedObject
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..common import (CodeActionTask, base_scene, box_inertia, pose_list, rand_pose, srgb, table_top_z,
+                      urdf_asset, urdf_inertial, urdf_part, vec)
+
+NAME = "open_microwave"
+OPEN_FRACTION = 0.6
+DOOR_UPPER = 2.0  # rad (about 115 deg)
+JOINT_DAMPING = 0.3  # N m s / rad: the door stops within ~0.1 s of being let go
+JOINT_FRICTION = 0.02
+
+
+@dataclass(frozen=True)
+class Variant:
+    width: float  # x
+    depth: float  # y, body without door
+    height: float  # z, body without feet
+    body_rgb: tuple[float, float, float]
+    door_rgb: tuple[float, float, float]
+    panel_rgb: tuple[float, float, float]
+    metallic: bool
+
+
+VARIANTS = (
+    Variant(0.44, 0.32, 0.25, (0.90, 0.90, 0.88), (0.16, 0.16, 0.17), (0.22, 0.22, 0.24), False),
+    Variant(0.46, 0.33, 0.26, (0.66, 0.67, 0.69), (0.10, 0.10, 0.11), (0.12, 0.12, 0.13), True),
+)
+WALL = 0.012
+FOOT_H = 0.01
+PANEL_W = 0.11  # control panel column, right of the door
+DOOR_T = 0.02
+DOOR_GAP = 0.002  # between the door's free edge and the panel
+HANDLE_R = 0.009
+HANDLE_LEN = 0.16
+HANDLE_STANDOFF = 0.035  # door front face to handle-bar axis: 2.6 cm of clearance behind the bar
+HANDLE_INSET = 0.025  # handle-bar axis to the door's free edge
+
+
+def _rgba(rgb: tuple[float, float, float], a: float = 1.0) -> tuple[float, float, float, float]:
+    return srgb(*rgb, a)
+
+
+def geometry(v: Variant) -> dict[str, Any]:
+    """Derived dimensions. Base frame: origin at the bottom centre of the footprint (on the
+    table), +x right, +y back, +z up; the front face is at y = -depth/2. Door frame: origin on the
+    hinge axis at the bottom of the door, axes equal to the base frame's when closed."""
+    door_w = v.width - PANEL_W - DOOR_GAP
+    hinge = (-v.width / 2, -v.depth / 2, FOOT_H)
+    handle = (door_w - HANDLE_INSET, -(DOOR_T + HANDLE_STANDOFF), v.height / 2)
+    return {"door_width": door_w, "hinge": hinge, "handle": handle}
+
+
+def microwave_urdf(v: Variant) -> str:
+    """The microwave as a two-link URDF of primitives: ``base`` (shell, cavity, panel, feet) and
+    ``door`` (slab, window, handle) on the revolute joint ``door_hinge`` (axis -z: positive opens
+    outward, toward the robot, swinging to the left)."""
+    W, D, H = v.width, v.depth, v.height
+    g = geometry(v)
+    door_w = g["door_width"]
+    body = _rgba(v.body_rgb)
+    inner = _rgba((0.82, 0.80, 0.72))
+    panel = _rgba(v.panel_rgb)
+    door = _rgba(v.door_rgb)
+    glass = _rgba((0.03, 0.03, 0.04))
+    steel = _rgba((0.75, 0.76, 0.78))
+    z0 = FOOT_H
+    parts = []
+
+    def add(name: str, *a: Any, **k: Any) -> None:
+        parts.append(urdf_part(*a, material=name, **k))
+
+    # shell: bottom, top, left wall, back, panel column (a solid block flush with the door front)
+    add("body", "box", (W, D, WALL), (0, 0, z0 + WALL / 2), rgba=body)
+    add("body", "box", (W, D, WALL), (0, 0, z0 + H - WALL / 2), rgba=body)
+    add("body", "box", (WALL, D, H - 2 * WALL), (-W / 2 + WALL / 2, 0, z0 + H / 2), rgba=body)
+    add("body", "box", (W - PANEL_W - WALL, WALL, H - 2 * WALL),
+        ((-W / 2 + WALL + W / 2 - PANEL_W) / 2, D / 2 - WALL / 2, z0 + H / 2), rgba=body)
+    add("body", "box", (PANEL_W, D, H - 2 * WALL), (W / 2 - PANEL_W / 2, 0, z0 + H / 2), rgba=body)
+    # cavity lining (visual only, slightly inside the shell)
+    cx0, cx1 = -W / 2 + WALL, W / 2 - PANEL_W
+    cy1 = D / 2 - WALL
+    ch = H - 2 * WALL
+    lin = 0.001
+    add("inner", "box", (cx1 - cx0, D - WALL, lin), ((cx0 + cx1) / 2, -WALL / 2, z0 + WALL + lin / 2), rgba=inner,
+        collision=False)
+    add("inner", "box", (cx1 - cx0, lin, ch), ((cx0 + cx1) / 2, cy1 - lin / 2, z0 + H / 2), rgba=inner,
+        collision=False)
+    add("inner", "box", (lin, D - WALL, ch), (cx0 + lin / 2, -WALL / 2, z0 + H / 2), rgba=inner, collision=False)
+    add("inner", "box", (lin, D - WALL, ch), (cx1 - lin / 2, -WALL / 2, z0 + H / 2), rgba=inner, collision=False)
+    add("inner", "box", (cx1 - cx0, D - WALL, lin), ((cx0 + cx1) / 2, -WALL / 2, z0 + H - WALL - lin / 2),
+        rgba=inner, collision=False)
+    add("glass", "cylinder", (min(0.11, (cx1 - cx0) / 2 - 0.02), 0.006), ((cx0 + cx1) / 2, 0, z0 + WALL + 0.004),
+        rgba=_rgba((0.75, 0.85, 0.85)), collision=False)
+    # control panel face, flush with the door front, with a display and buttons
+    px = W / 2 - PANEL_W / 2
+    add("panel", "box", (PANEL_W, DOOR_T, H), (px, -D / 2 - DOOR_T / 2, z0 + H / 2), rgba=panel)
+    add("display", "box", (PANEL_W - 0.03, 0.002, 0.03), (px, -D / 2 - DOOR_T - 0.001, z0 + H - 0.045),
+        rgba=_rgba((0.15, 0.75, 0.35)), collision=False)
+    for row in range(3):
+        for col in range(3):
+            add("button", "box", (0.022, 0.004, 0.014),
+                (px + (col - 1) * 0.03, -D / 2 - DOOR_T - 0.002, z0 + H - 0.095 - row * 0.026),
+                rgba=_rgba((0.80, 0.80, 0.82)), collision=False)
+    add("button", "cylinder", (0.02, 0.008), (px, -D / 2 - DOOR_T - 0.004, z0 + 0.065), rpy=(np.pi / 2, 0, 0),
+        rgba=_rgba((0.55, 0.55, 0.58)), collision=False)
+    # feet
+    for fx in (-1, 1):
+        for fy in (-1, 1):
+            add("foot", "cylinder", (0.015, FOOT_H), (fx * (W / 2 - 0.04), fy * (D / 2 - 0.04), FOOT_H / 2),
+                rgba=_rgba((0.1, 0.1, 0.1)))
+    base_inertial = urdf_inertial(5.0, (0, 0, z0 + H / 2), box_inertia(5.0, (W, D, H)))
+
+    # door, in the door frame (hinge axis at x = 0, y = 0; front face at y = -DOOR_T)
+    dparts = []
+
+    def dadd(name: str, *a: Any, **k: Any) -> None:
+        dparts.append(urdf_part(*a, material=name, **k))
+
+    dadd("door", "box", (door_w, DOOR_T, H), (door_w / 2, -DOOR_T / 2, H / 2), rgba=door)
+    dadd("window", "box", (door_w - 0.10, 0.002, H - 0.08), (door_w / 2 - 0.02, -DOOR_T - 0.001, H / 2),
+         rgba=glass, collision=False)
+    hx, hy, hz = geometry(v)["handle"]
+    dadd("handle", "cylinder", (HANDLE_R, HANDLE_LEN), (hx, hy, hz), rgba=steel)
+    post_len = HANDLE_STANDOFF - HANDLE_R + 0.002
+    for s in (-1, 1):
+        dadd("handle", "box", (0.012, post_len, 0.015), (hx, -DOOR_T - post_len / 2 + 0.001, hz + s * (HANDLE_LEN / 2 - 0.01)),
+             rgba=steel)
+    door_mass = 0.4
+    door_inertial = urdf_inertial(door_mass, (door_w / 2, -DOOR_T / 2, H / 2), box_inertia(door_mass, (door_w, DOOR_T, H)))
+    hinge = geometry(v)["hinge"]
+    nl = "\n    "
+    return f"""<?xml version="1.0"?>
+<robot name="microwave">
+  <link name="base">
+    {base_inertial}
+    {nl.join(parts)}
+  </link>
+  <link name="door">
+    {door_inertial}
+    {nl.join(dparts)}
+  </link>
+  <joint name="door_hinge" type="revolute">
+    <parent link="base"/>
+    <child link="door"/>
+    <origin xyz="{hinge[0]:.6g} {hinge[1]:.6g} {hinge[2]:.6g}" rpy="0 0 0"/>
+    <axis xyz="0 0 -1"/>
+    <limit lower="0" upper="{DOOR_UPPER}" effort="100" velocity="10"/>
+    <dynamics damping="{JOINT_DAMPING}" friction="{JOINT_FRICTION}"/>
+  </joint>
+</robot>
+"""
+
+
+class OpenMicrowaveVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        m = info["microwave"]
+        self.name = m["name"]
+        self.joint_index = int(m["door_joint_index"])
+        self.upper = float(m["door_limits"][1])
+        self.threshold = OPEN_FRACTION * self.upper
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        q = float(np.asarray(w.qpos(self.name))[self.joint_index])
+        ok = q >= self.threshold
+        return Evaluation(success=ok, predicates={"door_open": ok},
+                          values={"door_qpos": q, "door_fraction": q / self.upper})
+
+
+class OpenMicrowave(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        model_id = int(rng.integers(0, len(VARIANTS)))
+        v = VARIANTS[model_id]
+        pose = rand_pose(rng, (-0.12, -0.02), (0.15, 0.20), (top,))
+        urdf = urdf_asset(f"microwave{model_id}", microwave_urdf(v))
+        scene = base_scene()
+        scene.articulations.append(ArticulatedObject(
+            "microwave", urdf, pose=tuple(pose), fix_root=True, qpos=(0.0,),
+            joint_friction=JOINT_FRICTION, joint_damping=JOINT_DAMPING))
+        g = geometry(v)
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "microwave": {
+                "name": "microwave",
+                "model_id": model_id,
+                "asset": f"microwave{model_id}",
+                "root_pose": pose_list(pose),
+                "frame": "base link: origin at the bottom centre of the footprint, +x right, +y back, +z up; "
+                         "front face at y = -depth/2",
+                "door_frame": "door link: origin on the hinge axis at the door's bottom; equals the base "
+                              "frame's axes when closed; the door's front face is at y = -door_thickness",
+                "size": vec([v.width, v.depth, v.height + FOOT_H]),
+                "base_link": "base",
+                "door_link": "door",
+                "door_joint": "door_hinge",
+                "door_joint_index": 0,
+                "door_limits": [0.0, DOOR_UPPER],
+                "success_qpos": round(OPEN_FRACTION * DOOR_UPPER, 6),
+                "hinge_side": "left",
+                "hinge_point_base": vec(g["hinge"]),
+                "hinge_axis_base": [0.0, 0.0, -1.0],  # positive qpos opens toward -y, swinging left
+                "door_width": round(g["door_width"], 6),
+                "door_height": v.height,
+                "door_thickness": DOOR_T,
+                "handle_point_door": vec(g["handle"]),  # centre of the bar
+                "handle_point_world_closed": vec(transform_point(pose, np.add(g["hinge"], g["handle"]))),
+                "handle_axis_door": [0.0, 0.0, 1.0],
+                "handle_radius": HANDLE_R,
+                "handle_length": HANDLE_LEN,
+                "handle_clearance": round(HANDLE_STANDOFF - HANDLE_R, 6),  # bar surface to door face
+                "door_outward_normal_door": [0.0, -1.0, 0.0],
+                "suggested_arm": "left",  # the handle sweeps to the left-front as the door opens
+            },
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return OpenMicrowaveVerifier(instance.info)
+
+
+TASK = OpenMicrowave

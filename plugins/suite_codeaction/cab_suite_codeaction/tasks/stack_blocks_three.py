@@ -1,0 +1,126 @@
+"""stack_blocks_three: stack blue on green on red.
+
+Description
+    Three 5 cm cubes, red, green and blue, lie on the table. The robot must stack the green cube on
+    the red one and the blue cube on the green one, and let go of them.
+
+Randomisation (per seed; FACTS B.6, RoboTwin's resample-until loops)
+    Each cube (half-size 0.025, drawn in the order red, green, blue) with ``rand_pose``:
+    x in [-0.28, 0.28], y in [-0.08, 0.05] with ``ylim_prop``, z 0.766, yaw +-0.75 rad, redrawn
+    until |x| >= 0.05, its centre is >= 0.15 m from (0, -0.1) (the stacking area stays clear) and
+    >= 0.10 m from every cube drawn before it.
+
+Success (final state)
+    ``green_on_red``: |green - (red + [0, 0, 0.05])| < [0.025, 0.025, 0.012] per axis;
+    ``blue_on_green``: the same for blue over green;
+    ``grippers_open``: every arm's commanded gripper value > 0.8.
+    The instruction also says "to the center of the table"; the benchmark kept RoboTwin's check,
+    which scores only the stack (the paper's alignment appendix lists no change for this task), so
+    the stack's distance from the centre is recorded as a value, not scored.
+    Guard: no cube may fall off the table.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.scene import Body, Box, Shape
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, base_scene, pose_list,
+                      rand_pose, sample_until, table_top_z, yaw_of)
+
+NAME = "stack_blocks_three"
+BLOCK_HALF = 0.025
+BLOCK_DENSITY = 600.0  # kg/m^3, a wooden toy block: 0.075 kg
+SPAWN_Z = 0.741 + BLOCK_HALF  # 0.766: 1 mm above the table, settles at reset
+CLEAR_CENTRE = (0.0, -0.1)
+CLEAR_RADIUS = 0.15
+MIN_PAIR_DIST = 0.10
+TOLERANCE = (0.025, 0.025, 0.012)
+GRIPPER_OPEN = 0.8
+COLOURS = (("red", RED), ("green", GREEN), ("blue", BLUE))  # bottom -> top of the goal stack
+
+
+class StackBlocksThreeVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.order = [info["blocks"][c]["name"] for c in info["stack_order"]]
+        self.step = np.array([0.0, 0.0, 2 * float(info["block_half_size"])])
+        self.tol = np.asarray(info["tolerance"], dtype=float)
+        self.arms = list(info["arms"])
+        self.centre = np.asarray(info["stack_target_xy"], dtype=float)
+        self.guarded_objects = tuple(self.order)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        p = [np.asarray(w.pose(n)[:3], dtype=float) for n in self.order]
+        d1 = p[1] - (p[0] + self.step)
+        d2 = p[2] - (p[1] + self.step)
+        green_on_red = bool(np.all(np.abs(d1) < self.tol))
+        blue_on_green = bool(np.all(np.abs(d2) < self.tol))
+        grips = {a: w.gripper_command(a) for a in self.arms}
+        grippers_open = all(g > GRIPPER_OPEN for g in grips.values())
+        values = {f"green_on_red_d{ax}": float(v) for ax, v in zip("xyz", d1)}
+        values.update({f"blue_on_green_d{ax}": float(v) for ax, v in zip("xyz", d2)})
+        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        values["stack_xy_from_centre"] = float(np.linalg.norm(p[0][:2] - self.centre))
+        return Evaluation(
+            success=green_on_red and blue_on_green and grippers_open,
+            predicates={"green_on_red": green_on_red, "blue_on_green": blue_on_green,
+                        "grippers_open": grippers_open},
+            values=values,
+        )
+
+
+class StackBlocksThree(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+        drawn: list[np.ndarray] = []
+        blocks: dict[str, dict[str, Any]] = {}
+        for colour, material in COLOURS:
+            def ok(p: np.ndarray) -> bool:
+                return (abs(p[0]) >= 0.05
+                        and np.hypot(p[0] - CLEAR_CENTRE[0], p[1] - CLEAR_CENTRE[1]) >= CLEAR_RADIUS
+                        and all(np.hypot(*(p[:2] - q[:2])) >= MIN_PAIR_DIST for q in drawn))
+
+            pose = sample_until(
+                lambda: rand_pose(rng, (-0.28, 0.28), (-0.08, 0.05), (SPAWN_Z,), ylim_prop=True, rotate_rand=True,
+                                  rotate_lim=(0.0, 0.0, 0.75)),
+                ok, what=f"the {colour} block")
+            drawn.append(pose)
+            name = f"{colour}_block"
+            scene.bodies.append(Body(name, [Shape(Box((BLOCK_HALF,) * 3), material=material)], pose=tuple(pose),
+                                     kind="dynamic", density=BLOCK_DENSITY))
+            blocks[colour] = {"name": name, "pose": pose_list(pose), "yaw": round(yaw_of(pose[3:]), 6)}
+
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "block_half_size": BLOCK_HALF,
+            "block_size": 2 * BLOCK_HALF,
+            "block_mass_kg": round(BLOCK_DENSITY * (2 * BLOCK_HALF) ** 3, 6),
+            "blocks": blocks,  # frames: cube centre, axes along the faces
+            "stack_order": [c for c, _ in COLOURS],  # bottom -> top
+            "tolerance": list(TOLERANCE),
+            "gripper_open_threshold": GRIPPER_OPEN,
+            "arms": list(arm_names(embodiment)),
+            # the cleared area the layout keeps free; where the instruction's "centre" stack can go
+            "stack_target_xy": list(CLEAR_CENTRE),
+            "resting_center_z": round(top + BLOCK_HALF, 6),
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return StackBlocksThreeVerifier(instance.info)
+
+
+TASK = StackBlocksThree

@@ -1,0 +1,57 @@
+"""Hydra configs composed without running the app."""
+import pytest
+from hydra import compose, initialize_config_module
+from hydra.errors import MissingConfigException
+
+from cab_core.cli import normalise_overrides
+from cab_core.errors import ConfigError
+from cab_core.runner import attempt_spec
+
+
+def _compose(overrides):
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        return compose(config_name="config", overrides=normalise_overrides(overrides))
+
+
+def test_bare_defaults(tmp_path):
+    cfg = _compose([])
+    assert (cfg.sim.name, cfg.model.name, cfg.task.name) == ("sapien", "oracle", "beat_block_hammer")
+    spec = attempt_spec(cfg, tmp_path)
+    assert spec.harness == "direct"
+    assert (spec.seed, spec.budget_tool_calls, spec.budget_sim_seconds, spec.budget_wall_seconds) == (0, 42, 60, 2520)
+
+
+@pytest.mark.parametrize("plus", [True, False])
+def test_plus_and_plain_group_overrides_both_work(plus, tmp_path):
+    p = "+" if plus else ""
+    cfg = _compose([f"{p}sim=sapien", f"{p}model=idle", f"{p}task=stack_blocks_three"])
+    spec = attempt_spec(cfg, tmp_path)
+    assert (spec.sim, spec.model, spec.task) == ("sapien", "idle", "stack_blocks_three")
+    assert (spec.budget_tool_calls, spec.budget_sim_seconds) == (70, 130)
+
+
+def test_unknown_option_lists_choices():
+    with pytest.raises(MissingConfigException) as e:
+        _compose(["model=nonexistent"])
+    assert "oracle" in str(e.value) and "idle" in str(e.value)
+
+
+def test_normalise_keeps_other_plus_overrides():
+    assert normalise_overrides(["+sim=sapien", "+foo=1", "++bar=2", "task=x"]) == ["sim=sapien", "+foo=1", "++bar=2", "task=x"]
+
+
+def test_seed_and_budget_overrides(tmp_path):
+    spec = attempt_spec(_compose(["seed=7", "budget.tool_calls=5", "attempt=3"]), tmp_path)
+    assert (spec.seed, spec.budget_tool_calls, spec.attempt) == (7, 5, 3)
+
+
+def test_bad_seed_is_a_typed_error(tmp_path):
+    with pytest.raises(ConfigError, match="seed"):
+        attempt_spec(_compose(["seed=-1"]), tmp_path)
+
+
+def test_every_catalog_task_has_a_task_option():
+    from cab_core.catalog import load_catalog
+
+    for t in load_catalog()["tasks"]:
+        assert _compose([f"task={t['name']}"]).task.name == t["name"]
