@@ -50,7 +50,8 @@ def task_names() -> list[str]:
 
 
 def task_info(name: str) -> TaskInfo:
-    """The catalog entry of task ``name`` (a fresh object each call). Unknown names raise :class:`ConfigError` with the choices."""
+    """The catalog entry of task ``name`` (a fresh object each call). Unknown names raise
+    :class:`ConfigError` listing the choices."""
     for t in _load()["tasks"]:
         if t["name"] == name:
             return _to_info(t)

@@ -2,7 +2,6 @@
 synthetic RobotContext (a fake simulator with the real head-camera calibration)."""
 from __future__ import annotations
 
-import importlib
 import json
 import math
 from importlib import resources
@@ -16,11 +15,9 @@ from cab_core.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
 from cab_core.errors import PluginError, ToolArgumentError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_mul, pose_to_mat, quat_to_mat
 from cab_core.robot import geometry_tools as gt
-from cab_core.robot import observe
 from cab_core.robot.context import ObservationStore, RobotContext
 from cab_core.simulator import Contact
 from cab_core.tools import TOOLS, build_registry, make_tool, schemas, validate_args
-from cab_core.tools import models as m
 
 # -- the catalog ---------------------------------------------------------------------------------
 CATALOG = yaml.safe_load(resources.files("cab_core").joinpath("data/catalog.yaml").read_text())

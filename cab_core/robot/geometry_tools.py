@@ -779,16 +779,17 @@ def preview_tcp_pose(ctx: RobotContext, args) -> ToolOutput:
     g = _gripper_at(ctx, src, args.arm, args.tcp_xyz, args.quat_wxyz, args.finger_gap_m)
 
     def paint(c: Canvas) -> dict:
-        ann = {"tool": "preview_tcp_pose", **_paint_gripper(c, g, src, PALETTE[5][1] if args.arm == "left" else PALETTE[3][1])}
+        colour = PALETTE[5][1] if args.arm == "left" else PALETTE[3][1]
+        ann = {"tool": "preview_tcp_pose", **_paint_gripper(c, g, src, colour)}
         ref = None
         if args.reference_px is not None:
             rp = np.asarray(args.reference_px, float)
             C, d = pixel_ray(src.K, src.E, rp)
-            v = g.pose[:3] - C
-            closest = C + max(0.0, float(np.dot(v, d))) * d
+            closest = C + max(0.0, float(np.dot(g.pose[:3] - C, d))) * d
+            seen = bool(np.all(np.isfinite(g.centre_uv)))
             ref = {"px": rnd(rp, 2), "in_frame": in_frame(rp, src.size_hw),
-                   "delta_px_from_grasp_center": rnd(rp - g.centre_uv, 2) if np.all(np.isfinite(g.centre_uv)) else None,
-                   "distance_px": rnd(float(np.linalg.norm(rp - g.centre_uv)), 2) if np.all(np.isfinite(g.centre_uv)) else None,
+                   "delta_px_from_grasp_center": rnd(rp - g.centre_uv, 2) if seen else None,
+                   "distance_px": rnd(float(np.linalg.norm(rp - g.centre_uv)), 2) if seen else None,
                    "grasp_center_to_ray_m": rnd(float(np.linalg.norm(g.pose[:3] - closest))),
                    "ray_point_nearest_grasp_center": rnd(closest)}
             c.circle(rp, 7, PALETTE[4][1], width=2)

@@ -36,7 +36,7 @@ def get_world_frame(ctx: RobotContext, args) -> ToolOutput:
         return {
             "tool": "get_world_frame",
             "axes": {"+x": "robot right (the left arm is at -x, the right arm at +x)",
-                     "+y": "forward, away from the robot across the table",
+                     "+y": "forward, away from the robot",
                      "+z": "up (gravity is -z)"},
             "handedness": "right-handed",
             "origin": "fixed to the scene; metres",
@@ -76,7 +76,7 @@ def _camera_card(ctx: RobotContext) -> dict:
         except SimulatorError:
             size = None
         if cam == "head_camera":
-            desc = "fixed RGB camera above and behind the robot, looking forward and down over the table"
+            desc = "fixed RGB camera above and behind the robot, looking forward and down at the workspace"
         else:
             side = cam.split("_")[0]
             desc = f"RGB camera on the {side} wrist; it moves and turns with the {side} arm"
@@ -132,7 +132,7 @@ def get_embodiment(ctx: RobotContext, args) -> ToolOutput:
         "cameras": _camera_card(ctx),
         "reachability": {
             "workspace_envelope_m": {k: list(v) for k, v in WORKSPACE.items()},
-            "planner_world": "robot self-collision only: no table, no scene objects, no other arm, no held object",
+            "planner_world": "robot self-collision only: no scene geometry or objects, no other arm, no held object",
             "check": "check_tcp_pose_reachability plans without moving",
         },
         "motion": {"max_single_displacement_m": _param(ctx, "max_step_m", 0.30),

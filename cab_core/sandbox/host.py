@@ -283,6 +283,7 @@ class _RunState:
     reset_reason: str | None = None
     error: str | None = None
     timed_out: bool = False
+    limit_s: float = 0.0
 
 
 def _pick(payload: dict, key: str):
@@ -358,8 +359,16 @@ class Sandbox:
         self.close()
 
     def close(self) -> None:
+        """Kill the child and remove the private directory. Safe from another thread while a
+        program runs: that run returns at once with ``namespace_reset_reason="closed"``."""
+        self._closed = True
+        proc = self._owned.proc
+        if proc is not None:  # stop a running program now; the running thread cleans up
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
         with self._lock:
-            self._closed = True
             self._child = None
             self._finalizer()
 
@@ -458,8 +467,13 @@ class Sandbox:
             self._owned.proc = None
 
     # -- running programs
-    def run(self, code: str) -> dict:
-        """Run one program; return the CodeResult payload (already capped to ``result_cap_bytes``)."""
+    def run(self, code: str, *, timeout_s: float | None = None) -> dict:
+        """Run one program; return the CodeResult payload (already capped to ``result_cap_bytes``).
+
+        ``timeout_s`` lowers the configured timeout for this program only (e.g. to the attempt's
+        remaining wall budget). Raises :class:`SandboxUnavailable` if a child cannot be restarted,
+        and re-raises whatever ``dispatch`` or ``load_image`` raise (after discarding the child).
+        """
         if not isinstance(code, str):
             raise TypeError("run_code code must be a string")
         with self._lock:
@@ -471,9 +485,11 @@ class Sandbox:
                 except _SpawnError as exc:
                     raise SandboxUnavailable(f"the run_code sandbox could not be restarted: {exc}") from None
             st = _RunState()
+            limit = self.config.timeout_s if timeout_s is None else max(0.0, min(timeout_s, self.config.timeout_s))
+            st.limit_s = limit
             t0 = time.monotonic()
             try:
-                self._drive(code, st, t0 + self.config.timeout_s)
+                self._drive(code, st, t0 + limit)
             except BaseException:
                 self._drop_child()  # a host fault mid-program: never leave a half-run child behind
                 raise
@@ -481,7 +497,7 @@ class Sandbox:
                 self.last_run_record = {
                     "internal_trace": st.trace_full, "duration_s": round(time.monotonic() - t0, 6),
                     "stdout_chars": (st.done or {}).get("stdout_chars", st.stdout_len),
-                    "confinement": self.confinement, "reset_reason": st.reset_reason,
+                    "confinement": self.confinement, "reset_reason": st.reset_reason, "timeout_s": limit,
                     "child_stderr_tail": self._stderr_tail() if st.reset_reason else "",
                 }
             return self._result(st)
@@ -541,8 +557,11 @@ class Sandbox:
                             f"{cfg.stop_grace_s:g} s after the attempt ended and was killed.")
             else:
                 st.timed_out = True
-                self._reset(st, "timeout", f"timeout: the program ran longer than {cfg.timeout_s:g} s and was stopped.")
+                self._reset(st, "timeout", f"timeout: the program ran longer than {st.limit_s:g} s and was stopped.")
         except _ChildGone:
+            if self._closed:
+                self._reset(st, "closed", "the sandbox was closed by the host while the program ran.")
+                return
             child.proc.poll()
             try:
                 child.proc.wait(timeout=2)

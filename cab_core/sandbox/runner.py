@@ -157,7 +157,8 @@ def _filtered_module(mod, cache: dict):
 
 # ------------------------------------------------------------------------------- JSON conversion
 _MAX_NODES = 20000
-_MAX_STR = 20000
+_MAX_STR = 20000  # one string
+_MAX_CHARS = 200000  # all strings together
 _MAX_ARRAY = 20000
 _TRUNC = "__codeaction_truncated"
 
@@ -165,10 +166,10 @@ _TRUNC = "__codeaction_truncated"
 def to_jsonable(value, np, budget=None, depth=0):
     """Convert a program value to plain JSON data (bounded; non-finite floats become strings)."""
     if budget is None:
-        budget = [_MAX_NODES]
+        budget = [_MAX_NODES, _MAX_CHARS]
     budget[0] -= 1
-    if budget[0] < 0 or depth > 64:
-        return {f"{_TRUNC}_value__": "too large or too deep"}
+    if depth > 64:
+        return {f"{_TRUNC}_value__": "nested too deeply"}
     if value is None or isinstance(value, bool):
         return value
     if isinstance(value, int):
@@ -176,8 +177,10 @@ def to_jsonable(value, np, budget=None, depth=0):
     if isinstance(value, float):
         return value if math.isfinite(value) else repr(value)
     if isinstance(value, str):
-        if len(value) > _MAX_STR:
-            return value[:_MAX_STR] + f"...[{_TRUNC}_chars__: {len(value) - _MAX_STR}]"
+        n = max(0, min(len(value), _MAX_STR, budget[1]))
+        budget[1] -= n
+        if n < len(value):
+            return value[:n] + f"...[{_TRUNC}_chars__: {len(value) - n}]"
         return value
     if isinstance(value, np.ndarray):
         if value.size > _MAX_ARRAY:
@@ -189,16 +192,27 @@ def to_jsonable(value, np, budget=None, depth=0):
     if isinstance(value, complex):
         return {"real": to_jsonable(value.real, np, budget), "imag": to_jsonable(value.imag, np, budget)}
     if isinstance(value, dict):
-        return {(k if isinstance(k, str) else str(to_jsonable(k, np, budget, depth + 1))):
-                to_jsonable(v, np, budget, depth + 1) for k, v in value.items()}
+        out = {}
+        for i, (k, v) in enumerate(value.items()):
+            if budget[0] <= 0:
+                out[f"{_TRUNC}_keys__"] = len(value) - i
+                break
+            key = k if isinstance(k, str) else str(to_jsonable(k, np, budget, depth + 1))
+            out[key] = to_jsonable(v, np, budget, depth + 1)
+        return out
     if isinstance(value, (set, frozenset)):
         try:
-            items = sorted(value)
+            value = sorted(value)
         except TypeError:
-            items = sorted(value, key=repr)
-        return [to_jsonable(v, np, budget, depth + 1) for v in items]
+            value = sorted(value, key=repr)
     if isinstance(value, (list, tuple, range)):
-        return [to_jsonable(v, np, budget, depth + 1) for v in value]
+        out = []
+        for i, v in enumerate(value):
+            if budget[0] <= 0:
+                out.append({f"{_TRUNC}_items__": len(value) - i})
+                break
+            out.append(to_jsonable(v, np, budget, depth + 1))
+        return out
     if isinstance(value, (bytes, bytearray)):
         return to_jsonable(repr(bytes(value[:_MAX_STR])), np, budget, depth + 1)
     return to_jsonable(repr(value), np, budget, depth + 1)
@@ -473,12 +487,17 @@ class Runner:
 
     # -- the program's world
     def _restricted_import(self, name, globals=None, locals=None, fromlist=(), level=0):
-        if level != 0 or fromlist:
-            raise ImportError("only `import numpy` and `import math` are allowed")
-        if name == "math":
+        # Import statements in the program arrive with fromlist None (the AST policy admits no other
+        # form) and get the filtered numpy. numpy's C code imports its own lazy submodules through
+        # the builtins of the calling frame, i.e. through here: CPython's PyImport_Import passes an
+        # empty list as fromlist and then reads the module from sys.modules, so the real submodule
+        # goes back to numpy's C code, never to the program (which has no way to call this itself).
+        if level == 0 and name == "math":
             return math
-        if name in ALLOWED_IMPORTS:
+        if level == 0 and fromlist is None and name in ALLOWED_IMPORTS:
             return self.safe_np
+        if level == 0 and fromlist is not None and (name == "numpy" or name.startswith("numpy.")):
+            return __import__(name, None, None, fromlist, 0)
         raise ImportError(f"import of '{name}' is not allowed (only numpy and math can be imported)")
 
     def _namespace(self) -> dict:

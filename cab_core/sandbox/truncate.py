@@ -60,7 +60,6 @@ def cap_result(result: dict, cap: int) -> dict:
     for name in _ORDER:
         if name not in out or json_size(out) <= cap:
             continue
-        marker["fields"].append(name)
         for items, chars in _LEVELS:
             if name == "internal_trace":
                 out[name] = _shrink_trace(result[name], items * 2)
@@ -70,4 +69,6 @@ def cap_result(result: dict, cap: int) -> dict:
                 out[name] = shrink(result[name], items, chars)
             if json_size(out) <= cap:
                 break
+        if out[name] != result[name]:
+            marker["fields"].append(name)
     return out

@@ -98,7 +98,7 @@ _SPECS: list[tuple[str, str, type[BaseModel], str, str, str, type[BaseModel] | N
      "Moves one arm by a small world-frame displacement (dx, dy, dz in m) as a real guarded motion, capturing its "
      "wrist RGB before and after. Returns both observations, the motion's ActionResult, the measured camera "
      "translation and rotation, contact evidence and validity flags, and a pair_id for "
-     "triangulate_correspondence. Consumes simulated time.", None),
+     "triangulate_correspondence. Consumes simulated time.", m.ObservationPair),
     ("triangulate_correspondence", "geometry", m.TriangulateCorrespondenceArgs, _GEOM, "read",
      "Triangulates one scene point from a motion pair: you give the pixel of the same point in the 'before' and "
      "'after' images; the two viewing rays from the measured camera poses are intersected by the two-ray midpoint "
@@ -204,8 +204,9 @@ def make_tool(name: str, group: str, args: type[BaseModel], module: str, kind: s
     check_documented(args)
     if args.model_config.get("extra") != "forbid":
         raise PluginError(f"tool {name}: argument model {args.__name__} must forbid extra fields")
-    return ToolDef(name=name, group=group, args=args, handler=f"{module}:{name}", description=description,  # type: ignore[arg-type]
-                   read_only=kind in ("read", "plan"), destructive=kind in ("act", "code"), advances_physics=name in _ADVANCES_PHYSICS,
+    return ToolDef(name=name, group=group, args=args, handler=f"{module}:{name}",  # type: ignore[arg-type]
+                   description=description, read_only=kind in ("read", "plan"),
+                   destructive=kind in ("act", "code"), advances_physics=name in _ADVANCES_PHYSICS,
                    charged=kind != "done", result=result)
 
 

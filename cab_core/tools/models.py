@@ -30,18 +30,27 @@ FINGER_GAP_RANGE_M = (0.048, 0.142)  # FK distance between finger-link origins
 MAX_MARKS = 12
 
 
+def _norm(v: list[float]) -> float:
+    return math.sqrt(sum(x * x for x in v))
+
+
 def _nonzero_vector(v: list[float]) -> list[float]:
-    n = math.sqrt(sum(x * x for x in v))
+    n = _norm(v)
     if not math.isfinite(n) or n < 1e-9:
         raise ValueError("must be a non-zero vector")
     return v
 
 
 def _unit_quaternion(q: list[float]) -> list[float]:
-    n = math.sqrt(sum(x * x for x in q))
+    n = _norm(q)
     if not math.isfinite(n) or n < 1e-9:
         raise ValueError("quaternion must be non-zero (order w, x, y, z)")
     return [x / n for x in q]
+
+
+def _unit(v: list[float]) -> list[float]:
+    n = _norm(v)
+    return [x / n for x in v]
 
 
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
@@ -50,10 +59,9 @@ QuatWXYZ = Annotated[list[FiniteFloat], Field(min_length=4, max_length=4), After
 Pixel = Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]
 ObsId = Annotated[str, Field(min_length=1, max_length=64)]
 
-
-def _unit(v: list[float]) -> list[float]:
-    n = math.sqrt(sum(x * x for x in v))
-    return [x / n for x in v]
+_D_GAP = "Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap."
+_D_QUAT = "Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."
+_D_TCP = "Proposed TCP (nominal grasp centre) position, world metres."
 
 
 class Args(BaseModel):
@@ -83,8 +91,9 @@ class GetGripperStateArgs(Args):
 
 
 class GetRobotStateArgs(Args):
-    arms: list[Arm] = Field(default_factory=lambda: ["left", "right"], min_length=1, max_length=2,
-                            description="Arms to include, 1 or 2 distinct names from 'left'/'right'; default both.")
+    arms: list[Arm] = Field(
+        default_factory=lambda: ["left", "right"], min_length=1, max_length=2,
+        description="Arms to include, 1 or 2 distinct names from 'left'/'right'; default both.")
 
     @model_validator(mode="after")
     def _unique(self):
@@ -103,10 +112,11 @@ class CaptureHeadArgs(Args):
 
 class CaptureWristArgs(Args):
     active_arm: Literal["left", "right", "none"] = Field(
-        description=("Arm whose wrist camera is the 'active' view; 'none' only with views='both' (both wrists, no "
-                     "roles)."))
+        description="Arm whose wrist camera is the 'active' view; 'none' only with views='both' "
+                    "(both wrists, no roles).")
     views: Literal["active", "both"] = Field(
-        default="active", description="'active': the active arm's wrist image only; 'both': also the opposite wrist.")
+        default="active",
+        description="'active': the active arm's wrist image only; 'both': also the opposite wrist.")
 
     @model_validator(mode="after")
     def _none_needs_both(self):
@@ -118,7 +128,7 @@ class CaptureWristArgs(Args):
 class CaptureEvidenceViewsArgs(Args):
     active_arm: Optional[Arm] = Field(
         default=None,
-            description=("Optional arm whose wrist view is additionally labelled role 'active' (the other 'opposite')."))
+        description="Optional arm whose wrist view is also labelled role 'active' (the other 'opposite').")
     views: list[EvidenceView] = Field(
         default_factory=lambda: ["overview", "left_wrist", "right_wrist"], min_length=1, max_length=3,
         description="Unique, non-empty subset of 'overview' (head camera), 'left_wrist', 'right_wrist'; "
@@ -133,19 +143,20 @@ class CaptureEvidenceViewsArgs(Args):
 
 class DrawMarksArgs(Args):
     obs_id: ObsId = Field(
-        description=("Observation to annotate (an obs_id returned by a capture tool). It is not modified; a new "
-                     "observation is returned."))
-    pixels: list[Pixel] = Field(min_length=1, max_length=MAX_MARKS,
-                                description=("1-12 pixel points [u, v] in that observation's image (u right, v "
-                                             "down, zero-based)."))
+        description="Observation to annotate (an obs_id from a capture tool). It is not modified; a new "
+                    "observation is returned.")
+    pixels: list[Pixel] = Field(
+        min_length=1, max_length=MAX_MARKS,
+        description="1-12 pixel points [u, v] in that observation's image (u right, v down, zero-based).")
     labels: list[Annotated[str, Field(max_length=40)]] = Field(
         min_length=1, max_length=MAX_MARKS,
-            description=("One short text label per pixel (same length as pixels, at most 40 characters each)."))
+        description="One short text label per pixel (same count as pixels, at most 40 characters each).")
 
     @model_validator(mode="after")
     def _same_length(self):
         if len(self.pixels) != len(self.labels):
-            raise ValueError(f"labels must have one entry per pixel (got {len(self.pixels)} pixels, {len(self.labels)} labels)")
+            raise ValueError(f"labels must have one entry per pixel "
+                             f"(got {len(self.pixels)} pixels, {len(self.labels)} labels)")
         return self
 
 
@@ -165,13 +176,13 @@ class PlaneIntersectArgs(Args):
     px: Pixel = Field(description="Pixel [u, v] in that observation's image.")
     plane_point_xyz: Vec3 = Field(description="Any world point on the plane [x, y, z], metres.")
     plane_normal_xyz: Direction3 = Field(
-        description=("Plane normal in world coordinates (non-zero; normalised internally)."))
-    plane_offset_sigma_m: FiniteFloat = Field(ge=0, le=10.0,
-                                              description=("Your 1-sigma uncertainty of the plane's position along"
-                                                           " its normal, metres (>= 0)."))
-    pixel_sigma_px: FiniteFloat = Field(default=2.0, ge=0, le=100.0,
-                                        description=("Your 1-sigma uncertainty of the pixel location, pixels "
-                                                     "(default 2.0)."))
+        description="Plane normal in world coordinates (non-zero; normalised internally).")
+    plane_offset_sigma_m: FiniteFloat = Field(
+        ge=0, le=10.0,
+        description="Your 1-sigma uncertainty of the plane's position along its normal, metres (>= 0).")
+    pixel_sigma_px: FiniteFloat = Field(
+        default=2.0, ge=0, le=100.0,
+        description="Your 1-sigma uncertainty of the pixel location, pixels (default 2.0).")
 
 
 class CaptureMotionPairArgs(Args):
@@ -183,12 +194,12 @@ class CaptureMotionPairArgs(Args):
 
 class TriangulateCorrespondenceArgs(Args):
     pair_id: Annotated[str, Field(min_length=1, max_length=64)] = Field(
-        description=("pair_id returned by capture_motion_pair."))
+        description="pair_id returned by capture_motion_pair.")
     px_before: Pixel = Field(description="Pixel [u, v] of the scene point in the pair's 'before' image.")
     px_after: Pixel = Field(description="Pixel [u, v] of the same scene point in the pair's 'after' image.")
-    pixel_sigma_px: FiniteFloat = Field(default=2.0, ge=0, le=100.0,
-                                        description=("Your 1-sigma pixel uncertainty for both points, pixels "
-                                                     "(default 2.0)."))
+    pixel_sigma_px: FiniteFloat = Field(
+        default=2.0, ge=0, le=100.0,
+        description="Your 1-sigma pixel uncertainty for both points, pixels (default 2.0).")
 
 
 class ScaleFromObjectSizeArgs(Args):
@@ -196,12 +207,12 @@ class ScaleFromObjectSizeArgs(Args):
     bbox: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = Field(
         description="Object bounding box [x1, y1, x2, y2] in pixels of that image (x1 < x2, y1 < y2).")
     extent_axis: Literal["width", "height", "diagonal"] = Field(
-        description="Which box extent corresponds to the known size: 'width' (u), 'height' (v) or 'diagonal'.")
-    known_extent_m: FiniteFloat = Field(ge=1e-6, le=10.0,
-        description=("Your prior for the object's physical extent along that axis, metres."))
+        description="Which box extent matches the known size: 'width' (u), 'height' (v) or 'diagonal'.")
+    known_extent_m: FiniteFloat = Field(
+        ge=1e-6, le=10.0, description="Your prior for the object's physical extent along that axis, metres.")
     known_extent_sigma_m: Optional[FiniteFloat] = Field(
         default=None, ge=0, le=10.0,
-            description=("Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null."))
+        description="Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null.")
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -212,7 +223,8 @@ class ScaleFromObjectSizeArgs(Args):
 
 
 class ScaleFromGripperArgs(Args):
-    camera: CameraName = Field(description="Camera in which to measure the fingertips (a fresh image is captured).")
+    camera: CameraName = Field(
+        description="Camera in which to measure the fingertips (a fresh image is captured).")
     arm: Arm = Field(description="Arm whose fingertips serve as the metric reference.")
 
 
@@ -220,56 +232,54 @@ class GraspQuatCandidatesArgs(Args):
     approach_axis_world: Direction3 = Field(
         description="World direction from the wrist toward the fingertips (gripper +x); normalised internally.")
     opening_axis_world: Direction3 = Field(
-        description="World direction of the line along which the fingers open and close (gripper +y); normalised "
-                    "internally; must be orthogonal to the approach axis (|dot| <= 1e-6 after normalising).")
+        description="World direction of the line along which the fingers open and close (gripper +y); "
+                    "normalised internally; must be orthogonal to the approach axis (|dot| <= 1e-6).")
 
     @model_validator(mode="after")
     def _orthogonal(self):
         a, o = _unit(self.approach_axis_world), _unit(self.opening_axis_world)
-        d = sum(x * y for x, y in zip(a, o))
-        if abs(d) > ORTHOGONALITY_TOL:
-            raise ValueError(f"approach and opening axes must be orthogonal (|dot| after normalising is {abs(d):.3g} > 1e-6)")
+        d = abs(sum(x * y for x, y in zip(a, o)))
+        if d > ORTHOGONALITY_TOL:
+            raise ValueError(f"approach and opening axes must be orthogonal "
+                             f"(|dot| after normalising is {d:.3g} > 1e-6)")
         return self
 
 
 class CameraAimPoseArgs(Args):
     camera: WristCamera = Field(
-        description=("Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm)."))
+        description="Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm).")
     target_xyz: Vec3 = Field(description="World point [x, y, z] (metres) the camera should look at.")
-    pitch: FiniteFloat = Field(default=80.0, ge=60.0, le=90.0,
-                               description=("Approach tilt below horizontal in degrees (60-90; 90 = approach "
-                                            "straight down, ")
-                                           "the top-down family); applied as a rotation about world Y before the heading.")
-    standoff: FiniteFloat = Field(default=0.28, ge=0.05, le=1.0,
-                                  description="Height of the TCP above the target's z, metres (default 0.28).")
+    pitch: FiniteFloat = Field(
+        default=80.0, ge=60.0, le=90.0,
+        description="Approach tilt below horizontal, degrees (60-90, default 80; 90 = approach straight down, "
+                    "the top-down family); a rotation about world Y applied before the heading.")
+    standoff: FiniteFloat = Field(
+        default=0.28, ge=0.05, le=1.0,
+        description="Height of the TCP above the target's z, metres (default 0.28).")
 
 
 class TcpCandidate(Args):
     arm: Arm = Field(description="Arm this TCP pose is for.")
-    tcp_xyz: Vec3 = Field(description="Proposed TCP (nominal grasp centre) position, world metres.")
-    quat_wxyz: QuatWXYZ = Field(
-        description=("Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."))
+    tcp_xyz: Vec3 = Field(description=_D_TCP)
+    quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
     finger_gap_m: Optional[FiniteFloat] = Field(
-        default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1],
-        description="Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap.")
+        default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1], description=_D_GAP)
 
 
 class PreviewTcpPoseArgs(Args):
     obs_id: ObsId = Field(
-        description=("Observation to draw into; it must be from the current tick (capture a fresh one after any "
-                     "motion)."))
+        description="Observation to draw into; it must be from the current tick (capture a fresh one after "
+                    "any motion).")
     arm: Arm = Field(description="Arm whose gripper geometry to draw.")
-    tcp_xyz: Vec3 = Field(description="Proposed TCP (nominal grasp centre) position, world metres.")
-    quat_wxyz: QuatWXYZ = Field(
-        description=("Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."))
+    tcp_xyz: Vec3 = Field(description=_D_TCP)
+    quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
     finger_gap_m: Optional[FiniteFloat] = Field(
-        default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1],
-        description="Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap.")
+        default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1], description=_D_GAP)
     reference_px: Optional[Pixel] = Field(
         default=None, description="Optional pixel [u, v] to report offsets to; exclusive with reference_xyz_world.")
     reference_xyz_world: Optional[Vec3] = Field(
-        default=None,
-            description=("Optional world point [x, y, z] (m) to report offsets to; exclusive with reference_px."))
+        default=None, description="Optional world point [x, y, z] (m) to report offsets to; exclusive with "
+                                  "reference_px.")
 
     @model_validator(mode="after")
     def _one_reference(self):
@@ -280,9 +290,8 @@ class PreviewTcpPoseArgs(Args):
 
 class CompareTcpPosesArgs(Args):
     obs_id: ObsId = Field(description="Observation to draw into; it must be from the current tick.")
-    candidates: list[TcpCandidate] = Field(min_length=2, max_length=4,
-                                           description=("2-4 proposed TCP poses, drawn and numbered 1..n in this "
-                                                        "order."))
+    candidates: list[TcpCandidate] = Field(
+        min_length=2, max_length=4, description="2-4 proposed TCP poses, drawn and numbered 1..n in this order.")
 
 
 class CheckTcpPoseReachabilityArgs(Args):
@@ -290,8 +299,7 @@ class CheckTcpPoseReachabilityArgs(Args):
     target_xyz: Vec3 = Field(description="Target TCP position, world metres.")
     target_quat: Optional[QuatWXYZ] = Field(
         default=None,
-            description=("Target TCP orientation, world quaternion [w, x, y, z]; default keeps the current "
-                         "orientation."))
+        description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the current one.")
 
 
 # -- motion ------------------------------------------------------------------------------------
@@ -302,9 +310,8 @@ class MoveDeltaArgs(Args):
     dz: FiniteFloat = Field(default=0.0, description="TCP displacement along world +z (up), metres.")
     path: Literal["waypoint_legs", "single_plan"] = Field(
         default="waypoint_legs",
-        description=("'waypoint_legs': guarded legs of at most contact_leg_m (0.03 m), each re-aimed from the "
-                     "measured TCP; ")
-                    "'single_plan': one planned trajectory.")
+        description="'waypoint_legs': guarded legs of at most contact_leg_m (0.03 m), each re-aimed from the "
+                    "measured TCP; 'single_plan': one planned trajectory.")
 
 
 class MoveBothDeltaArgs(Args):
@@ -315,73 +322,72 @@ class MoveBothDeltaArgs(Args):
 class ReachTcpArgs(Args):
     arm: Arm = Field(description="Arm to move.")
     target_xyz: Vec3 = Field(
-        description=("Target TCP position, world metres (workspace x,y in [-0.8, 0.8], z in [0.4, 1.5])."))
+        description="Target TCP position, world metres (workspace x, y in [-0.8, 0.8], z in [0.4, 1.5]).")
     target_quat: Optional[QuatWXYZ] = Field(
         default=None,
-            description=("Target TCP orientation, world quaternion [w, x, y, z]; default keeps the call-start "
-                         "orientation."))
+        description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the call-start one.")
 
 
 class ReachBothTcpArgs(Args):
     left_xyz: Vec3 = Field(description="Left arm target TCP position, world metres.")
     right_xyz: Vec3 = Field(description="Right arm target TCP position, world metres.")
-    left_quat: Optional[QuatWXYZ] = Field(default=None,
-        description=("Left target orientation [w, x, y, z]; default keeps the current one."))
-    right_quat: Optional[QuatWXYZ] = Field(default=None,
-        description=("Right target orientation [w, x, y, z]; default keeps the current one."))
+    left_quat: Optional[QuatWXYZ] = Field(
+        default=None, description="Left target orientation [w, x, y, z]; default keeps the current one.")
+    right_quat: Optional[QuatWXYZ] = Field(
+        default=None, description="Right target orientation [w, x, y, z]; default keeps the current one.")
 
 
 class ProbeContactAlongArgs(Args):
     arm: Arm = Field(description="Arm to move.")
     direction_xyz: Direction3 = Field(description="World direction of travel (non-zero; normalised internally).")
     distance_m: FiniteFloat = Field(gt=0, description="Maximum travel, metres (> 0; clamped to 0.30).")
-    step_m: FiniteFloat = Field(ge=0.002,
-        description=("Step between contact checks, metres (>= 0.002; clamped to 0.03)."))
+    step_m: FiniteFloat = Field(
+        ge=0.002, description="Step between contact checks, metres (>= 0.002; clamped to 0.03).")
 
 
 class SetGripperArgs(Args):
     arm: Arm = Field(description="Arm whose gripper to actuate.")
-    pos: FiniteFloat = Field(ge=0.0, le=1.0,
-        description=("Normalised opening command: 1 = fully open, 0 = fully closed."))
+    pos: FiniteFloat = Field(
+        ge=0.0, le=1.0, description="Normalised opening command: 1 = fully open, 0 = fully closed.")
 
 
 # -- composition and control -------------------------------------------------------------------
 class RunCodeArgs(Args):
-    code: str = Field(min_length=1, max_length=200_000,
-                      description=("Python source run in the persistent sandbox (numpy as np, math, load_image and"
-                                   " every robot ")
-                                  "tool as a keyword-only function); assign `result` to return a value.")
+    code: str = Field(
+        min_length=1, max_length=200_000,
+        description="Python source run in the persistent sandbox (numpy as np, math, load_image and every "
+                    "robot tool as a keyword-only function); assign `result` to return a value.")
 
 
 class DoneArgs(Args):
     report: str = Field(max_length=20_000, description="Your account of what you did and the final state.")
-    success_claim: Optional[bool] = Field(default=None,
-        description=("Whether you judge the task accomplished (true/false)."))
+    success_claim: Optional[bool] = Field(
+        default=None, description="Whether you judge the task accomplished (true/false).")
 
 
-# -- result models (documentation of payloads) ------------------------------------------------------
+# -- result models (documentation of payloads) ---------------------------------------------------
 class Result(BaseModel):
     """Base of documented result payloads; handlers may add keys."""
     model_config = ConfigDict(extra="allow")
 
 
 class Failure(Result):
-    stage: Optional[str] = Field(default=None,
-        description=("Where it failed, e.g. planner_query, execution, workspace_prefilter."))
+    stage: Optional[str] = Field(
+        default=None, description="Where it failed, e.g. planner_query, execution, workspace_prefilter.")
     code: str = Field(description="Stable failure code, e.g. goal_pose_unreachable, stalled, RAY_PARALLEL_TO_PLANE.")
-    category: Optional[str] = Field(default=None,
-        description=("planner / stall / deviation / allowance / workspace / contact / other."))
+    category: Optional[str] = Field(
+        default=None, description="planner / stall / deviation / allowance / workspace / contact / other.")
     message: str = Field(default="", description="Short human-readable explanation.")
 
 
 class Planning(Result):
     status: Literal["NOT_APPLICABLE", "NOT_RUN", "SUCCEEDED", "FAILED", "NOT_REPORTED"] = Field(
-        description=("Planner outcome."))
+        description="Planner outcome.")
 
 
 class Execution(Result):
     status: Literal["NOT_STARTED", "COMPLETED", "INTERRUPTED", "FAILED", "UNKNOWN"] = Field(
-        description=("Execution outcome."))
+        description="Execution outcome.")
     post_state_observed: bool = Field(description="Whether the robot state was read after execution.")
     state_changed: bool = Field(description="Whether the robot measurably moved.")
     physics_steps: int = Field(description="Physics steps consumed (1/250 s each).")
@@ -392,14 +398,14 @@ class ActionResult(Result):
     """Result of every motion and gripper tool (and the motion inside capture_motion_pair)."""
     action_id: str = Field(description="Unique id of this action.")
     status: Literal["SUCCESS", "FAILED", "ABORTED"] = Field(
-        description=("SUCCESS: executed as specified; FAILED: refused or not achieved; ABORTED: stopped by a guard."))
-    abort_reason: Optional[str] = Field(default=None,
-        description=("stalled / trajectory_deviation / leg_budget / arm_lock, when ABORTED."))
-    commanded: dict[str, Any] = Field(description="What was asked, after clamping (e.g. delta, target, path mode).")
+        description="SUCCESS: executed as specified; FAILED: refused or not achieved; ABORTED: stopped by a guard.")
+    abort_reason: Optional[str] = Field(
+        default=None, description="stalled / trajectory_deviation / leg_budget / arm_lock, when ABORTED.")
+    commanded: dict[str, Any] = Field(description="What was asked, after clamping (delta, target, path mode).")
     achieved: dict[str, Any] = Field(
-        description=("Measured outcome: guard, contact, stall evidence, planner status, mode details."))
+        description="Measured outcome: guard, contact, stall evidence, planner status, mode details.")
     resulting_pose: dict[str, Any] = Field(
-        description=("Measured TCP pose(s) after the action: {tcp} or {left_tcp, right_tcp}."))
+        description="Measured TCP pose(s) after the action: {tcp} or {left_tcp, right_tcp}.")
     planning: Planning = Field(description="Planner outcome.")
     execution: Execution = Field(description="Execution outcome.")
     failure: Optional[Failure] = Field(default=None, description="Why it failed or aborted; null on SUCCESS.")
@@ -411,25 +417,26 @@ class ActionResult(Result):
 
 class EstimateFailure(Result):
     code: Literal["RAY_PARALLEL_TO_PLANE", "BEHIND_CAMERA", "DEGENERATE_GEOMETRY", "ESTIMATE_UNAVAILABLE"] = Field(
-        description=("Failure code."))
+        description="Failure code.")
     message: str = Field(description="What went wrong.")
 
 
 class Estimate(Result):
     """A geometric estimate: value plus its uncertainty and how it was obtained."""
     value: Any = Field(
-        description=("The estimate (pixel [u,v], ray {origin, dir}, world point [x,y,z], depth), or null on failure."))
+        description="The estimate (pixel [u, v], ray {origin, dir}, world point [x, y, z] or depth), or null "
+                    "on failure.")
     kind: Literal["pixel_point", "ray", "world_point", "depth"] = Field(description="What value is.")
     uncertainty: Optional[dict[str, Any]] = Field(
-        description=("Propagated 1-sigma terms from your declared sigmas; null when none was given."))
+        description="Propagated 1-sigma terms from your declared sigmas; null when none applies.")
     coarse: bool = Field(
-        description=("True when the estimate rests on an assumption (plane, size prior) and should be checked."))
+        description="True when the estimate rests on an assumption (a plane, a size prior) and needs checking.")
     valid: bool = Field(description="False when value is null or its preconditions do not hold.")
-    frame: str = Field(description="Frame of value: 'world' or 'image:<obs_id>' or 'camera:<obs_id>'.")
+    frame: str = Field(description="Frame of value: 'world', 'image:<obs_id>' or 'camera:<obs_id>'.")
     units: str = Field(description="Units of value: m or px.")
     failure: Optional[EstimateFailure] = Field(default=None, description="Why value is null or invalid.")
     provenance: dict[str, Any] = Field(
-        description=("Inputs and intermediate quantities (rays, ranges, angles, Jacobians)."))
+        description="Inputs and intermediate quantities (rays, ranges, angles, Jacobians).")
 
 
 class CamPoseSnapshot(Result):
@@ -462,6 +469,30 @@ class ObservationSet(Result):
     images: list[str] = Field(description="obs_ids whose images are attached, in order.")
 
 
+class PairValidity(Result):
+    motion_succeeded: bool = Field(description="The guarded motion returned SUCCESS.")
+    baseline_nonzero: bool = Field(description="The wrist camera actually moved (baseline above ~1 mm).")
+    contact_free: bool = Field(description="No finger or arm contact before, during or after the motion.")
+
+
+class ObservationPair(Result):
+    """Result of capture_motion_pair. The host keeps ``ctx.pairs[pair_id] = {"before": obs_id,
+    "after": obs_id, "valid": {motion_succeeded, baseline_nonzero, contact_free}}`` for
+    triangulate_correspondence."""
+    pair_id: str = Field(description="Pass to triangulate_correspondence.")
+    before: ObservationSummary = Field(description="Wrist observation before the motion.")
+    after: ObservationSummary = Field(description="Wrist observation after the motion.")
+    motion: ActionResult = Field(description="The guarded motion between the two images.")
+    camera_delta_world_m: list[float] = Field(description="Measured camera translation [dx, dy, dz], world m.")
+    camera_baseline_m: float = Field(description="Norm of the camera translation, m.")
+    camera_rotation_deg: float = Field(description="Camera rotation between the images, degrees.")
+    contact_evidence: dict[str, Any] = Field(
+        description="{contact_free, scope, before, after, motion_abort_reason}: anonymous contact around the motion.")
+    validity: PairValidity = Field(description="Preconditions for a triangulation from this pair.")
+    obs_ids: list[str] = Field(description="[before, after] obs_ids.")
+    images: list[str] = Field(description="obs_ids whose images are attached.")
+
+
 class TraceEntry(Result):
     index: int = Field(description="Order of the internal call.")
     tool: str = Field(description="Tool name.")
@@ -484,8 +515,8 @@ class CodeResult(Result):
     obs_ids: list[str] = Field(default_factory=list, description="Observations produced by the program.")
     internal_trace: list[TraceEntry] = Field(default_factory=list, description="One entry per internal tool call.")
     filesystem_policy: str = Field(default="structurally_denied", description="Programs cannot reach a filesystem.")
-    namespace_reset: bool = Field(default=False,
-        description=("True when a timeout or an aborted action reset the program state."))
+    namespace_reset: bool = Field(
+        default=False, description="True when a timeout or an aborted action reset the program state.")
 
 
 class DoneResult(Result):

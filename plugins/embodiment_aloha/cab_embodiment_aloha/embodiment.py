@@ -25,14 +25,12 @@ NAME = "aloha_agilex"
 URDF_NAME = "aloha_agilex.urdf"
 SRDF_NAME = "aloha_agilex.srdf"
 META_NAME = "meta.json"
-# Home seeds: elbow up, upper arm leaning back, forearm pitched down, wrist level.
-_HOME_SEED = (0.0, -0.6, 1.4, -0.8, 0.0, 0.0)
 
 
 def home_qpos(p: AlohaParams) -> dict[str, tuple[float, ...]]:
     out = {}
     for arm, xyz in (("left", p.home_tcp_left), ("right", p.home_tcp_right)):
-        q = solve_home(p, arm, xyz, seed=_HOME_SEED)
+        q = solve_home(p, arm, xyz)
         out[arm] = tuple(float(round(v, 6)) for v in q)
     return out
 

@@ -64,38 +64,86 @@ def tcp_pose_world(p: AlohaParams, arm: str, q) -> np.ndarray:
     return mat_to_pose(pose_to_mat(p.base_pose) @ link_mats_robot(p, arm, q)[-1])
 
 
-def solve_home(p: AlohaParams, arm: str, tcp_xyz_world, seed=None, iters: int = 300) -> np.ndarray:
-    """Joint values putting the TCP at ``tcp_xyz_world`` with the approach axis along robot +x
-    (world +y with the default base) and the opening line along robot +y, elbow up.
-
-    Damped least squares on a numerical Jacobian; deterministic. Raises ValueError if it does not
-    converge within 0.1 mm / 1e-4 rad inside the joint limits.
-    """
+def planar_seeds(p: AlohaParams, arm: str, tcp_xyz_world) -> list[np.ndarray]:
+    """Analytic solutions for a TCP at ``tcp_xyz_world`` with the approach along robot +x, treating
+    the arm as planar (joint 1 yawed toward the target, joint 5 undoing that yaw, joint 6 = 0).
+    Both elbow branches, those within the joint limits first, smallest wrist pitch first."""
     base = pose_to_mat(p.base_pose)
-    target = np.linalg.inv(base) @ np.r_[np.asarray(tcp_xyz_world, float), 1.0]
-    goal = np.eye(4)
-    goal[:3, 3] = target[:3]
-    q = np.array(seed if seed is not None else (0.0, -0.5, 1.2, -0.7, 0.0, 0.0), dtype=float)
+    tcp = (np.linalg.inv(base) @ np.r_[np.asarray(tcp_xyz_world, float), 1.0])[:3]
+    reach = p.wrist1 + p.wrist2 + p.tcp_offset
+    m = np.asarray(mount_offset(p, arm))
+    pivot = m + (0.0, 0.0, p.h_base + p.h_shoulder)
+    wrist = tcp - (reach, 0.0, 0.0)
+    # yaw joint 1 so the arm plane contains the wrist centre; joint 5 restores the approach
+    dxy = wrist[:2] - pivot[:2]
+    q1 = float(np.arctan2(dxy[1], dxy[0])) if np.linalg.norm(dxy) > 1e-9 else 0.0
+    if abs(q1) > np.pi / 2:  # wrist behind the shoulder: reach backwards in the unrotated plane
+        q1 = 0.0
+    c1, s1 = np.cos(q1), np.sin(q1)
+    u = c1 * dxy[0] + s1 * dxy[1]  # in-plane forward distance
+    v = wrist[2] - pivot[2]
+    l1, l2 = p.upper_arm, p.forearm
+    d = float(np.hypot(u, v))
+    if d > l1 + l2 or d < abs(l1 - l2) or d < 1e-9:
+        return []
+    a = (l1 * l1 - l2 * l2 + d * d) / (2 * d)
+    h = float(np.sqrt(max(l1 * l1 - a * a, 0.0)))
+    mu, mv = a * u / d, a * v / d
+    out = []
+    for sgn in (1.0, -1.0):
+        eu, ev = mu - sgn * h * v / d, mv + sgn * h * u / d  # elbow
+        q2 = float(np.arctan2(eu, ev))
+        phi = float(np.arctan2(-(v - ev), u - eu))
+        out.append(np.array([q1, q2, phi - q2, -phi, -q1, 0.0]))
     lo = np.array([a for a, _ in p.limits])
     hi = np.array([b for _, b in p.limits])
+    return sorted(out, key=lambda q: (not np.all((q >= lo) & (q <= hi)), abs(q[3])))
+
+
+def solve_home(p: AlohaParams, arm: str, tcp_xyz_world, seed=None, iters: int = 200,
+               tol_m: float = 0.005, tol_rad: float = 0.01) -> np.ndarray:
+    """Joint values putting the TCP at ``tcp_xyz_world`` with the approach axis along robot +x
+    (world +y with the default base) and the opening line along robot +y.
+
+    Seeded by :func:`planar_seeds`, refined by damped least squares (deterministic). The result
+    is the best iterate; ValueError if it is not within ``tol_m`` / ``tol_rad`` of the target.
+    """
+    base = pose_to_mat(p.base_pose)
+    target = (np.linalg.inv(base) @ np.r_[np.asarray(tcp_xyz_world, float), 1.0])[:3]
+    lo = np.array([a for a, _ in p.limits])
+    hi = np.array([b for _, b in p.limits])
+    seeds = [np.asarray(seed, float)] if seed is not None else planar_seeds(p, arm, tcp_xyz_world)
+    if not seeds:
+        raise ValueError(f"home TCP {tcp_xyz_world} is out of the {arm} arm's reach")
 
     def err(qq):
         t = link_mats_robot(p, arm, qq)[-1]
-        dp = goal[:3, 3] - t[:3, 3]
-        r = goal[:3, :3] @ t[:3, :3].T
+        r = t[:3, :3].T  # goal rotation is the identity
         w = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-        return np.r_[dp, w]
+        return np.r_[target - t[:3, 3], w]
 
-    for _ in range(iters):
-        e = err(q)
-        if np.linalg.norm(e[:3]) < 1e-4 and np.linalg.norm(e[3:]) < 1e-4:
-            return np.clip(q, lo, hi)
-        jac = np.zeros((6, 6))
-        for i in range(6):
-            dq = np.zeros(6)
-            dq[i] = 1e-6
-            jac[:, i] = (err(q) - err(q + dq)) / 1e-6  # d(current)/dq
-        lam = 1e-3
-        step = jac.T @ np.linalg.solve(jac @ jac.T + lam * np.eye(6), e)
-        q = np.clip(q + step, lo, hi)
-    raise ValueError(f"home pose for the {arm} arm at {tcp_xyz_world} did not converge (q={q})")
+    best, best_cost = None, np.inf
+    for s0 in seeds:
+        q = np.clip(np.array(s0, dtype=float), lo, hi)
+        for _ in range(iters):
+            e = err(q)
+            cost = np.linalg.norm(e[:3]) + 0.1 * np.linalg.norm(e[3:])
+            if cost < best_cost - 1e-9:
+                best, best_cost = q.copy(), cost
+            if np.linalg.norm(e[:3]) < 1e-5 and np.linalg.norm(e[3:]) < 1e-5:
+                break
+            jac = np.zeros((6, 6))
+            for i in range(6):
+                dq = np.zeros(6)
+                dq[i] = 1e-6
+                jac[:, i] = (e - err(q + dq)) / 1e-6  # d(current)/dq
+            step = jac.T @ np.linalg.solve(jac @ jac.T + 1e-3 * np.eye(6), e)
+            q = np.clip(q + np.clip(step, -0.2, 0.2), lo, hi)
+        e = err(best)
+        if np.linalg.norm(e[:3]) <= tol_m and np.linalg.norm(e[3:]) <= tol_rad:
+            return best  # the first seed that converges wins (seeds are ordered by preference)
+    e = err(best)
+    if np.linalg.norm(e[:3]) > tol_m or np.linalg.norm(e[3:]) > tol_rad:
+        raise ValueError(f"home pose for the {arm} arm at {tcp_xyz_world} not found "
+                         f"(best error {np.linalg.norm(e[:3]):.4f} m, q={best})")
+    return best

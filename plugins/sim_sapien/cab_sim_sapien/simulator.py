@@ -85,6 +85,15 @@ def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
     return a
 
 
+def _use_shader(shader: str) -> None:
+    """Select the camera shader, only when it changes: re-selecting it, even to the same one,
+    makes every later scene recompile its pipelines on its first picture (3-5 s on lavapipe)."""
+    current = sapien.render.get_camera_shader_dir()
+    if os.path.normpath(current) == os.path.normpath(shader) or os.path.basename(os.path.normpath(current)) == shader:
+        return
+    sapien.render.set_camera_shader_dir(shader)
+
+
 @dataclass
 class _Rigid:
     kind: str  # static | dynamic | kinematic
@@ -161,7 +170,7 @@ class SapienSimulator(Simulator):
         self._rs = None
         if self._render_enabled:
             try:
-                sapien.render.set_camera_shader_dir(self._shader)
+                _use_shader(self._shader)
                 rs = sapien.render.RenderSystem()
             except RuntimeError as e:
                 raise RendererUnavailable(_renderer.diagnose(e)) from e

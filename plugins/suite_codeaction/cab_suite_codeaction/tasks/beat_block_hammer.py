@@ -4,7 +4,8 @@ Description
     A hammer (wooden handle; steel head with a round striking face and a flat peen) lies on its
     side at the middle front of the table, handle along world x with the head on the right and the
     striking face toward the robot (so a top-down grasp followed by a forward roll of the wrist
-    turns the face down); a red 5 cm cube stands fixed on the table. The robot must grasp the hammer and bring its striking face onto the block's top.
+    turns the face down); a red 5 cm cube stands fixed on the table. The robot must grasp the
+    hammer and bring its striking face onto the block's top.
 
 Randomisation (per seed)
     The hammer's pose is fixed: (0, -0.06) on the table (FACTS B.6), yaw 0, resting height computed
@@ -47,17 +48,20 @@ HEAD_Y = (-0.05, 0.055)  # ... 10.5 cm long: striking face at -y, peen at +y
 FACE_LEN = 0.025  # the round striking end
 HEAD_HALF_Z = 0.014  # head bottom flush with the handle bottom: rests on both
 PEEN_HALF = (0.015, 0.0125, 0.009)
-HAMMER_MASS = 0.1  # kg; see HAMMER_MASS_NOTE
-HAMMER_MASS_NOTE = (
-    "Upstream sets 0.001 kg so the grasp never fails; that is 1000x lighter than the 1 kg robot links "
-    "and makes contacts jitter. 0.1 kg is light enough for a friction grasp to hold the tool while "
-    "it is turned face-down, and close enough to the links' mass for a stable solver.")
+# Mass: upstream sets 0.001 kg so the grasp never fails, 1000x lighter than the 1 kg robot links (a
+# mass ratio that invites solver jitter in contact). 0.1 kg (a light toy/tack hammer) is still light
+# enough for a friction grasp to hold it turned face-down, and close enough to the links' mass for
+# stable contacts. Density is uniform over the shapes: the centre of mass is on the handle at x = 0.027.
+HAMMER_MASS = 0.1  # kg
 HAMMER_GRASP_FRICTION = 0.8  # varnished wood against rubber finger pads
 
 HANDLE_HALF_LEN = (HANDLE_X[1] - HANDLE_X[0]) / 2 - HANDLE_RADIUS
 HEAD_CX = (HEAD_X[0] + HEAD_X[1]) / 2
 FACE_POINT = (HEAD_CX, HEAD_Y[0], 0.0)  # functional point 0: centre of the striking face
 GRASP_POINT = (-0.03, 0.0, 0.0)  # middle of the free handle length
+# oracle hint: one grasp on each half of the handle (the hammer lies at x = 0, yaw 0), because an arm
+# may not reach a top-down grasp across the midline (measured: aloha_agilex with mplib IK)
+GRASP_POINT_BY_SIDE = {"left": (-0.05, 0.0, 0.0), "right": (0.045, 0.0, 0.0)}
 
 WOOD_HANDLE = Material(color=srgb(0.72, 0.50, 0.27), roughness=0.6, static_friction=HAMMER_GRASP_FRICTION,
                        dynamic_friction=HAMMER_GRASP_FRICTION)
@@ -164,6 +168,7 @@ class BeatBlockHammer(CodeActionTask):
                 "initial_pose": pose_list(hammer_pose),
                 "mass_kg": HAMMER_MASS,
                 "grasp_point": vec(GRASP_POINT),
+                "grasp_point_by_side": {k: vec(v) for k, v in GRASP_POINT_BY_SIDE.items()},
                 "handle_axis": [1.0, 0.0, 0.0],
                 "handle_radius": HANDLE_RADIUS,
                 "handle_x_range": vec([HANDLE_X[0], HEAD_X[0]]),  # graspable length (handle end to head)

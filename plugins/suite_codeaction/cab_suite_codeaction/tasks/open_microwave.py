@@ -153,10 +153,11 @@ def microwave_urdf(v: Variant) -> str:
     dadd("handle", "cylinder", (HANDLE_R, HANDLE_LEN), (hx, hy, hz), rgba=steel)
     post_len = HANDLE_STANDOFF - HANDLE_R + 0.002
     for s in (-1, 1):
-        dadd("handle", "box", (0.012, post_len, 0.015), (hx, -DOOR_T - post_len / 2 + 0.001, hz + s * (HANDLE_LEN / 2 - 0.01)),
-             rgba=steel)
+        dadd("handle", "box", (0.012, post_len, 0.015),
+             (hx, -DOOR_T - post_len / 2 + 0.001, hz + s * (HANDLE_LEN / 2 - 0.01)), rgba=steel)
     door_mass = 0.4
-    door_inertial = urdf_inertial(door_mass, (door_w / 2, -DOOR_T / 2, H / 2), box_inertia(door_mass, (door_w, DOOR_T, H)))
+    door_inertial = urdf_inertial(door_mass, (door_w / 2, -DOOR_T / 2, H / 2),
+                                  box_inertia(door_mass, (door_w, DOOR_T, H)))
     hinge = geometry(v)["hinge"]
     nl = "\n    "
     return f"""<?xml version="1.0"?>

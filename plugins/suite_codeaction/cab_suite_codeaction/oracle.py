@@ -1,0 +1,100 @@
+"""Building blocks of the reference solutions. Oracles read privileged state (through the
+``WorldView``) only to compute targets; every action goes through the public tools (``call``).
+Quaternions are computed locally from axes, as an agent could do with ``grasp_quat_candidates``."""
+from __future__ import annotations
+
+import numpy as np
+
+from cab_core.errors import CabError
+from cab_core.geometry import mat_to_quat, quat_to_mat, transform_point
+
+
+class OracleFailed(CabError):
+    """The reference solution could not complete a step (reported in the record)."""
+
+
+def tcp_quat(approach, opening) -> list[float]:
+    """TCP orientation with +x = approach and +y = opening line (orthogonalised)."""
+    a = np.asarray(approach, float)
+    a = a / np.linalg.norm(a)
+    o = np.asarray(opening, float)
+    o = o - np.dot(o, a) * a
+    o = o / np.linalg.norm(o)
+    return [float(v) for v in mat_to_quat(np.stack([a, o, np.cross(a, o)], axis=1))]
+
+
+def top_down_quat(opening_xy) -> list[float]:
+    """Approach straight down; fingers open along ``opening_xy`` (a horizontal line)."""
+    o = np.array([opening_xy[0], opening_xy[1], 0.0])
+    return tcp_quat([0.0, 0.0, -1.0], o)
+
+
+def yaw_axis(quat, axis=(1.0, 0.0, 0.0)) -> np.ndarray:
+    """A body axis in the world, projected to the table plane and normalised."""
+    v = quat_to_mat(quat) @ np.asarray(axis, float)
+    v[2] = 0.0
+    n = np.linalg.norm(v)
+    return v / n if n > 1e-9 else np.array([1.0, 0.0, 0.0])
+
+
+def world_point(pose, local) -> np.ndarray:
+    return transform_point(np.asarray(pose, float), local)
+
+
+def closest_opening(current_quat, candidates: list[np.ndarray]) -> np.ndarray:
+    """Of the horizontal opening lines, the one needing the least wrist roll from now (the line
+    is unoriented, so both signs are tried)."""
+    cur = quat_to_mat(current_quat)[:, 1]
+    best, score = None, -1.0
+    for c in candidates:
+        for s in (1.0, -1.0):
+            d = float(np.dot(cur, s * np.asarray(c)))
+            if d > score:
+                best, score = s * np.asarray(c), d
+    return best
+
+
+def expect(result: dict, what: str, ok=("SUCCESS",)) -> dict:
+    if "error" in result:
+        raise OracleFailed(f"{what}: {result['error']}")
+    st = result.get("status")
+    if st is not None and st not in ok:
+        raise OracleFailed(f"{what}: status {st} ({(result.get('failure') or {}).get('message')})")
+    return result
+
+
+class Hands:
+    """Pick-and-place moves for one arm, through the public tools."""
+
+    def __init__(self, call, arm: str, hover: float = 0.10):
+        self.call = call
+        self.arm = arm
+        self.hover = hover
+
+    def reach(self, xyz, quat=None, what="reach", ok=("SUCCESS",)) -> dict:
+        args = {"arm": self.arm, "target_xyz": [float(v) for v in xyz]}
+        if quat is not None:
+            args["target_quat"] = [float(v) for v in quat]
+        return expect(self.call("reach_tcp", **args), what, ok)
+
+    def move(self, dx=0.0, dy=0.0, dz=0.0, what="move", ok=("SUCCESS",)) -> dict:
+        return expect(self.call("move_delta", arm=self.arm, dx=float(dx), dy=float(dy), dz=float(dz)), what, ok)
+
+    def grip(self, pos: float) -> dict:
+        return expect(self.call("set_gripper", arm=self.arm, pos=float(pos)), "set_gripper")
+
+    def pick(self, xyz, quat, lift: float = 0.10) -> None:
+        """Open, hover above, descend, close, lift."""
+        x, y, z = (float(v) for v in xyz)
+        self.reach([x, y, z + self.hover], quat, "hover above pick")
+        self.reach([x, y, z], quat, "descend to grasp")
+        self.grip(0.0)
+        self.move(dz=lift, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
+
+    def place(self, xyz, quat=None, retreat: float = 0.08) -> None:
+        """Carry above, descend, release, retreat upward."""
+        x, y, z = (float(v) for v in xyz)
+        self.reach([x, y, z + self.hover], quat, "carry above place")
+        self.reach([x, y, z], quat, "descend to place", ok=("SUCCESS", "ABORTED", "FAILED"))
+        self.grip(1.0)
+        self.move(dz=retreat, what="retreat", ok=("SUCCESS", "ABORTED", "FAILED"))
