@@ -370,7 +370,9 @@ class Episode:
             "timing": {"wall_seconds": round(time.monotonic() - self._t_start, 3),
                        "setup_seconds": round(self.setup_seconds, 3)},
             "counts": {"charged_calls": self._calls, "observations": len(self.obs._obs)},
-            "sandbox": {"confinement": getattr(self.sandbox, "confinement", None)},
+            "sandbox": {"confinement": getattr(self.sandbox, "confinement", None),
+                        "layers": getattr(self.sandbox, "confinement_layers", None),
+                        "note": getattr(self.sandbox, "confinement_note", None)},
             "versions": self.versions(),
             "video": {"file": "video.mp4", "frames": self.recorder.video.frames, "every_steps": self._video_every}
             if self.recorder.video else None,

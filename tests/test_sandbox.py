@@ -120,6 +120,20 @@ def test_load_image(sb):
     assert "unknown obs_id" in r["value"]
 
 
+def test_load_image_host_argument_error_reaches_the_program():
+    from cab_core.errors import ToolArgumentError
+
+    def load(obs_id):
+        raise ToolArgumentError(f"unknown obs_id {obs_id!r}")
+
+    sandbox = Sandbox(["capture_head"], FakeHost().dispatch, load, SandboxConfig())
+    with sandbox:
+        ok(sandbox.run("k = 1"))
+        r = sandbox.run("load_image('obs_99')")
+        assert not r["ok"] and "ValueError: unknown obs_id 'obs_99'" in r["error"] and not r["namespace_reset"]
+        assert ok(sandbox.run("result = k"))["value"] == 1
+
+
 def test_tools_routed_to_dispatch_with_kwargs(sb):
     r = ok(sb.run("a = move_delta(arm='left', dx=np.float64(0.05), dz=np.array([0.1])[0])\n"
                   "result = [a['status'], get_arm_pose(arm='right')['arm']]"))

@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import CabError, ConfigError, SandboxUnavailable
+from ..errors import CabError, ConfigError, SandboxUnavailable, ToolArgumentError
 from . import confine
 from .truncate import cap_result, json_size
 
@@ -302,7 +302,8 @@ class Sandbox:
     ``tool_names``: the robot tools delivered to the agent; each becomes a keyword-only function in
     the program (``run_code`` and ``done`` never do). ``dispatch(name, kwargs)`` runs one tool for a
     program, in the calling thread, and returns a :class:`DispatchResult`. ``load_image(obs_id)``
-    returns an HxWx3 uint8 array or raises ``KeyError`` for an unknown id.
+    returns an HxWx3 uint8 array; ``KeyError``, ``ToolArgumentError`` or ``ValueError`` for an id it
+    cannot serve becomes a ``ValueError`` in the program (anything else is a host fault and propagates).
 
     Attributes for the records: ``confinement`` ("bubblewrap" | "rlimits" | "none"),
     ``confinement_layers`` (each OS layer and whether it was applied), ``confinement_note`` (why a
@@ -377,7 +378,10 @@ class Sandbox:
         layout = confine.PythonLayout.current()
         if cfg.mode == "off":
             self._plan = confine.plain_plan(self._workdir, layout, os_layers=False)
-            self._child = self._spawn(self._plan)
+            try:
+                self._child = self._spawn(self._plan)
+            except _SpawnError as exc:
+                raise SandboxUnavailable(f"the run_code sandbox could not be started: {exc}") from None
             self.confinement = "none"
             self.confinement_note = "mode=off: no OS confinement (tests only)"
             return
@@ -395,6 +399,7 @@ class Sandbox:
                 missing = [k for k in ("seccomp",) if not child.ready["layers"].get(k, "").startswith("ok")]
                 if missing and cfg.mode == "required":
                     child.kill()
+                    self._owned.proc = None
                     problems.append("seccomp could not be applied: " + child.ready["layers"].get("seccomp", "?"))
                 else:
                     self._plan, self._child, self.confinement = plan, child, "bubblewrap"
@@ -407,7 +412,11 @@ class Sandbox:
                 + ". Install bubblewrap (Debian/Ubuntu: apt-get install bubblewrap) on a kernel that allows "
                 "user namespaces, or run with sandbox mode=auto to accept rlimits-only confinement.")
         self._plan = confine.plain_plan(self._workdir, layout, os_layers=True)
-        self._child = self._spawn(self._plan)
+        try:
+            self._child = self._spawn(self._plan)
+        except _SpawnError as exc:
+            raise SandboxUnavailable("the run_code sandbox could not be started: " + "; ".join(problems)
+                                     + f"; without bubblewrap: {exc}") from None
         self.confinement = "rlimits"
         self.confinement_note = "; ".join(problems) + " -> running with rlimits, seccomp and Landlock where available"
         log.warning("run_code sandbox without bubblewrap: %s", self.confinement_note)
@@ -534,6 +543,7 @@ class Sandbox:
                     self._record_call(st, index, name, kwargs, res, time.perf_counter() - t_call)
                     if res.aborted:
                         st.aborted = (index, name, res.payload)
+                        st.ended = bool(res.ended)
                         self._reset(st, "aborted")
                         return
                     if res.ended:
@@ -592,10 +602,10 @@ class Sandbox:
             arr = np.asarray(self._load_image(obs_id))
             if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
                 raise CabError(f"load_image({obs_id!r}) returned {arr.dtype} {arr.shape}, not HxWx3 uint8")
-        except (KeyError, LookupError):
+        except LookupError:  # KeyError included
             ch.send({"op": "image", "error": f"unknown obs_id {obs_id!r}"}, deadline=deadline)
             return
-        except ValueError as exc:
+        except (ToolArgumentError, ValueError) as exc:  # the host's own "unknown obs_id" and the like
             ch.send({"op": "image", "error": str(exc)}, deadline=deadline)
             return
         arr = np.ascontiguousarray(arr)

@@ -30,15 +30,20 @@ def _rot(axis: str, a: float) -> np.ndarray:
     return t
 
 
-def joint_frames(p: AlohaParams, arm: str) -> list[tuple[tuple[float, float, float], str]]:
-    """(origin offset in the parent link frame, rotation axis) of joints 1..6."""
+ELBOW_PITCH = -np.pi / 2  # joint 3's fixed origin rotation about y: q3 = 0 is a straight elbow
+
+
+def joint_frames(p: AlohaParams, arm: str) -> list[tuple[tuple[float, float, float], float, str]]:
+    """(origin offset in the parent link frame, fixed origin pitch about y, rotation axis) of
+    joints 1..6. Links 3.. extend along their local +x; joint 3's origin is pitched by -90 deg so
+    that the forearm continues the upper arm at q3 = 0."""
     return [
-        ((0.0, 0.0, p.h_base), "z"),
-        ((0.0, 0.0, p.h_shoulder), "y"),
-        ((0.0, 0.0, p.upper_arm), "y"),
-        ((p.forearm, 0.0, 0.0), "y"),
-        ((p.wrist1, 0.0, 0.0), "z"),
-        ((p.wrist2, 0.0, 0.0), "x"),
+        ((0.0, 0.0, p.h_base), 0.0, "z"),
+        ((0.0, 0.0, p.h_shoulder), 0.0, "y"),
+        ((0.0, 0.0, p.upper_arm), ELBOW_PITCH, "y"),
+        ((p.forearm, 0.0, 0.0), 0.0, "y"),
+        ((p.wrist1, 0.0, 0.0), 0.0, "z"),
+        ((p.wrist2, 0.0, 0.0), 0.0, "x"),
     ]
 
 
@@ -52,8 +57,8 @@ def link_mats_robot(p: AlohaParams, arm: str, q) -> list[np.ndarray]:
     q = np.asarray(q, dtype=float)
     t = _trans(*mount_offset(p, arm))
     out = [t]
-    for (off, axis), qi in zip(joint_frames(p, arm), q):
-        t = t @ _trans(*off) @ _rot(axis, qi)
+    for (off, pitch, axis), qi in zip(joint_frames(p, arm), q):
+        t = t @ _trans(*off) @ _rot("y", pitch) @ _rot(axis, qi)
         out.append(t)
     out.append(t @ _trans(p.tcp_offset, 0.0, 0.0))
     return out
@@ -94,7 +99,8 @@ def planar_seeds(p: AlohaParams, arm: str, tcp_xyz_world) -> list[np.ndarray]:
         eu, ev = mu - sgn * h * v / d, mv + sgn * h * u / d  # elbow
         q2 = float(np.arctan2(eu, ev))
         phi = float(np.arctan2(-(v - ev), u - eu))
-        out.append(np.array([q1, q2, phi - q2, -phi, -q1, 0.0]))
+        q3 = float(np.angle(np.exp(1j * (phi - q2 - ELBOW_PITCH))))  # wrapped to (-pi, pi]
+        out.append(np.array([q1, q2, q3, -phi, -q1, 0.0]))
     lo = np.array([a for a, _ in p.limits])
     hi = np.array([b for _, b in p.limits])
     return sorted(out, key=lambda q: (not np.all((q >= lo) & (q <= hi)), abs(q[3])))

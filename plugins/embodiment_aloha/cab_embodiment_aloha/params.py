@@ -42,8 +42,8 @@ class AlohaParams:
     # --- joint limits (rad) ----------------------------------------------------------------
     limits: tuple[tuple[float, float], ...] = (
         (-2.6, 2.6),  # 1 yaw
-        (-1.3, 2.4),  # 2 shoulder pitch (+ tilts the upper arm forward)
-        (-1.75, 1.5),  # 3 elbow (+ folds the forearm down toward the upper arm)
+        (-2.4, 2.4),  # 2 shoulder pitch (0 = upper arm up, + tilts it forward)
+        (-2.85, 2.85),  # 3 elbow (0 = straight, + bends the forearm forward/down)
         (-1.9, 1.9),  # 4 wrist pitch
         (-1.9, 1.9),  # 5 wrist yaw
         (-3.14159265, 3.14159265),  # 6 wrist roll

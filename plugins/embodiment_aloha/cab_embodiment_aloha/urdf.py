@@ -86,23 +86,24 @@ def wrist_camera_rotation(p: AlohaParams) -> np.ndarray:
 
 
 def _body_prims(p: AlohaParams) -> list[Prim]:
+    """Wheeled chassis, a column, a spine running forward to a transverse shoulder beam that
+    carries both arm mounts, and a post holding the head camera."""
     zt = p.shoulder_z
+    sx = p.shoulder_x
     span = p.shoulder_y + 0.06
     cam = _head_cam_robot(p)
-    front = max(p.shoulder_x, 0.03)
-    top = cam[2] + 0.035
     return [
         _box_span(-0.36, 0.26, -0.26, 0.26, 0.06, 0.30, BODY),  # mobile chassis
         _box_span(-0.30, 0.20, -0.24, 0.24, 0.30, 0.33, BODY_LIGHT),  # top deck
         *[_cyl("y", 0.075, 0.06, (x, y, 0.075), JOINT, collision=False)
           for x in (-0.24, 0.16) for y in (-0.27, 0.27)],  # wheels
-        _box_span(-0.12, 0.02, -0.14, 0.14, 0.33, zt - 0.05, BODY),  # column
-        _box_span(-0.12, front, -span, span, zt - 0.05, zt, BODY_LIGHT),  # shoulder crossbar
-        _box_span(-0.12, 0.0, -0.12, 0.12, zt - 0.30, zt - 0.10, ACCENT, collision=False),  # badge
-        _box_span(-0.08, -0.04, -0.02, 0.02, zt, top, BODY),  # head-camera mast
-        _box_span(-0.08, 0.15, -0.02, cam[1] + 0.02, top - 0.03, top, BODY),  # boom
-        _box_span(0.15, cam[0] - 0.006, cam[1] - 0.05, cam[1] + 0.05, cam[2] - 0.005, top,
-                  GRIPPER, collision=False),  # head-camera housing
+        _box_span(-0.14, 0.02, -0.14, 0.14, 0.33, zt - 0.05, BODY),  # column
+        _box_span(0.02, 0.026, -0.10, 0.10, zt - 0.36, zt - 0.16, ACCENT, collision=False),  # badge
+        _box_span(-0.14, sx + 0.05, -0.06, 0.06, zt - 0.05, zt, BODY_LIGHT),  # spine
+        _box_span(sx - 0.05, sx + 0.05, -span, span, zt - 0.05, zt, BODY_LIGHT),  # shoulder beam
+        _box_span(cam[0] - 0.09, cam[0] - 0.05, -0.02, 0.02, zt, cam[2] + 0.035, BODY),  # camera post
+        _box_span(cam[0] - 0.05, cam[0] - 0.006, cam[1] - 0.05, cam[1] + 0.05, cam[2] - 0.005,
+                  cam[2] + 0.035, GRIPPER, collision=False),  # head-camera housing
     ]
 
 
@@ -265,10 +266,11 @@ def build_urdf(p: AlohaParams, name: str = "aloha_agilex") -> str:
         w.link(f"{x}_base_link", geo["base_link"], 0.5)
         w.joint(f"{x}_base_joint", "fixed", "base_link", f"{x}_base_link", mount_offset(p, arm))
         parent = f"{x}_base_link"
-        for i, ((off, axis), lim) in enumerate(zip(joint_frames(p, arm), p.limits), start=1):
+        for i, ((off, pitch, axis), lim) in enumerate(zip(joint_frames(p, arm), p.limits), start=1):
             child = f"{x}_link{i}"
             w.link(child, geo[f"link{i}"], masses[i - 1])
-            w.joint(f"{x}_joint{i}", "revolute", parent, child, off, axis=AXES[axis], limit=lim,
+            w.joint(f"{x}_joint{i}", "revolute", parent, child, off, rpy=(0.0, pitch, 0.0),
+                    axis=AXES[axis], limit=lim,
                     effort=p.joint_effort, velocity=p.joint_velocity)
             parent = child
         # gripper fingers: independent prismatic joints, +y and -y

@@ -85,6 +85,14 @@ def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
     return a
 
 
+# The Vulkan context and its compiled pipelines live as long as some render object does. Without a
+# reference held here, closing one attempt's scene destroys them and the next scene's first picture
+# recompiles every pipeline (3-5 s on lavapipe). Held for the life of the process, created on the
+# first render-enabled build.
+_RENDERER_KEEPALIVE: list = []
+_WARMED_SHADERS: set[str] = set()
+
+
 def _use_shader(shader: str) -> None:
     """Select the camera shader, only when it changes: re-selecting it, even to the same one,
     makes every later scene recompile its pipelines on its first picture (3-5 s on lavapipe)."""
@@ -176,6 +184,8 @@ class SapienSimulator(Simulator):
                 raise RendererUnavailable(_renderer.diagnose(e)) from e
             systems.append(rs)
             self._rs = rs
+            if not _RENDERER_KEEPALIVE:
+                _RENDERER_KEEPALIVE.append(sapien.render.SapienRenderer())
         s = sapien.Scene(systems)
         s.physx_system.timestep = self._timestep
         self._px = physx
@@ -222,6 +232,11 @@ class SapienSimulator(Simulator):
         self._object_order = scene.names()
         self._build_robot(emb, default)
         self._build_cameras(list(scene.cameras) + list(emb.cameras))
+        if self._rs is not None and self._shader not in _WARMED_SHADERS and self._cameras:
+            # the first picture of a process compiles the shader pipelines (about 3 s on lavapipe):
+            # pay it while building, not inside the first observation tool call
+            self.render(next(iter(self._cameras)))
+            _WARMED_SHADERS.add(self._shader)
 
     # -- building helpers ---------------------------------------------------------------------
     def _register(self, component, name: str) -> None:

@@ -29,6 +29,7 @@ from cab_core.scene import Body, Box, Shape
 from cab_core.task import SceneInstance, rng_for
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
+from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
 from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, base_scene, pose_list,
                       rand_pose, sample_until, table_top_z, yaw_of)
 
@@ -121,6 +122,34 @@ class StackBlocksThree(CodeActionTask):
 
     def verifier(self, instance: SceneInstance) -> Verifier:
         return StackBlocksThreeVerifier(instance.info)
+
+    def oracle(self, call, world: WorldView) -> None:
+        """Each cube is picked top-down by the arm on its side (fingers across two faces) and put
+        on the stack in the cleared area in front of the robot, bottom to top."""
+        info = world.info
+        half = float(info["block_half_size"])
+        tx, ty = (float(v) for v in info["stack_target_xy"])
+        base_z = float(info["table_top_z"]) + half
+        for level, colour in enumerate(info["stack_order"]):
+            name = info["blocks"][colour]["name"]
+            pose = world.pose(name)
+            arm = "left" if pose[0] < 0 else "right"
+            hands = Hands(call, arm)
+            faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
+            now = world.tcp_pose(arm)
+            q = top_down_quat(closest_opening(now[3:], faces))
+            hands.pick([pose[0], pose[1], pose[2] + 0.012], q, lift=0.06 + 2 * half * level)
+            # where the held cube sits relative to the TCP decides where the TCP must go
+            held = world.pose(name)[:3] - world.tcp_pose(arm)[:3]
+            z = base_z + 2 * half * level + 0.004
+            if level == 0:
+                target = np.array([tx, ty, z])
+            else:
+                below = world.pose(info["blocks"][info["stack_order"][level - 1]]["name"])[:3]
+                target = np.array([below[0], below[1], z])
+            hands.place(target - held, None)
+            hands.move(dz=0.06, what="clear the stack", ok=("SUCCESS", "ABORTED", "FAILED"))
+        call("done", report="stacked blue on green on red", success_claim=True)
 
 
 TASK = StackBlocksThree
