@@ -96,7 +96,8 @@ class Simulator(ABC):
         """World pose of a body or of an articulated object's root. BadCommand if unknown."""
 
     @abstractmethod
-    def set_object_pose(self, name: str, pose) -> None: ...
+    def set_object_pose(self, name: str, pose) -> None:
+        """Teleport a body (or an articulated object's root) and zero its velocity."""
 
     @abstractmethod
     def get_object_velocity(self, name: str) -> np.ndarray:

@@ -17,7 +17,6 @@ from cab_sim_sapien.simulator import SapienSimulator  # noqa: E402
 
 pytestmark = pytest.mark.sim
 
-_RENDER_CHECKS = {sc.check_seeded_reset_identical, sc.check_cameras}
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +35,7 @@ def render_available() -> str | None:
 @pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
 def test_conformance(check, render_available):
     if render_available is not None:
-        if check in _RENDER_CHECKS:
+        if check in sc.NEEDS_RENDERER:
             pytest.skip(f"needs a renderer: {render_available}")
         check(lambda: SapienSimulator({"render": False}))
     else:
@@ -46,7 +45,7 @@ def test_conformance(check, render_available):
 def test_conformance_physics_only():
     """Everything but images also holds without a render system."""
     for check in sc.CHECKS:
-        if check not in _RENDER_CHECKS:
+        if check not in sc.NEEDS_RENDERER:
             check(lambda: SapienSimulator({"render": False}))
 
 
@@ -63,6 +62,10 @@ def test_unknown_option_is_a_config_error():
         SapienSimulator({"rendr": True})
     with pytest.raises(ConfigError):
         SapienSimulator({"timestep": -1})
+    with pytest.raises(ConfigError, match="shader"):
+        SapienSimulator({"shader": "no_such_shader"})
+    with pytest.raises(ConfigError):
+        SapienSimulator({"shadow_map_size": 0})
 
 
 def test_timestep_option_overrides_the_scene():
@@ -211,3 +214,48 @@ def test_closed_simulator_refuses_calls():
         sim.step(1)
     with pytest.raises(SimulatorError):
         sim.get_qpos()
+
+
+def test_shadows_option_changes_the_image(render_available):
+    if render_available is not None:
+        pytest.skip(render_available)
+    images = []
+    for shadows in (False, True):
+        sim = sc.build(lambda: SapienSimulator({"render": True, "shadows": shadows, "shadow_map_size": 512}))
+        try:
+            assert sim.versions()["shadows"] == ("on (512)" if shadows else "off")
+            images.append(sim.render(sc.HEAD_CAMERA).astype(int))
+        finally:
+            sim.close()
+    assert np.abs(images[0] - images[1]).max() > 10, "shadows made no visible difference"
+
+
+def test_contacts_survive_a_restore():
+    """get_contacts() after a restore gives the snapshot's last-step contacts, not stale ones."""
+    sim = sc.build(lambda: SapienSimulator({"render": False}))
+    try:
+        sim.step(100)
+        snap = sim.save_state()
+        before = sim.get_contacts()
+        sim.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
+        sim.step(5)  # the cube is in the air now
+        assert not any("cube" in (c.a, c.b) for c in sim.get_contacts())
+        sim.restore_state(snap)
+        assert sim.get_contacts() == before
+    finally:
+        sim.close()
+
+
+def test_physics_only_steps_like_a_rendering_build(render_available):
+    """Visual shapes and cameras do not touch the physics: both builds step bit-identically."""
+    if render_available is not None:
+        pytest.skip(render_available)
+    a = sc.build(lambda: SapienSimulator({"render": True}))
+    b = sc.build(lambda: SapienSimulator({"render": False}))
+    try:
+        sc._motion_script(a, 200)
+        sc._motion_script(b, 200)
+        sc._assert_bit_equal(sc.world_state(a), sc.world_state(b), "render on vs off")
+    finally:
+        a.close()
+        b.close()

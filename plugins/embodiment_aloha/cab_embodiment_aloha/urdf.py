@@ -125,14 +125,14 @@ def _arm_prims(p: AlohaParams) -> dict[str, list[Prim]]:
             _box_span(-0.03, 0.03, -0.03, 0.03, 0.04, p.upper_arm - 0.04, ARM_SHELL),
             _cyl("y", 0.038, 0.085, (0, 0, p.upper_arm), JOINT),
         ],
-        "link3": [_box_span(0.04, p.forearm - 0.035, -0.025, 0.025, -0.025, 0.025, ARM_SHELL)],
+        "link3": [_box_span(0.04, p.forearm - 0.05, -0.025, 0.025, -0.025, 0.025, ARM_SHELL)],
         "link4": [
-            _cyl("y", 0.034, 0.07, (0, 0, 0), JOINT),
-            _box_span(0.02, p.wrist1, -0.022, 0.022, -0.022, 0.022, ARM_SHELL),
+            _cyl("y", 0.03, 0.062, (0, 0, 0), JOINT),
+            _box_span(0.025, p.wrist1 - 0.02, -0.018, 0.018, -0.018, 0.018, ARM_SHELL),
         ],
         "link5": [
-            _cyl("z", 0.032, 0.07, (0, 0, 0), JOINT),
-            _box_span(0.0, p.wrist2, -0.02, 0.02, -0.02, 0.02, ARM_SHELL),
+            _cyl("z", 0.028, 0.056, (0, 0, 0), JOINT),
+            _box_span(0.0, p.wrist2, -0.018, 0.018, -0.018, 0.018, ARM_SHELL),
         ],
         "link6": [
             _cyl("x", 0.036, 0.02, (0.01, 0, 0), JOINT),

@@ -98,7 +98,11 @@ def diagnose(error: BaseException | str) -> str:
         parts.append("Vulkan drivers found: " + ", ".join(os.path.basename(p) for p in icds) + ".")
     lvp = lavapipe()
     if lvp["manifest"] is None:
-        parts.append("Mesa's CPU driver lavapipe (lvp_icd) is not installed.")
+        if forced:
+            parts.append("Mesa's CPU driver lavapipe (lvp_icd) is not among them: unset the variable "
+                         "or point it at lvp_icd.*.json.")
+        else:
+            parts.append("Mesa's CPU driver lavapipe (lvp_icd) is not installed.")
     else:
         mesa = lvp["mesa"]
         vt = mesa_version_tuple(mesa)
@@ -106,7 +110,8 @@ def diagnose(error: BaseException | str) -> str:
             parts.append(f"lavapipe is Mesa {mesa}, too old: SAPIEN 3 needs Mesa >= "
                          f"{MIN_MESA[0]}.{MIN_MESA[1]} (descriptorBindingPartiallyBound).")
         elif mesa:
-            parts.append(f"lavapipe is Mesa {mesa}.")
+            parts.append(f"lavapipe is Mesa {mesa}, recent enough; check `vulkaninfo --summary` "
+                         f"(package vulkan-tools) for the device it reports.")
         else:
             parts.append("lavapipe is installed but its Mesa version could not be read.")
     parts.append("Fix: " + FIX + ".")

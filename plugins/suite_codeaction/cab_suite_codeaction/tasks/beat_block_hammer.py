@@ -32,6 +32,7 @@ from cab_core.scene import Body, Box, Capsule, Cylinder, Material, Shape
 from cab_core.task import SceneInstance, rng_for
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
+from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
 from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, base_scene, lowest_point_z, pose_list,
                       rand_pose, sample_until, srgb, table_top_z, vec, yaw_of)
 
@@ -194,6 +195,29 @@ class BeatBlockHammer(CodeActionTask):
 
     def verifier(self, instance: SceneInstance) -> Verifier:
         return BeatBlockHammerVerifier(instance.info)
+
+    def oracle(self, call, world: WorldView) -> None:
+        """Grasp the handle top-down with the arm on the block's side, carry the hammer flat so
+        its striking face is over the block's top, and lower it until the head strikes."""
+        info = world.info
+        h, b = info["hammer"], info["block"]
+        arm = info["suggested_arm"]
+        hands = Hands(call, arm)
+        hp = world.pose(h["name"])
+        g = world_point(hp, h["grasp_point_by_side"][arm])
+        handle = yaw_axis(hp[3:], (1.0, 0.0, 0.0))
+        across = np.cross([0.0, 0.0, 1.0], handle)
+        q = top_down_quat(closest_opening(world.tcp_pose(arm)[3:], [across]))
+        # the fingertips reach 0.0354 m past the TCP: keep them just above the table top
+        z = max(g[2] + 0.026, float(info["table_top_z"]) + 0.038)
+        hands.pick([g[0], g[1], z], q, lift=0.10)
+        face = world_point(world.pose(h["name"]), h["face_point"])
+        offset = face - world.tcp_pose(arm)[:3]
+        top = world_point(world.pose(b["name"]), b["top_point"])
+        hands.reach(top + np.array([0.0, 0.0, float(h["face_radius"]) + 0.025]) - offset, None, "over the block")
+        hands.move(dz=-0.05, what="strike", ok=("SUCCESS", "ABORTED", "FAILED"))
+        hands.move(dz=0.05, what="raise", ok=("SUCCESS", "ABORTED", "FAILED"))
+        call("done", report="struck the block with the hammer's face", success_claim=True)
 
 
 TASK = BeatBlockHammer
