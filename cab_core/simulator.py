@@ -75,9 +75,10 @@ class Simulator(ABC):
         """Teleport the robot joints (reset only) and set the drive targets to match."""
 
     @abstractmethod
-    def set_drive_targets(self, targets: np.ndarray) -> None:
-        """Position targets for every driven joint (``joint_names`` order). Raises BadCommand on
-        a wrong shape or non-finite value."""
+    def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
+        """Position targets (and optional velocity targets, default zero) for every driven joint
+        (``joint_names`` order), as a planned trajectory streams them. Raises BadCommand on a
+        wrong shape or non-finite value."""
 
     @abstractmethod
     def get_drive_targets(self) -> np.ndarray: ...

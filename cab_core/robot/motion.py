@@ -24,6 +24,7 @@ LEG_M = 0.03
 WORKSPACE = {"x": (-0.8, 0.8), "y": (-0.8, 0.8), "z": (0.4, 1.5)}
 REACH_CORRECTION_TRIGGER_M = 0.01
 REACH_MAX_CORRECTIONS = 2
+REACH_MISS_M = 0.02  # a reach that ends further than this from its target did not complete
 CONTACT_IMPULSE_THRESHOLD = 1e-4
 STALL_PROGRESS_M = 0.001
 JOINT_SPEED = 1.2  # rad/s cap for joint-space interpolation of legs
@@ -123,20 +124,34 @@ def _indices(ctx: RobotContext, joints) -> list[int]:
     return [names.index(j) for j in joints]
 
 
-def _set_arm_targets(ctx: RobotContext, targets: dict[str, np.ndarray]) -> None:
+def _set_arm_targets(ctx: RobotContext, targets: dict[str, np.ndarray],
+                     velocities: dict[str, np.ndarray] | None = None) -> None:
+    """Arm joint position (and velocity) targets; every other joint keeps its position target
+    and gets a zero velocity target."""
     t = ctx.sim.get_drive_targets().copy()
+    v = np.zeros_like(t)
     for arm, q in targets.items():
-        t[_indices(ctx, ctx.arm(arm).joints)] = q
-    ctx.sim.set_drive_targets(t)
+        idx = _indices(ctx, ctx.arm(arm).joints)
+        t[idx] = q
+        if velocities is not None:
+            v[idx] = velocities[arm]
+    ctx.sim.set_drive_targets(t, v)
 
 
 def _execute(ctx: RobotContext, trajs: dict[str, np.ndarray], settle: bool = True) -> int:
-    """Stream joint targets at one row per physics step, then let the arms settle."""
+    """Stream joint position and velocity targets at one row per physics step (as a planned
+    trajectory is executed), then let the arms settle."""
     n = max((len(v) for v in trajs.values()), default=0)
     steps0 = ctx.clock.steps
+    dt = ctx.sim.timestep
+    vel = {a: np.vstack([np.diff(tr, axis=0) / dt, np.zeros((1, tr.shape[1]))]) if len(tr) > 1 else np.zeros_like(tr)
+           for a, tr in trajs.items()}
     for i in range(n):
-        _set_arm_targets(ctx, {a: tr[min(i, len(tr) - 1)] for a, tr in trajs.items()})
+        _set_arm_targets(ctx, {a: tr[min(i, len(tr) - 1)] for a, tr in trajs.items()},
+                         {a: (vel[a][i] if i < len(vel[a]) else np.zeros(vel[a].shape[1])) for a in trajs})
         ctx.clock.step(1)
+    if trajs:
+        _set_arm_targets(ctx, {a: tr[-1] for a, tr in trajs.items()})
     if settle and trajs:
         final = {a: tr[-1] for a, tr in trajs.items()}
         for _ in range(SETTLE_MAX_STEPS):
@@ -408,6 +423,7 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
         if not corr:
             break
         steps += _execute(ctx, corr)
+    residual = {a: float(np.linalg.norm(ctx.tcp_pose(a)[:3] - targets[a][:3])) for a in ok}
     achieved = {"planner_status": {a: _planner_block(plans[a]) for a in arms}, "correction_plans": n_corr,
                 "quat_mode": commanded.get("quat_mode"), "contact": {a: arm_contacts(ctx, a) for a in arms}}
     if bad:
@@ -417,6 +433,16 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
         return _result(ctx, action_id=aid, status="FAILED", commanded=commanded, achieved=achieved, before=before,
                        arms=arms, planning="FAILED", execution="COMPLETED" if ok else "NOT_STARTED", steps=steps,
                        partial=bool(ok), failure=failure)
+    short = [a for a in ok if residual[a] > REACH_MISS_M]
+    if short:
+        contact = {a: arm_contacts(ctx, a) for a in short}
+        blocked = any(c["in_contact"] for c in contact.values())
+        failure = _fail("execution", "stalled" if blocked else "target_not_reached", "stall" if blocked else "deviation",
+                        f"{', '.join(short)} stopped short of the target after {n_corr} correction plan(s)"
+                        + (" while in contact" if blocked else ""))
+        return _result(ctx, action_id=aid, status="ABORTED", commanded=commanded, achieved=achieved, before=before,
+                       arms=arms, planning="SUCCEEDED", execution="INTERRUPTED", steps=steps, partial=True,
+                       failure=failure, abort_reason="stalled" if blocked else "trajectory_deviation")
     return _result(ctx, action_id=aid, status="SUCCESS", commanded=commanded, achieved=achieved, before=before,
                    arms=arms, planning="SUCCEEDED", execution="COMPLETED", steps=steps)
 

@@ -2,11 +2,12 @@
 
 Frames. The URDF root ``base_link`` sits at the world pose ``base_pose`` (x = forward, y = left,
 z = up in the robot's own frame; the default pose yaws it +90 degrees so that robot-forward is
-world +y and robot-left is world -x). Each arm hangs off a fixed ``<p>_base_link`` on the shoulder
-platform; its chain, at zero joint angles, is an "L": the upper arm points up (+z) and the forearm
-and wrist point forward (+x). Joint axes: 1 yaw (z), 2 shoulder pitch (y), 3 elbow pitch (y),
-4 wrist pitch (y), 5 wrist yaw (z), 6 wrist roll (x). The flange ``<p>_link6`` has +x along the
-approach axis and +y along the finger-opening line; the TCP is ``tcp_offset`` ahead of it.
+world +y and robot-left is world -x). Each arm stands on a fixed ``<p>_base_link`` on the shoulder
+beam; at zero joint angles the whole arm points straight up. Joint axes: 1 yaw (z), 2 shoulder
+pitch (y, + tilts the upper arm forward), 3 elbow pitch (y, 0 = straight, both bending directions
+allowed), 4 wrist pitch (y), 5 wrist yaw (z), 6 wrist roll (x). The flange ``<p>_link6`` has +x
+along the approach axis and +y along the finger-opening line; the TCP is ``tcp_offset`` ahead of
+it. The home joint values are solved (not fixed) so that the TCPs start at ``home_tcp_*``.
 
 The gripper: two prismatic fingers per arm, each its own driven joint (no mimic joint). Finger
 ``<p>_link7`` opens along +y, ``<p>_link8`` along -y. Finger-link origins sit
@@ -28,15 +29,18 @@ GENERATOR_VERSION = "aloha_agilex-gen-1"
 class AlohaParams:
     # --- placement -------------------------------------------------------------------------
     base_pose: tuple[float, ...] = (0.0, -0.65, 0.0, 0.70710678, 0.0, 0.0, 0.70710678)
-    shoulder_x: float = 0.17  # arm mount, robot frame (forward of the base origin)
+    # Chosen with ``python -m cab_embodiment_aloha.reach``: shoulders set back and high with long
+    # links let the nearer arm reach the far table edge from above and objects close to the robot
+    # from the front (see that module for the figures).
+    shoulder_x: float = -0.05  # arm mount, robot frame (forward of the base origin)
     shoulder_y: float = 0.22  # |lateral| of each arm mount (left = +y, right = -y)
-    shoulder_z: float = 0.84  # top of the shoulder platform = arm mount height
+    shoulder_z: float = 0.95  # top of the shoulder beam = arm mount height
     # --- arm chain (metres) ----------------------------------------------------------------
     h_base: float = 0.05  # mount -> joint1
     h_shoulder: float = 0.06  # joint1 -> joint2
-    upper_arm: float = 0.40  # joint2 -> joint3 (along +z at zero)
-    forearm: float = 0.40  # joint3 -> joint4 (along +x at zero)
-    wrist1: float = 0.06  # joint4 -> joint5
+    upper_arm: float = 0.50  # joint2 -> joint3 (along +z at zero)
+    forearm: float = 0.50  # joint3 -> joint4 (continues the upper arm at zero)
+    wrist1: float = 0.08  # joint4 -> joint5
     wrist2: float = 0.05  # joint5 -> joint6 (flange)
     tcp_offset: float = 0.12  # flange -> TCP along the approach axis
     # --- joint limits (rad) ----------------------------------------------------------------
@@ -44,9 +48,9 @@ class AlohaParams:
         (-2.6, 2.6),  # 1 yaw
         (-2.4, 2.4),  # 2 shoulder pitch (0 = upper arm up, + tilts it forward)
         (-2.85, 2.85),  # 3 elbow (0 = straight, + bends the forearm forward/down)
-        (-1.9, 1.9),  # 4 wrist pitch
-        (-1.9, 1.9),  # 5 wrist yaw
-        (-3.14159265, 3.14159265),  # 6 wrist roll
+        (-2.4, 2.4),  # 4 wrist pitch
+        (-2.4, 2.4),  # 5 wrist yaw
+        (-4.71238898, 4.71238898),  # 6 wrist roll (+-3pi/2: any roll has a solution away from a limit)
     )
     joint_velocity: float = 3.0  # URDF velocity limit (rad/s)
     joint_effort: float = 200.0  # URDF effort limit (N m)
@@ -62,11 +66,13 @@ class AlohaParams:
     gripper_open_target: float = 0.045
     gripper_closed_target: float = -0.01  # beyond the closed limit: a closed gripper squeezes
     # --- masses (kg) -----------------------------------------------------------------------
-    link_masses: tuple[float, ...] = (0.9, 1.3, 1.0, 0.45, 0.4, 0.65)  # link1..link6 (+gripper)
+    link_masses: tuple[float, ...] = (0.9, 1.6, 1.2, 0.45, 0.4, 0.7)  # link1..link6 (+gripper)
     finger_mass: float = 0.05
     # --- wrist camera (in the flange frame) ------------------------------------------------
-    wrist_cam_pos: tuple[float, float, float] = (-0.03, 0.0, 0.062)
-    wrist_cam_pitch_deg: float = 15.0  # optical axis tilted down from the approach axis
+    # above the gripper housing, pitched down so that the fingertips sit in the lower third of the
+    # image and the TCP just above the housing's front edge
+    wrist_cam_pos: tuple[float, float, float] = (-0.02, 0.0, 0.10)
+    wrist_cam_pitch_deg: float = 20.0  # optical axis tilted down from the approach axis
     # --- head camera (world) ---------------------------------------------------------------
     head_cam_pos: tuple[float, float, float] = (-0.032, -0.45, 1.35)
     head_cam_forward: tuple[float, float, float] = (0.0, 0.6, -0.8)
@@ -78,23 +84,37 @@ class AlohaParams:
     home_tcp_right: tuple[float, float, float] = (0.305, -0.193, 0.941)
 
     def digest(self) -> str:
-        """A short, stable hash of the parameters and the generator version."""
-        blob = json.dumps({"v": GENERATOR_VERSION, "p": asdict(self)}, sort_keys=True)
+        """A short, stable hash of the parameters and of the generator's own source, so that a
+        changed generator never reuses stale cached files."""
+        blob = json.dumps({"v": GENERATOR_VERSION, "p": asdict(self), "src": _source_digest()},
+                          sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
     def with_overrides(self, overrides: dict) -> "AlohaParams":
         """A copy with some fields replaced (lists become tuples); unknown names raise."""
         from dataclasses import fields, replace
 
+        from cab_core.errors import ConfigError
+
         known = {f.name for f in fields(self)}
         bad = sorted(set(overrides) - known)
         if bad:
-            raise KeyError(f"unknown aloha_agilex parameter(s): {', '.join(bad)}")
+            raise ConfigError(f"unknown aloha_agilex parameter(s): {', '.join(bad)}")
 
         def tup(v):
             return tuple(tup(x) for x in v) if isinstance(v, (list, tuple)) else v
 
         return replace(self, **{k: tup(v) for k, v in overrides.items()})
+
+
+def _source_digest() -> str:
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in ("params.py", "kinematics.py", "urdf.py", "embodiment.py"):
+        h.update((here / name).read_bytes())
+    return h.hexdigest()
 
 
 DEFAULT_PARAMS = AlohaParams()

@@ -22,6 +22,8 @@ from cab_core.geometry import pose_inv, pose_mul, quat_angle
 from cab_core.planner import IKResult, PlanResult, Planner
 
 INSTALL = "pip install mplib==0.2.1"
+SHORT_MOVE_M = 0.005  # straight-line moves shorter than this may fall back to a joint-space line
+SHORT_MOVE_RAD = 0.05
 
 
 def _import_mplib():
@@ -36,8 +38,9 @@ def _import_mplib():
 @dataclass
 class MplibConfig:
     """Options (the plugin's ``cfg`` dict). Limits are per joint or one value for all joints."""
-    joint_vel_limits: tuple[float, ...] | float = (1.0, 1.0, 1.2, 1.6, 1.6, 2.0)  # rad/s
-    joint_acc_limits: tuple[float, ...] | float = (2.0, 2.0, 2.4, 3.2, 3.2, 4.0)  # rad/s^2
+    # with these a 0.3 m TCP move of aloha_agilex takes 1.2-2.0 s of simulated time
+    joint_vel_limits: tuple[float, ...] | float = (0.55, 0.55, 0.7, 0.9, 0.9, 1.2)  # rad/s
+    joint_acc_limits: tuple[float, ...] | float = (0.9, 0.9, 1.1, 1.5, 1.5, 1.8)  # rad/s^2
     planning_time: float = 2.0  # RRTConnect time limit (s, wall clock)
     rrt_range: float = 0.1
     ik_seeds: int = 20  # IK restarts: the start configuration, then random ones
@@ -73,10 +76,15 @@ class _ArmPlanner:
         self.pin = self.planner.pinocchio_model
         names = list(self.planner.user_joint_names)
         self.arm_idx = np.array([names.index(j) for j in a.joints])
-        if not np.array_equal(np.sort(self.arm_idx), np.sort(self.planner.move_group_joint_indices)):
-            raise PlannerError(f"mplib move group of {a.tcp_link} does not match the {arm} arm joints")
+        # mplib's paths list the move-group joints in its own order; it must be the arm's order
+        if not np.array_equal(self.arm_idx, np.asarray(self.planner.move_group_joint_indices)):
+            raise PlannerError(f"mplib move group of {a.tcp_link} does not match the {arm} arm joints "
+                               f"{a.joints} (in that order)")
         self.tcp_link_idx = self.planner.link_name_2_idx[a.tcp_link]
         self.limits = self.planner.joint_limits[self.arm_idx]
+        types = [self.planner.joint_types[i] for i in self.arm_idx]
+        self.wide = np.array([t.startswith("JointModelR") and (hi - lo) > 2 * np.pi
+                              for t, (lo, hi) in zip(types, self.limits)])
         self.base_pose = np.asarray(spec.base_pose, dtype=float)
         self.planner.set_base_pose(mplib.Pose(self.base_pose[:3], self.base_pose[3:]))
         # the full-robot configuration assumed for everything that is not this arm
@@ -190,9 +198,28 @@ class MplibPlanner(Planner):
                                      n_init_qpos=self.cfg.ik_seeds, threshold=self.cfg.ik_threshold)
         if sols is None:
             return status, []
-        arm_sols = [np.asarray(s, float)[ap.arm_idx] for s in sols]
+        arm_sols = []
+        for s in sols:
+            for v in self._equivalents(ap, np.asarray(s, float)[ap.arm_idx]):
+                if not any(np.allclose(v, w, atol=1e-6) for w in arm_sols):
+                    arm_sols.append(v)
         arm_sols.sort(key=lambda s: float(np.linalg.norm(s - seed_arm)))
         return status, arm_sols
+
+    @staticmethod
+    def _equivalents(ap: _ArmPlanner, q: np.ndarray) -> list[np.ndarray]:
+        """``q`` and its copies shifted by +-2 pi on revolute joints whose range allows it."""
+        out = [q]
+        for i in np.where(ap.wide)[0]:
+            more = []
+            for v in out:
+                for k in (-1.0, 1.0):
+                    w = v.copy()
+                    w[i] += k * 2 * np.pi
+                    if ap.limits[i, 0] - 1e-9 <= w[i] <= ap.limits[i, 1] + 1e-9:
+                        more.append(w)
+            out += more
+        return out
 
     def ik(self, arm: str, tcp_pose_world, seed_qpos) -> IKResult:
         ap = self._arm(arm)
@@ -214,16 +241,17 @@ class MplibPlanner(Planner):
         lo, hi = ap.limits[:, 0], ap.limits[:, 1]
         bad = np.where((q < lo - tol) | (q > hi + tol))[0]
         if len(bad):
+            names = self.embodiment.arms[ap.arm].joints
             return "start joint(s) out of limits: " + ", ".join(
-                f"{self.embodiment.arms[ap.arm].joints[i]}={q[i]:.4f} not in [{lo[i]:.3f}, {hi[i]:.3f}]"
-                for i in bad)
+                f"{names[i]}={q[i]:.4f} not in [{lo[i]:.3f}, {hi[i]:.3f}]" for i in bad)
         hits = ap.planner.check_for_self_collision(ap.full(np.clip(q, lo, hi)))
         if hits:
             pairs = sorted({tuple(sorted((h.link_name1, h.link_name2))) for h in hits})
             return "start state in self-collision: " + ", ".join(f"{a}/{b}" for a, b in pairs)
         return None
 
-    def _resample(self, times: np.ndarray, pos: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    def _resample(self, times: np.ndarray, pos: np.ndarray, start: np.ndarray,
+                  goal: np.ndarray) -> np.ndarray:
         """Positions on the exact grid 0, dt, 2 dt, ...; first row = start, last row = goal."""
         times = np.asarray(times, float)
         pos = np.asarray(pos, float)
@@ -236,7 +264,24 @@ class MplibPlanner(Planner):
         out[-1] = goal
         return out
 
-    def plan_to_pose(self, arm: str, start_qpos, tcp_pose_world, *, straight_line: bool = False) -> PlanResult:
+    def _interpolate(self, ap: _ArmPlanner, start: np.ndarray,
+                     goal: np.ndarray) -> np.ndarray | None:
+        """A collision-checked straight joint-space line, TOPP-timed; None if it collides."""
+        n = int(np.ceil(np.max(np.abs(goal - start)) / 0.01)) + 2
+        path = np.linspace(start, goal, max(n, 4))
+        for q in path:
+            if ap.planner.check_for_self_collision(ap.full(q)):
+                return None
+        try:
+            times, pos, *_ = ap.planner.TOPP(path, self.dt)
+        except RuntimeError:
+            return None
+        if len(times) < 2:
+            return np.vstack([start, goal])
+        return self._resample(times, pos, start, goal)
+
+    def plan_to_pose(self, arm: str, start_qpos, tcp_pose_world, *,
+                     straight_line: bool = False) -> PlanResult:
         t0 = time.perf_counter()
         ap = self._arm(arm)
         start = np.asarray(start_qpos, dtype=float).reshape(-1)
@@ -252,33 +297,69 @@ class MplibPlanner(Planner):
             return done("invalid_start", message=problem)
         start = np.clip(start, ap.limits[:, 0], ap.limits[:, 1])
 
+        pe, re = self._errors(arm, start, target)
+        if pe < 1e-4 and re < 1e-3:
+            return done("success", positions=np.vstack([start, start]),
+                        message="already at the target", position_error_m=pe, rotation_error_rad=re)
+
         ik_status, sols = self._ik_all(ap, target, start)
         if not sols:
             return done("no_ik", message=f"no collision-free IK solution: {ik_status}",
                         raw={"mplib_status": ik_status})
+        pe_move, re_move = pe, re
         pe, re = self._errors(arm, sols[0], target)
         common = dict(position_error_m=pe, rotation_error_rad=re)
 
         if straight_line:
             self._reseed()
-            res = ap.planner.plan_screw(self._pose(target), ap.full(start), qpos_step=self.cfg.screw_qpos_step,
-                                        time_step=self.dt, wrt_world=True)
-            if res.get("status") != "Success":
-                return done("no_path", message=f"no straight-line (screw) path: {res.get('status')}",
-                            raw={"mplib_status": res.get("status")}, **common)
-            end = np.asarray(res["position"][-1], float)
-            pe, re = self._errors(arm, end, target)
-            pos = self._resample(res["time"], res["position"], start, end)
-            return done("success", positions=pos, message="screw path", position_error_m=pe,
-                        rotation_error_rad=re, raw={"duration_s": float(res["duration"])})
+            try:
+                res = ap.planner.plan_screw(self._pose(target), ap.full(start),
+                                            qpos_step=self.cfg.screw_qpos_step, time_step=self.dt,
+                                            wrt_world=True)
+            except RuntimeError as e:  # TOPP-RA could not time the path
+                res = {"status": f"screw path could not be timed: {e}"}
+            ok = res.get("status") == "Success" and len(res.get("position", ())) > 0
+            if ok:
+                end = np.asarray(res["position"][-1], float)
+                pe, re = self._errors(arm, end, target)
+                ok = pe < 0.002 and re < 0.01
+            if ok:
+                pos = self._resample(res["time"], res["position"], start, end)
+                return done("success", positions=pos, message="screw path", position_error_m=pe,
+                            rotation_error_rad=re, raw={"duration_s": float(res["duration"])})
+            # a move too small for the screw integrator: a short joint-space line is straight enough
+            near = sols[0]
+            if pe_move < SHORT_MOVE_M and re_move < SHORT_MOVE_RAD \
+                    and np.max(np.abs(near - start)) < SHORT_MOVE_RAD:
+                pos = self._interpolate(ap, start, near)
+                if pos is not None:
+                    pe, re = self._errors(arm, near, target)
+                    return done("success", positions=pos, message="short joint-space line",
+                                position_error_m=pe, rotation_error_rad=re)
+            return done("no_path", message=f"no straight-line (screw) path: {res.get('status')}",
+                        raw={"mplib_status": res.get("status")}, **common)
 
-        self._reseed()
-        res = ap.planner.plan_qpos([ap.full(s) for s in sols], ap.full(start), time_step=self.dt,
-                                   rrt_range=self.cfg.rrt_range, planning_time=self.cfg.planning_time)
+        # the IK solution nearest the start first (short, predictable motions), then any of them
+        res = {}
+        for goals in ([sols[0]], sols[1:]) if len(sols) > 1 else ([sols[0]],):
+            self._reseed()
+            try:
+                res = ap.planner.plan_qpos([ap.full(s) for s in goals], ap.full(start),
+                                           time_step=self.dt, rrt_range=self.cfg.rrt_range,
+                                           planning_time=self.cfg.planning_time)
+            except RuntimeError as e:  # TOPP-RA could not time the path
+                res = {"status": f"path could not be timed: {e}"}
+            if res.get("status") == "Success":
+                break
         if res.get("status") != "Success":
             return done("no_path", message=f"IK solved but no collision-free path: {res.get('status')}",
                         raw={"mplib_status": res.get("status")}, attempts=len(sols), **common)
         pos_raw = np.asarray(res["position"], float)
+        if len(pos_raw) == 0:  # TOPP sampled nothing: a path too short to time
+            pos = self._interpolate(ap, start, sols[0])
+            if pos is None:
+                return done("no_path", message="path too short to time-parametrise", **common)
+            return done("success", positions=pos, message="short joint-space line", **common)
         # the goal actually reached is the IK solution nearest the path's end
         end = min(sols, key=lambda s: float(np.linalg.norm(s - pos_raw[-1])))
         pe, re = self._errors(arm, end, target)

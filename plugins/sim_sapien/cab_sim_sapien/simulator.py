@@ -383,6 +383,26 @@ class SapienSimulator(Simulator):
         builder.set_initial_pose(_sp(_pose_or_bad(pose)))
         return builder.build()
 
+    def _filter_self_collisions(self, emb: EmbodimentSpec) -> None:
+        """Links of one arm never collide with each other (nor with the body the arms hang from):
+        their primitive shapes overlap near the joints in ordinary poses, and the real arm's
+        joint limits, not link contact, bound its motion. The two arms still collide with each
+        other. PhysX ignores a pair whose third collision-group words share a bit."""
+        arm_bits = {name: 1 << (20 + i) for i, name in enumerate(sorted(emb.arms))}
+        owner = {}
+        for name, arm in emb.arms.items():
+            for l in arm.links:
+                owner[l] = arm_bits[name]
+        body_bits = 0
+        for b in arm_bits.values():
+            body_bits |= b
+        for name, link in self._robot_links.items():
+            bits = owner.get(name, body_bits)
+            for shape in link.get_collision_shapes():
+                g = list(shape.get_collision_groups())
+                g[2] = int(g[2]) | bits
+                shape.set_collision_groups(g)
+
     def _build_articulated_object(self, obj, default: Material) -> None:
         art = self._load_urdf(obj.urdf, None, obj.fix_root, default, obj.pose)
         art.name = obj.name
@@ -411,6 +431,7 @@ class SapienSimulator(Simulator):
             link.disable_gravity = True
             self._robot_links[link.name] = link
             self._register(link, f"{ROBOT}/{link.name}")
+        self._filter_self_collisions(emb)
         active = art.get_active_joints()
         index = {j.name: i for i, j in enumerate(active)}
         order = emb.joint_order()
@@ -450,6 +471,7 @@ class SapienSimulator(Simulator):
                 j.set_drive_property(float(emb.drive_stiffness), float(emb.drive_damping))
                 j.set_drive_target(float(q[i]))
         self._targets = np.zeros(len(order))
+        self._vtargets = np.zeros(len(order))
         self._apply_targets(start)
 
     def _build_cameras(self, specs: list[CameraSpec]) -> None:
@@ -546,14 +568,19 @@ class SapienSimulator(Simulator):
         self._apply_targets(q)
         self._touched()
 
-    def set_drive_targets(self, targets: np.ndarray) -> None:
+    def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        self._apply_targets(_vector_or_bad(targets, len(self._joint_names), "drive targets"))
+        t = _vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else _vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
+        self._apply_targets(t, v)
 
-    def _apply_targets(self, t: np.ndarray) -> None:
-        for j, v in zip(self._drives, t.tolist()):
-            j.set_drive_target(v)
+    def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
+        v = np.zeros(len(t)) if v is None else v
+        for j, p, w in zip(self._drives, t.tolist(), v.tolist()):
+            j.set_drive_target(p)
+            j.set_drive_velocity_target(w)
         self._targets[:] = t
+        self._vtargets[:] = v
 
     def get_drive_targets(self) -> np.ndarray:
         self._live()
@@ -756,7 +783,7 @@ class SapienSimulator(Simulator):
         qvel = np.concatenate([a.get_qvel() for a in arts]).astype(np.float32)
         contacts = json.dumps([[c.a, c.b, c.impulse, c.point] for c in self.get_contacts()])
         d = dict(layout=np.array(self._layout()), body_pose=pose, body_vel=vel, body_asleep=asleep,
-                 root=root, qpos=qpos, qvel=qvel, targets=self._targets.copy(),
+                 root=root, qpos=qpos, qvel=qvel, targets=self._targets.copy(), vtargets=self._vtargets.copy(),
                  steps=np.array(self._steps, np.int64), contacts=np.array(contacts))
         # Re-apply the snapshot to this world at once. PhysX keeps float32 internals that the API
         # does not expose (centre-of-mass frames, link spatial velocities); writing the state back
@@ -804,7 +831,8 @@ class SapienSimulator(Simulator):
             a.set_root_linear_velocity(r[7:10])
             a.set_root_angular_velocity(r[10:])
             k += n
-        self._apply_targets(np.asarray(d["targets"], np.float64))
+        self._apply_targets(np.asarray(d["targets"], np.float64),
+                            np.asarray(d["vtargets"], np.float64) if "vtargets" in d else None)
         self._steps = int(d["steps"])
         self._contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
                           for a, b, imp, pt in json.loads(str(d["contacts"]))]

@@ -66,7 +66,7 @@ def expect(result: dict, what: str, ok=("SUCCESS",)) -> dict:
 class Hands:
     """Pick-and-place moves for one arm, through the public tools."""
 
-    def __init__(self, call, arm: str, hover: float = 0.10):
+    def __init__(self, call, arm: str, hover: float = 0.16):
         self.call = call
         self.arm = arm
         self.hover = hover
@@ -80,6 +80,11 @@ class Hands:
     def move(self, dx=0.0, dy=0.0, dz=0.0, what="move", ok=("SUCCESS",)) -> dict:
         return expect(self.call("move_delta", arm=self.arm, dx=float(dx), dy=float(dy), dz=float(dz)), what, ok)
 
+    def descend_to(self, z: float, what: str, ok=("SUCCESS",)) -> dict:
+        """A straight vertical move (guarded legs) down to TCP height ``z``."""
+        r = self.call("get_arm_pose", arm=self.arm)
+        return self.move(dz=float(z) - float(r["tcp_pose"][2]), what=what, ok=ok)
+
     def grip(self, pos: float) -> dict:
         return expect(self.call("set_gripper", arm=self.arm, pos=float(pos)), "set_gripper")
 
@@ -87,7 +92,7 @@ class Hands:
         """Open, hover above, descend, close, lift."""
         x, y, z = (float(v) for v in xyz)
         self.reach([x, y, z + self.hover], quat, "hover above pick")
-        self.reach([x, y, z], quat, "descend to grasp")
+        self.descend_to(z, "descend to grasp")
         self.grip(0.0)
         self.move(dz=lift, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
 
@@ -95,6 +100,6 @@ class Hands:
         """Carry above, descend, release, retreat upward."""
         x, y, z = (float(v) for v in xyz)
         self.reach([x, y, z + self.hover], quat, "carry above place")
-        self.reach([x, y, z], quat, "descend to place", ok=("SUCCESS", "ABORTED", "FAILED"))
+        self.descend_to(z, "descend to place", ok=("SUCCESS", "ABORTED", "FAILED"))
         self.grip(1.0)
         self.move(dz=retreat, what="retreat", ok=("SUCCESS", "ABORTED", "FAILED"))

@@ -148,7 +148,9 @@ class StackBlocksThree(CodeActionTask):
                 below = world.pose(info["blocks"][info["stack_order"][level - 1]]["name"])[:3]
                 target = np.array([below[0], below[1], z])
             hands.place(target - held, None)
-            hands.move(dz=0.06, what="clear the stack", ok=("SUCCESS", "ABORTED", "FAILED"))
+            # step aside so the other arm can reach the stack
+            hands.move(dx=-0.18 if arm == "left" else 0.18, dy=-0.05, dz=0.04, what="clear the stack",
+                       ok=("SUCCESS", "ABORTED", "FAILED"))
         call("done", report="stacked blue on green on red", success_claim=True)
 
 
