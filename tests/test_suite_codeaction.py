@@ -102,12 +102,6 @@ def test_task_info_comes_from_the_catalog(name):
         assert section in doc
 
 
-@pytest.mark.parametrize("name", sorted(TASKS))
-def test_oracle_not_written_yet(name):
-    with pytest.raises(NotImplementedError):
-        TASKS[name].oracle(lambda tool, **kw: {}, None)
-
-
 # --- determinism and layouts ----------------------------------------------------------------------
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_build_is_deterministic_and_json(name):

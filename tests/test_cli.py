@@ -1,0 +1,66 @@
+"""The command-line surface, run as a user would: subprocesses of the installed entry points."""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+BIN = os.path.dirname(sys.executable)
+
+
+def run(args, cwd, env=None, timeout=600):
+    e = dict(os.environ)
+    e.update(env or {})
+    return subprocess.run([os.path.join(BIN, args[0])] + args[1:], cwd=cwd, env=e, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.mark.sim
+def test_plus_groups_as_documented(tmp_path):
+    r = run(["cab", "+sim=sapien", "+model=idle", "task=open_microwave", f"hydra.run.dir={tmp_path}/d"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    res = json.loads((tmp_path / "d" / "result.json").read_text())
+    assert (res["task"], res["model"], res["sim"]) == ("open_microwave", "idle", "sapien")
+    assert res["verdict"]["success"] is False
+
+
+def test_unknown_option_lists_choices(tmp_path):
+    r = run(["cab", "model=nonexistent", f"hydra.run.dir={tmp_path}/d"], tmp_path)
+    assert r.returncode != 0
+    assert "nonexistent" in r.stderr and "oracle" in r.stderr and "idle" in r.stderr
+    assert not (tmp_path / "d" / "result.json").exists()
+
+
+@pytest.mark.sim
+def test_renderer_that_cannot_start_is_diagnosed(tmp_path):
+    r = run(["cab", "model=idle", f"hydra.run.dir={tmp_path}/d"], tmp_path,
+            env={"VK_ICD_FILENAMES": str(tmp_path / "missing_icd.json"), "VK_DRIVER_FILES": str(tmp_path / "missing_icd.json")})
+    assert r.returncode == 3, (r.returncode, r.stdout, r.stderr)
+    assert "renderer unavailable" in r.stderr
+    assert "mesa-vulkan-drivers" in r.stderr
+
+
+def test_schemas_command_prints_every_tool(tmp_path):
+    r = run(["cab-schemas"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    names = [t["name"] for t in json.loads(r.stdout)]
+    assert len(names) == len(set(names)) == 31
+    assert {"run_code", "done", "move_delta", "capture_head", "plane_intersect"} <= set(names)
+    one = json.loads(run(["cab-schemas", "move_delta"], tmp_path).stdout)
+    assert one[0]["parameters"]["properties"]["arm"]
+    assert run(["cab-schemas", "nope"], tmp_path).returncode == 2
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_bench_prints_its_figures(tmp_path):
+    out = tmp_path / "bench.json"
+    r = run(["cab-bench", "-n", "3", "--out", str(out)], tmp_path)
+    assert r.returncode == 0, r.stderr
+    for line in ("capture_head", "get_arm_pose", "reset", "motion wall s per sim s", "raw head render p50"):
+        assert line in r.stdout
+    data = json.loads(out.read_text())
+    assert data["motion"]["sim_s"] > 0 and data["raw"]["step_rate_hz"] > 0
+    assert set(data["targets"]) == {"non_image_tools_p50_le_5ms", "capture_head_p50_le_60ms", "motion_ge_3x_realtime",
+                                    "reset_le_3s"}
