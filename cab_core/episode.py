@@ -237,21 +237,7 @@ class Episode:
         out_obs: list[str] = []
         status = None
         try:
-            if name not in self.registry:
-                raise ToolArgumentError(f"unknown tool {name!r}")
-            tdef = self.registry[name]
-            from .tools import validate_args
-
-            model = validate_args(name, args)
-            if name == "run_code":
-                payload, out_obs, status = self._run_code(model.code)
-            else:
-                out = tdef.resolve()(self.ctx, model)
-                payload, out_obs, status = dict(out.payload), list(out.obs_ids), out.status
-        except ToolArgumentError as e:
-            msg = str(e)
-            payload = {"error": msg if msg.startswith(("bad arguments", "unknown tool")) else f"bad arguments: {msg}",
-                       "code": "invalid_tool_arguments"}
+            payload, out_obs, status = self._invoke(name, args, direct=True)
         except Exception as e:  # a fault of the host, not the agent's
             self.recorder.event("tool_fault", tool=name, arguments=args, error=repr(e), traceback=traceback.format_exc())
             self._end("error", f"{name}: {e!r}")
@@ -272,6 +258,25 @@ class Episode:
             self._end(reason, payload["budget"]["note"])
             ended = True
         return ToolResponse(name, payload, out_obs, ended=ended, status=status)
+
+    def _invoke(self, name: str, args: dict, direct: bool) -> tuple[dict, list[str], str | None]:
+        """Validate and run one tool. Argument errors become the typed error payload the agent
+        sees; any other exception propagates (a host fault). Inside programs, run_code and done
+        do not exist."""
+        from .tools import validate_args
+
+        try:
+            if name not in self.registry or (not direct and name in ("run_code", "done")):
+                raise ToolArgumentError(f"unknown tool {name!r}")
+            model = validate_args(name, args)
+            if name == "run_code":
+                return self._run_code(model.code)
+            out = self.registry[name].resolve()(self.ctx, model)
+            return dict(out.payload), list(out.obs_ids), out.status
+        except ToolArgumentError as e:
+            msg = str(e)
+            return ({"error": msg if msg.startswith(("bad arguments", "unknown tool")) else f"bad arguments: {msg}",
+                     "code": "invalid_tool_arguments"}, [], None)
 
     def _done(self, args: dict, t0: float) -> ToolResponse:
         report = args.get("report")
@@ -301,22 +306,12 @@ class Episode:
 
     def _dispatch_internal(self, name: str, kwargs: dict):
         from .sandbox import DispatchResult
-        from .tools import validate_args
 
         steps0 = self.clock.steps
         reason = self.ledger.exhausted_reason()
         if reason in ("sim_budget", "wall_budget"):
             return DispatchResult({"error": "budget exhausted", "reason": reason}, [], ended=True)
-        try:
-            if name in ("run_code", "done") or name not in self.registry:
-                raise ToolArgumentError(f"unknown tool {name!r}")
-            model = validate_args(name, kwargs)
-            out = self.registry[name].resolve()(self.ctx, model)
-            payload, obs_ids, status = dict(out.payload), list(out.obs_ids), out.status
-        except ToolArgumentError as e:
-            msg = str(e)
-            payload, obs_ids, status = {"error": msg if msg.startswith(("bad arguments", "unknown tool")) else f"bad arguments: {msg}",
-                                        "code": "invalid_tool_arguments"}, [], None
+        payload, obs_ids, status = self._invoke(name, kwargs, direct=False)
         self.recorder.event("internal_call", tool=name, arguments=kwargs, result=payload, obs_ids=obs_ids, status=status,
                             physics_steps=self.clock.steps - steps0, physics_step_end=self.clock.steps, tick=self.ctx.tick)
         if self.clock.steps != steps0:
