@@ -50,6 +50,7 @@ class OracleAgent:
                 raise AttemptEnded(f"attempt ended during {tool}: {episode.termination}")
             return r.payload
 
+        call("capture_head")  # look before acting, as any agent would (and the record holds the view)
         episode.task.oracle(call, episode.world)
 
 
