@@ -27,6 +27,7 @@ REACH_MAX_CORRECTIONS = 2
 REACH_MISS_M = 0.02  # a reach that ends further than this from its target did not complete
 CONTACT_IMPULSE_THRESHOLD = 1e-4
 STALL_PROGRESS_M = 0.001
+LEG_MAX_JOINT_JUMP = 0.6  # rad: a Cartesian leg of <= 3 cm needing more is a configuration switch
 JOINT_SPEED = 1.2  # rad/s cap for joint-space interpolation of legs
 TCP_SPEED = 0.20  # m/s cap for Cartesian legs
 SETTLE_MAX_STEPS = 40
@@ -264,6 +265,18 @@ def _legs(ctx: RobotContext, deltas: dict[str, np.ndarray], *, stop_on_contact_c
                 active.discard(a)
                 continue
             q0 = ctx.arm_qpos(a)
+            jump = float(np.max(np.abs(ik.qpos - q0)))
+            if jump > LEG_MAX_JOINT_JUMP:
+                # the nearest IK solution is a different arm configuration: a 3 cm leg would swing
+                # the arm through the workspace, so refuse before moving
+                state[a].update(status="FAILED", reason="planner",
+                                failure=_fail("planning", "ik_discontinuity", "planner",
+                                              f"the next {float(np.linalg.norm(step_vec)):.3f} m leg needs a {jump:.2f} rad joint "
+                                              "change (another arm configuration); not executed"),
+                                planner={"code": "ik_discontinuity", "meaning": "no nearby IK solution for the next leg",
+                                         "max_joint_change_rad": round(jump, 3)})
+                active.discard(a)
+                continue
             tr = _interp(q0, ik.qpos, dt, extra_time=float(np.linalg.norm(step_vec)) / TCP_SPEED)
             trajs[a] = tr
             leg_info[a] = (cur.copy(), step_vec, dist)
