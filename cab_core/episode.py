@@ -200,10 +200,14 @@ class Episode:
             q = self.sim.get_object_qpos(n)
             if len(q):
                 objs[n]["qpos"] = np.round(q, 6).tolist()
+                objs[n]["links"] = {l: np.round(self.sim.get_object_link_pose(n, l), 6).tolist()
+                                    for l in self.sim.get_object_link_names(n)}
+        contacts = [[c.a, c.b, round(float(c.impulse), 7)] for c in self.sim.get_contacts() if c.impulse > 1e-6]
         arms = {a: {"tcp_pose": np.round(self.ctx.tcp_pose(a), 6).tolist(), "gripper_cmd": self.ctx.gripper_cmd[a],
                     "finger_gap_m": round(self.ctx.finger_gap(a), 5)} for a in sorted(self.emb.arms)}
         self.recorder.snapshot(label, {"physics_step": self.clock.steps, "tick": self.ctx.tick, "calls": self._calls,
-                                       "objects": objs, "arms": arms})
+                                       "objects": objs, "arms": arms, "contacts": contacts,
+                                       "latched": bool(self.verdict.latched) if hasattr(self, "verdict") else False})
 
     # -- the session API ----------------------------------------------------------------------
     @property
@@ -349,6 +353,7 @@ class Episode:
         except Exception as e:  # never lose the attempt because scoring failed
             verdict = {"success": False, "error": repr(e)}
         self._snapshot("end")
+        checkpoints = self._checkpoints(verdict)
         if self.sandbox is not None:
             self.sandbox.close()
         s = self.spec
@@ -369,12 +374,25 @@ class Episode:
                         "layers": getattr(self.sandbox, "confinement_layers", None),
                         "note": getattr(self.sandbox, "confinement_note", None)},
             "versions": self.versions(),
+            "checkpoints": checkpoints,
             "video": {"file": "video.mp4", "frames": self.recorder.video.frames, "every_steps": self._video_every}
             if self.recorder.video else None,
         }
         self.recorder.event("attempt_end", termination=self.termination, claim=self.claim)
         self.recorder.finish(self.result)
         return self.result
+
+    def _checkpoints(self, verdict: dict) -> dict | None:
+        """Subgoal and spatial checkpoints of this attempt, from its own records."""
+        if not hasattr(self.task, "subgoals"):
+            return None
+        from .analysis.checkpoints import evaluate, load_snapshots
+
+        try:
+            latched = bool((verdict.get("latch") or {}).get("latched"))
+            return evaluate(self.task, self.emb, self.instance.info, load_snapshots(self.out), latched).as_dict()
+        except Exception as e:  # analysis must never lose the attempt
+            return {"error": repr(e)}
 
     def versions(self) -> dict:
         pk = {}

@@ -115,6 +115,10 @@ class Simulator(ABC):
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         """World pose of a link of an articulated object."""
 
+    def get_object_link_names(self, name: str) -> list[str]:
+        """Links of an articulated object (empty for rigid bodies)."""
+        return []
+
     # -- contacts -----------------------------------------------------------------------------
     @abstractmethod
     def get_contacts(self) -> list[Contact]:

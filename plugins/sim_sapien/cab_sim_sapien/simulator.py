@@ -654,6 +654,10 @@ class SapienSimulator(Simulator):
         art.set_qvel(np.zeros(art.dof, dtype=np.float32))
         self._touched()
 
+    def get_object_link_names(self, name: str) -> list[str]:
+        self._live()
+        return list(self._art_links.get(name, {}))
+
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         body, art = self._object(name)
         links = self._art_links.get(name, {})

@@ -30,6 +30,7 @@ import numpy as np
 from cab_core.geometry import transform_point
 from cab_core.scene import Body, Box, Capsule, Cylinder, Material, Shape
 from cab_core.task import SceneInstance, rng_for
+from cab_core.analysis.checkpoints import SpatialRule, box, sphere
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
 from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
@@ -37,6 +38,7 @@ from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, base_scene, lowest_
                       rand_pose, sample_until, srgb, table_top_z, vec, yaw_of)
 
 NAME = "beat_block_hammer"
+GRASP_TCP_ABOVE_AXIS = 0.026  # the expert's top-down handle grasp: TCP this far above the handle axis
 
 # --- the hammer, in its body frame ---------------------------------------------------------------
 # Origin on the handle axis; +x runs along the handle toward the head; the head's long axis is y,
@@ -190,11 +192,39 @@ class BeatBlockHammer(CodeActionTask):
             },
             # upstream's expert uses the arm on the block's side
             "suggested_arm": "right" if block_pose[0] > 0 else "left",
+            # the subgoal the latch event satisfies (checkpoints read it from the record)
+            "latch_subgoals": [0],
         }
         return SceneInstance(scene=scene, info=info)
 
     def verifier(self, instance: SceneInstance) -> Verifier:
         return BeatBlockHammerVerifier(instance.info)
+
+    def subgoals(self, w: WorldView) -> list[bool]:
+        """(1) hammer head aligned with and contacting the block (the latch predicate)."""
+        return [self.verifier_for(w.info).evaluate(w).success]
+
+    def verifier_for(self, info: dict) -> "BeatBlockHammerVerifier":
+        return BeatBlockHammerVerifier(info)
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        """(1) Approach hammer: the expert's top-down grasp over the handle; (2) Strike: where the
+        TCP is when the held hammer's face rests on the block top (follows the hammer)."""
+        h, b = info["hammer"], info["block"]
+        grasp_local = h["grasp_point_by_side"][info["suggested_arm"]]
+        above = np.array([0.0, 0.0, GRASP_TCP_ABOVE_AXIS])
+
+        def approach(w):
+            return world_point(w.pose(h["name"]), grasp_local) + above
+
+        def strike(w):
+            hp = w.pose(h["name"])
+            top = world_point(w.pose(b["name"]), b["top_point"])
+            return (top + np.array([0.0, 0.0, float(h["face_radius"])]) + world_point(hp, grasp_local)
+                    - world_point(hp, h["face_point"]) + above)
+
+        return [SpatialRule("Approach hammer", "either", approach, box(dx=2, dy=6, dz=(-3, 4))),
+                SpatialRule("Strike", "either", strike, sphere(5), prerequisites=(0,))]
 
     def oracle(self, call, world: WorldView) -> None:
         """Grasp the handle top-down with the arm on the block's side, carry the hammer flat so
@@ -209,7 +239,7 @@ class BeatBlockHammer(CodeActionTask):
         across = np.cross([0.0, 0.0, 1.0], handle)
         q = top_down_quat(closest_opening(world.tcp_pose(arm)[3:], [across]))
         # the fingertips reach 0.0354 m past the TCP: keep them just above the table top
-        z = max(g[2] + 0.026, float(info["table_top_z"]) + 0.038)
+        z = max(g[2] + GRASP_TCP_ABOVE_AXIS, float(info["table_top_z"]) + 0.038)
         hands.pick([g[0], g[1], z], q, lift=0.10)
         face = world_point(world.pose(h["name"]), h["face_point"])
         offset = face - world.tcp_pose(arm)[:3]

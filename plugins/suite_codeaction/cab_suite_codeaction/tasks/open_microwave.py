@@ -30,6 +30,7 @@ import numpy as np
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import ArticulatedObject
 from cab_core.task import SceneInstance, rng_for
+from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
 from ..oracle import Hands, tcp_quat
@@ -257,6 +258,32 @@ class OpenMicrowave(CodeActionTask):
 
     def verifier(self, instance: SceneInstance) -> Verifier:
         return OpenMicrowaveVerifier(instance.info)
+
+    def subgoals(self, w: WorldView) -> list[bool]:
+        """(1) door at >= 60% of its upper joint limit."""
+        return [OpenMicrowaveVerifier(w.info).evaluate(w).success]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        """(1) Approach microwave: the expert's grasp of the handle bar (follows the door);
+        (2) Open door: the expert's TCP on the pull arc with the door 0.4 rad open (static)."""
+        m = info["microwave"]
+        root = np.asarray(m["root_pose"], float)
+        hinge_b = np.asarray(m["hinge_point_base"], float)
+        handle_d = np.asarray(m["handle_point_door"], float)
+        forward = quat_to_mat(root[3:])[:, 1]
+
+        def handle_at(q: float) -> np.ndarray:
+            c, s = np.cos(q), np.sin(q)
+            rz = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+            return transform_point(root, hinge_b + rz @ handle_d)
+
+        def approach(w):
+            q = float(np.asarray(w.qpos(m["name"]))[int(m["door_joint_index"])])
+            return handle_at(q) - 0.010 * forward
+
+        pulled = handle_at(0.4) - 0.010 * forward
+        return [SpatialRule("Approach microwave", "either", approach, cylinder(2, (-6, 2))),
+                SpatialRule("Open door", "either", lambda w: pulled, sphere(5), prerequisites=(0,))]
 
     def oracle(self, call, world: WorldView) -> None:
         """Pull with the left arm, push with the right. The left gripper grasps the handle bar

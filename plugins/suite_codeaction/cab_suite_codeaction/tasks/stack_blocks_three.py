@@ -27,6 +27,7 @@ import numpy as np
 
 from cab_core.scene import Body, Box, Shape
 from cab_core.task import SceneInstance, rng_for
+from cab_core.analysis.checkpoints import SpatialRule, box, sphere
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
 from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
@@ -42,6 +43,7 @@ CLEAR_RADIUS = 0.15
 MIN_PAIR_DIST = 0.10
 TOLERANCE = (0.025, 0.025, 0.012)
 GRIPPER_OPEN = 0.8
+GRASP_ABOVE_CENTRE = 0.012  # the expert grasps a cube top-down with the TCP this far above its centre
 COLOURS = (("red", RED), ("green", GREEN), ("blue", BLUE))  # bottom -> top of the goal stack
 
 
@@ -123,6 +125,28 @@ class StackBlocksThree(CodeActionTask):
     def verifier(self, instance: SceneInstance) -> Verifier:
         return StackBlocksThreeVerifier(instance.info)
 
+    def subgoals(self, w: WorldView) -> list[bool]:
+        """(1) green aligned above red, (2) blue aligned above green, (3) both together."""
+        p = StackBlocksThreeVerifier(w.info).evaluate(w).predicates
+        return [p["green_on_red"], p["blue_on_green"], p["green_on_red"] and p["blue_on_green"]]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        """Approach each block (the expert's top-down grasp point), then place green on the
+        current red and blue on the current green (the TCP where it holds a cube resting there)."""
+        order = [info["blocks"][c]["name"] for c in info["stack_order"]]
+        lift = np.array([0.0, 0.0, GRASP_ABOVE_CENTRE])
+        step = np.array([0.0, 0.0, 2 * float(info["block_half_size"])])
+
+        def at(name, extra=np.zeros(3)):
+            return lambda w: np.asarray(w.pose(name)[:3]) + lift + extra
+
+        rules = [SpatialRule(f"Approach block {i + 1}", "either", at(n), sphere(2)) for i, n in enumerate(order)]
+        rules.append(SpatialRule("Place green on red", "either", at(order[0], step), box(dx=2.5, dy=2.5, dz=4),
+                                 prerequisites=(1,)))
+        rules.append(SpatialRule("Place blue on green", "either", at(order[1], step), box(dx=2.5, dy=2.5, dz=4),
+                                 prerequisites=(2,)))
+        return rules
+
     def oracle(self, call, world: WorldView) -> None:
         """Each cube is picked top-down by the arm on its side (fingers across two faces) and put
         on the stack in the cleared area in front of the robot, bottom to top."""
@@ -138,7 +162,7 @@ class StackBlocksThree(CodeActionTask):
             faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
             now = world.tcp_pose(arm)
             q = top_down_quat(closest_opening(now[3:], faces))
-            hands.pick([pose[0], pose[1], pose[2] + 0.012], q, lift=0.06 + 2 * half * level)
+            hands.pick([pose[0], pose[1], pose[2] + GRASP_ABOVE_CENTRE], q, lift=0.06 + 2 * half * level)
             # where the held cube sits relative to the TCP decides where the TCP must go
             held = world.pose(name)[:3] - world.tcp_pose(arm)[:3]
             z = base_z + 2 * half * level + 0.004

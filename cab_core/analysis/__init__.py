@@ -1,0 +1,1 @@
+"""Analyses of attempt records: checkpoints now; metrics, failure stages and reports later."""
