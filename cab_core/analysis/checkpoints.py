@@ -25,9 +25,9 @@ def _within(v: float, lim) -> bool:
     if lim is None:
         return True
     if isinstance(lim, (int, float)):
-        return abs(v) <= lim
+        return bool(abs(v) <= lim)
     lo, hi = lim
-    return (lo is None or v >= lo) and (hi is None or v <= hi)
+    return bool((lo is None or v >= lo) and (hi is None or v <= hi))
 
 
 def box(dx=None, dy=None, dz=None) -> Test:
@@ -37,16 +37,16 @@ def box(dx=None, dy=None, dz=None) -> Test:
 
 def cylinder(dxy: float, dz=None) -> Test:
     """d_xy <= dxy and Δz within ``dz`` (number: |Δz| <=; pair: range)."""
-    return lambda d: float(np.hypot(d[0], d[1])) <= dxy and _within(d[2], dz)
+    return lambda d: bool(float(np.hypot(d[0], d[1])) <= dxy) and _within(d[2], dz)
 
 
 def sphere(d3: float) -> Test:
-    return lambda d: float(np.linalg.norm(d)) <= d3
+    return lambda d: bool(float(np.linalg.norm(d)) <= d3)
 
 
 def annulus(radius_cm: float, drho: float, dz=None) -> Test:
     """|ρ - radius| <= drho around the reference (ρ = horizontal distance), Δz within ``dz``."""
-    return lambda d: abs(float(np.hypot(d[0], d[1])) - radius_cm) <= drho and _within(d[2], dz)
+    return lambda d: bool(abs(float(np.hypot(d[0], d[1])) - radius_cm) <= drho) and _within(d[2], dz)
 
 
 @dataclass(frozen=True)
