@@ -69,6 +69,7 @@ class SpatialRule:
 class CheckpointReport:
     subgoals: list[dict] = field(default_factory=list)
     spatial: list[dict] = field(default_factory=list)
+    subgoals_at_start: list[bool] = field(default_factory=list)
 
     @property
     def subgoal_coverage(self) -> float:
@@ -79,7 +80,7 @@ class CheckpointReport:
         return sum(s["attained"] for s in self.spatial) / len(self.spatial) if self.spatial else 0.0
 
     def as_dict(self) -> dict:
-        return {"subgoals": self.subgoals, "spatial": self.spatial,
+        return {"subgoals": self.subgoals, "spatial": self.spatial, "subgoals_at_start": self.subgoals_at_start,
                 "subgoal_coverage": round(self.subgoal_coverage, 4), "spatial_coverage": round(self.spatial_coverage, 4)}
 
 
@@ -135,6 +136,7 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
     sub_armed = [True] * n_sub
     sp_first: list[dict | None] = [None] * len(rules)
     sp_z: list[dict] = [dict() for _ in rules]  # arm -> TCP z at the match (for relative lifts)
+    start_values: list[bool] = []
     for k, snap in enumerate(snapshots):
         state = SnapshotState(snap, emb)
         grips = {a: snap["arms"][a]["gripper_cmd"] for a in snap["arms"]}
@@ -143,6 +145,8 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
                  "physics_step": snap.get("physics_step")}
         if hasattr(task, "subgoals") and n_sub:
             vals = list(task.subgoals(w))
+            if k == 0:
+                start_values = [bool(v) for v in vals[:n_sub]]
             for i, v in enumerate(vals[:n_sub]):
                 if k == 0:
                     sub_armed[i] = not v
@@ -179,7 +183,7 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
         for i in info["latch_subgoals"]:
             if sub_first[i] is None:
                 sub_first[i] = {"snapshot": None, "label": "latch event", "calls": None, "physics_step": None}
-    rep = CheckpointReport()
+    rep = CheckpointReport(subgoals_at_start=start_values)
     for i, text in enumerate(task.info.subgoals):
         rep.subgoals.append({"index": i + 1, "text": text, "attained": sub_first[i] is not None, "first": sub_first[i]})
     for i, r in enumerate(rules):

@@ -1,0 +1,221 @@
+"""handover_block: the left arm picks the long red block, hands it to the right arm, which sets it
+on the blue pad.
+
+Description
+    A long red block (6 x 6 x 20 cm, standing upright) stands on the left half of the table; a flat
+    blue pad (10 x 10 x 1 cm, fixed) lies on the right, toward the back. The left arm must grasp the
+    block, hand it over to the right arm, and the right arm must stand the block on the pad and
+    let go of it.
+
+Randomisation (per seed; FACTS B.6)
+    Block (half-size (0.03, 0.03, 0.10), dynamic) with ``rand_pose``: x in [-0.25, -0.05],
+    y in [0, 0.25], z 0.842 (2 mm above the table, settles at reset), base quaternion
+    [0.981, 0, 0, 0.195] (yaw ~0.39 rad) composed with a yaw in +-0.2 rad. Pad (half-size
+    (0.05, 0.05, 0.005), static, no rotation) lying on the table: x in [0.1, 0.25], y in
+    [0.15, 0.20].
+
+Success (final state)
+    ``block_on_pad``: the block's bottom-face centre (functional point 0) is within 0.03 m of the
+    pad's top-face centre (functional point 1) in x and in y, and within 0.01 m in z (the block
+    stands upright on the pad); ``right_gripper_open``: the right arm's commanded gripper value is
+    > 0.8 (the right arm has let go). Which arm did what is not checked beyond that (as upstream).
+    Guard: the block must stay on the table (not below table top - 0.08 m).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.geometry import transform_point
+from cab_core.scene import Body, Box, Material, Shape
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, srgb, table_top_z, vec,
+                      yaw_of)
+from ..oracle import OracleFailed, closest_opening, expect, tcp_quat, top_down_quat, yaw_axis
+
+NAME = "handover_block"
+BLOCK_HALF = (0.03, 0.03, 0.10)
+BLOCK_SPAWN_Z = 0.842  # FACTS B.6: 2 mm above the table top for the 0.10 half-height
+BLOCK_BASE_QUAT = (0.981, 0.0, 0.0, 0.195)
+BLOCK_YAW_RAND = 0.2
+BLOCK_DENSITY = 400.0  # kg/m^3, a painted pine block: 0.29 kg
+BLOCK_FRICTION = 0.8  # painted wood against rubber finger pads
+PAD_HALF = (0.05, 0.05, 0.005)
+XY_TOL = 0.03
+Z_TOL = 0.01
+GRIPPER_OPEN = 0.8
+
+BLOCK_RED = Material(color=srgb(0.85, 0.10, 0.10), roughness=0.5, static_friction=BLOCK_FRICTION,
+                     dynamic_friction=BLOCK_FRICTION)
+PAD_BLUE = Material(color=srgb(0.10, 0.25, 0.90), roughness=0.6)
+
+# functional points (body frames)
+BOTTOM_POINT = (0.0, 0.0, -BLOCK_HALF[2])  # block functional point 0: centre of the bottom face
+PAD_TOP_POINT = (0.0, 0.0, PAD_HALF[2])  # pad functional point 1: centre of the top face
+# oracle hints: where each arm holds the block (block frame). The left fingers cover the top 6 cm
+# (top-down), the right fingers close round the lower part, 5 cm above the bottom (from the front).
+LEFT_GRASP = (0.0, 0.0, BLOCK_HALF[2] - 0.025)
+RIGHT_GRASP = (0.0, 0.0, -BLOCK_HALF[2] + 0.05)
+HANDOVER_CENTRE = (0.0, -0.05, 0.95)  # block centre during the handover (world)
+
+
+class HandoverBlockVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        b, p = info["block"], info["pad"]
+        self.block, self.pad = b["name"], p["name"]
+        self.bottom = np.asarray(b["bottom_point"], float)
+        self.top = np.asarray(p["top_point"], float)
+        self.xy_tol, self.z_tol = float(info["xy_tolerance"]), float(info["z_tolerance"])
+        self.guarded_objects = (self.block,)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        d = transform_point(w.pose(self.block), self.bottom) - transform_point(w.pose(self.pad), self.top)
+        on_pad = bool(abs(d[0]) < self.xy_tol and abs(d[1]) < self.xy_tol and abs(d[2]) < self.z_tol)
+        g = w.gripper_command("right")
+        right_open = g > GRIPPER_OPEN
+        return Evaluation(success=on_pad and right_open,
+                          predicates={"block_on_pad": on_pad, "right_gripper_open": right_open},
+                          values={"bottom_dx": float(d[0]), "bottom_dy": float(d[1]), "bottom_dz": float(d[2]),
+                                  "gripper_right": float(g)})
+
+
+class HandoverBlock(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+        block_pose = rand_pose(rng, (-0.25, -0.05), (0.0, 0.25), (BLOCK_SPAWN_Z,), rotate_rand=True,
+                               rotate_lim=(0.0, 0.0, BLOCK_YAW_RAND), qpos=BLOCK_BASE_QUAT)
+        pad_pose = rand_pose(rng, (0.1, 0.25), (0.15, 0.20), (top + PAD_HALF[2],))
+        scene.bodies.append(Body("block", [Shape(Box(BLOCK_HALF), material=BLOCK_RED)], pose=tuple(block_pose),
+                                 kind="dynamic", density=BLOCK_DENSITY))
+        scene.bodies.append(Body("pad", [Shape(Box(PAD_HALF), material=PAD_BLUE)], pose=tuple(pad_pose),
+                                 kind="static"))
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "xy_tolerance": XY_TOL,
+            "z_tolerance": Z_TOL,
+            "gripper_open_threshold": GRIPPER_OPEN,
+            "block": {
+                "name": "block",
+                "frame": "block body: centre of the block, z along its 0.20 m length (up when standing)",
+                "initial_pose": pose_list(block_pose),
+                "yaw": round(yaw_of(block_pose[3:]), 6),
+                "half_size": vec(BLOCK_HALF),
+                "mass_kg": round(BLOCK_DENSITY * 8 * float(np.prod(BLOCK_HALF)), 6),
+                "bottom_point": vec(BOTTOM_POINT),  # functional point 0
+                "left_grasp_point": vec(LEFT_GRASP),
+                "right_grasp_point": vec(RIGHT_GRASP),
+            },
+            "pad": {
+                "name": "pad",
+                "frame": "pad body: centre of the slab, axes along its edges",
+                "pose": pose_list(pad_pose),
+                "half_size": vec(PAD_HALF),
+                "top_point": vec(PAD_TOP_POINT),  # functional point 1
+            },
+            "handover_centre": vec(HANDOVER_CENTRE),
+            "grasp_arm": "left",
+            "place_arm": "right",
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return HandoverBlockVerifier(instance.info)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        ev = HandoverBlockVerifier(w.info).evaluate(w)
+        return [ev.predicates["block_on_pad"]]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        b, p = info["block"], info["pad"]
+        left_g = np.asarray(b["left_grasp_point"], float)
+        right_g = np.asarray(b["right_grasp_point"], float)
+        # expert placement: the right TCP holds the block right_grasp_point above its bottom, which
+        # sits on the pad's top point
+        place_off = np.asarray(p["top_point"], float) + (right_g - np.asarray(b["bottom_point"], float))
+        return [
+            SpatialRule("Approach box", "either", lambda w: transform_point(w.pose(b["name"]), left_g),
+                        cylinder(7.0, 4.0)),
+            SpatialRule("Handover", "either", lambda w: transform_point(w.pose(b["name"]), right_g),
+                        box(10.0, 6.0, 6.0), prerequisites=(0,)),
+            SpatialRule("Place at support", "either",
+                        lambda w: np.asarray(w.pose(p["name"])[:3], float) + place_off,
+                        cylinder(7.5, (-2.0, 5.0)), prerequisites=(1,)),
+        ]
+
+    # -- reference solution -----------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """Left arm: top-down grasp of the block's top, lift, carry it to the handover point in
+        front of the robot turning it square to the world axes. Right arm: grasp the lower part
+        from the front, the left lets go and rises; the right carries the block over the pad,
+        lowers it onto the pad, releases and backs off (15 tool calls)."""
+        info = world.info
+        b, p = info["block"], info["pad"]
+        name = b["name"]
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+
+        def move(arm, d, what, ok=("SUCCESS",)):
+            return expect(call("move_delta", arm=arm, dx=float(d[0]), dy=float(d[1]), dz=float(d[2])), what, ok)
+
+        def reach(arm, xyz, quat, what, ok=("SUCCESS",)):
+            args = {"arm": arm, "target_xyz": [float(v) for v in xyz]}
+            if quat is not None:
+                args["target_quat"] = [float(v) for v in quat]
+            return expect(call("reach_tcp", **args), what, ok)
+
+        def grip(arm, pos):
+            return expect(call("set_gripper", arm=arm, pos=float(pos)), "set_gripper")
+
+        # 1. left arm: top-down onto the block's top, fingers across two faces
+        pose = world.pose(name)
+        faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
+        q = top_down_quat(closest_opening(world.tcp_pose("left")[3:], faces))
+        g = transform_point(pose, b["left_grasp_point"])
+        reach("left", g + [0.0, 0.0, 0.17], q, "above the block")
+        move("left", g - world.tcp_pose("left")[:3], "down onto the block")
+        grip("left", 0.0)
+        move("left", (0.0, 0.0, 0.10), "lift", ok=tolerant)
+
+        # 2. to the handover point, the block turned square to the world axes (opening along x)
+        hc = np.asarray(info["handover_centre"], float)
+        held = world.pose(name)
+        up = np.asarray(transform_point(held, b["left_grasp_point"]), float) - held[:3]
+        reach("left", hc + [0.0, 0.0, float(np.linalg.norm(up))], top_down_quat([1.0, 0.0, 0.0]), "to the handover")
+
+        # 3. right arm: from the front round the lower part (fingers open along x)
+        low = transform_point(world.pose(name), b["right_grasp_point"])
+        reach("right", low + [0.0, -0.10, 0.0], tcp_quat([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]), "in front of the block")
+        move("right", low - world.tcp_pose("right")[:3], "round the block")
+        grip("right", 0.0)
+        grip("left", 1.0)
+        move("left", (0.0, 0.0, 0.10), "left hand up", ok=tolerant)
+
+        # 4. right arm: over the pad, down until the block stands on it, let go, back off
+        pad_top = transform_point(world.pose(p["name"]), p["top_point"])
+        cur = world.pose(name)
+        off = world.tcp_pose("right")[:3] - transform_point(cur, b["bottom_point"])
+        target = pad_top + off + [0.0, 0.0, 0.004]
+        reach("right", target + [0.0, 0.0, 0.04], None, "over the pad")
+        move("right", target - world.tcp_pose("right")[:3], "set down", ok=tolerant)
+        grip("right", 1.0)
+        move("right", (0.0, -0.10, 0.02), "back off", ok=tolerant)
+        if not world.gripper_command("right") > GRIPPER_OPEN:
+            raise OracleFailed("right gripper not open")
+        call("done", report="left arm picked the block and handed it to the right arm, which stood it on the "
+                            "blue pad and let go", success_claim=True)
+
+
+TASK = HandoverBlock
