@@ -64,3 +64,14 @@ def test_bench_prints_its_figures(tmp_path):
     assert data["motion"]["sim_s"] > 0 and data["raw"]["step_rate_hz"] > 0
     assert set(data["targets"]) == {"non_image_tools_p50_le_5ms", "capture_head_p50_le_60ms", "motion_ge_3x_realtime",
                                     "reset_le_3s"}
+
+
+@pytest.mark.sim
+def test_gallery_renders_initial_scenes(tmp_path):
+    r = run(["cab-gallery", "--out", str(tmp_path), "--tasks", "stack_blocks_three"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    from PIL import Image
+
+    img = Image.open(tmp_path / "stack_blocks_three.png")
+    assert img.size == (640, 480)
+    assert "stack_blocks_three.png" in (tmp_path / "README.md").read_text()
