@@ -15,6 +15,10 @@ TASK_MODULES: tuple[str, ...] = (
     "beat_block_hammer",
     "stack_blocks_three",
     "open_microwave",
+    "handover_block",
+    "handover_mic",
+    "place_mouse_pad",
+    "rotate_qrcode",
 )
 
 

@@ -184,7 +184,11 @@ class HandoverBlock(CodeActionTask):
         faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
         q = top_down_quat(closest_opening(world.tcp_pose("left")[3:], faces))
         g = transform_point(pose, b["left_grasp_point"])
-        reach("left", g + [0.0, 0.0, 0.17], q, "above the block")
+        # turn the gripper down well behind the block (a planned path may sweep through anything
+        # near it), then slide over it and go straight down
+        hover = g + [0.0, 0.0, 0.16]
+        reach("left", hover + [0.0, -0.15, 0.0], q, "behind and above the block")
+        move("left", hover - world.tcp_pose("left")[:3], "over the block")
         move("left", g - world.tcp_pose("left")[:3], "down onto the block")
         grip("left", 0.0)
         move("left", (0.0, 0.0, 0.10), "lift", ok=tolerant)

@@ -1,0 +1,188 @@
+"""handover_mic: one arm picks up the microphone and hands it to the other arm, which holds it
+raised on its own side.
+
+Description
+    A desk microphone (a handle about 3 cm thick and 12 cm long in a small round stand, topped by
+    a grille head about 5 cm across; 20 cm tall) stands near the front edge of the table, left or
+    right of the centre. The arm on the microphone's side must grasp it and hand it over to the
+    other arm; the receiving arm ends holding the microphone raised, on its own side of the table.
+
+Randomisation (per seed; FACTS B.6)
+    Model variant in {0, 4, 5} (upstream ``018_microphone`` ids: three colourings/sizes of the
+    same design). ``rand_pose``: x in [-0.2, 0.2] redrawn until |x| >= 0.15, y in [-0.05, 0.0],
+    z 0.741 (the stand's bottom, 1 mm above the table), no rotation. The grasping arm is the one on
+    the microphone's side (x > 0: right); the receiving (handover) arm is the other one.
+
+Success (final state)
+    ``gripper_contact``: some gripper finger touches the microphone;
+    ``receiver_closed``: the receiving arm's commanded gripper value < 0.2;
+    ``grasper_open``: the grasping arm's commanded gripper value > 0.8;
+    ``raised``: the head centre (functional point 0) is above z = 0.92;
+    ``on_receiver_side``: the head centre's x is on the receiving arm's side (x < 0 for the left
+    arm, x > 0 for the right).
+    Guard: the microphone must stay on the table (not below table top - 0.08 m).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.geometry import transform_point
+from cab_core.scene import Body
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_handover import microphone
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
+from ..oracle import OracleFailed, expect, tcp_quat, top_down_quat
+
+NAME = "handover_mic"
+MODEL_IDS = (0, 4, 5)
+RAISED_Z = 0.92
+GRIPPER_OPEN = 0.8
+GRIPPER_CLOSED = 0.2
+HANDOVER_BASE = (0.0, -0.05, 0.90)  # oracle hint: the stand's bottom centre during the handover
+
+
+def _side_ok(arm: str, x: float) -> bool:
+    return x < 0 if arm == "left" else x > 0
+
+
+class HandoverMicVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        m = info["microphone"]
+        self.mic = m["name"]
+        self.head = np.asarray(m["head_point"], float)
+        self.grasper, self.receiver = info["grasp_arm"], info["receiver_arm"]
+        self.arms = list(info["arms"])
+        self.guarded_objects = (self.mic,)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        fp = transform_point(w.pose(self.mic), self.head)
+        contact = any(w.gripper_touches(a, self.mic) for a in self.arms)
+        g_recv, g_grasp = w.gripper_command(self.receiver), w.gripper_command(self.grasper)
+        preds = {
+            "gripper_contact": bool(contact),
+            "receiver_closed": g_recv < GRIPPER_CLOSED,
+            "grasper_open": g_grasp > GRIPPER_OPEN,
+            "raised": bool(fp[2] > RAISED_Z),
+            "on_receiver_side": bool(_side_ok(self.receiver, float(fp[0]))),
+        }
+        return Evaluation(success=all(preds.values()), predicates=preds,
+                          values={"head_x": float(fp[0]), "head_y": float(fp[1]), "head_z": float(fp[2]),
+                                  f"gripper_{self.receiver}": float(g_recv),
+                                  f"gripper_{self.grasper}": float(g_grasp)})
+
+
+class HandoverMic(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+        model_id = int(rng.choice(MODEL_IDS))
+        pose = sample_until(lambda: rand_pose(rng, (-0.2, 0.2), (-0.05, 0.0)), lambda p: abs(p[0]) >= 0.15,
+                            what="the microphone")
+        shapes, facts = microphone(model_id)
+        scene.bodies.append(Body("microphone", shapes, pose=tuple(pose), kind="dynamic", mass=facts["mass_kg"],
+                                 angular_damping=0.1))
+        grasp_arm = "right" if pose[0] > 0 else "left"
+        receiver = "left" if grasp_arm == "right" else "right"
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "raised_z": RAISED_Z,
+            "gripper_open_threshold": GRIPPER_OPEN,
+            "gripper_closed_threshold": GRIPPER_CLOSED,
+            "arms": ["left", "right"],
+            "grasp_arm": grasp_arm,
+            "receiver_arm": receiver,
+            "microphone": {
+                "name": "microphone",
+                "frame": "microphone body: origin at the bottom centre of its round stand, +z up along the "
+                         "handle (round: x and y arbitrary)",
+                "initial_pose": pose_list(pose),
+                **facts,
+            },
+            "handover_base": list(HANDOVER_BASE),
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return HandoverMicVerifier(instance.info)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = HandoverMicVerifier(w.info).evaluate(w).predicates
+        return [p["on_receiver_side"], p["raised"] and p["on_receiver_side"] and p["gripper_contact"]]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        m = info["microphone"]
+        handle = np.asarray(m["handle_point"], float)
+        head = np.asarray(m["head_grasp_point"], float)
+        return [
+            SpatialRule("Approach microphone", "either", lambda w: transform_point(w.pose(m["name"]), handle),
+                        cylinder(3.0, 3.0)),
+            SpatialRule("Handover", "either", lambda w: transform_point(w.pose(m["name"]), head),
+                        box(12.0, 6.0, 6.0), prerequisites=(0,)),
+        ]
+
+    # -- reference solution -----------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """The arm on the microphone's side grasps the handle from the front, lifts the microphone
+        to the handover point in front of the robot; the other arm takes the head top-down, the
+        first lets go and backs off, and the receiver carries the microphone to its side, raised
+        (10 tool calls)."""
+        info = world.info
+        m = info["microphone"]
+        name = m["name"]
+        ga, ra = info["grasp_arm"], info["receiver_arm"]
+        side = 1.0 if ra == "right" else -1.0
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+
+        def move(arm, d, what, ok=("SUCCESS",)):
+            return expect(call("move_delta", arm=arm, dx=float(d[0]), dy=float(d[1]), dz=float(d[2])), what, ok)
+
+        def reach(arm, xyz, quat, what, ok=("SUCCESS",)):
+            args = {"arm": arm, "target_xyz": [float(v) for v in xyz]}
+            if quat is not None:
+                args["target_quat"] = [float(v) for v in quat]
+            return expect(call("reach_tcp", **args), what, ok)
+
+        def grip(arm, pos):
+            return expect(call("set_gripper", arm=arm, pos=float(pos)), "set_gripper")
+
+        # 1. grasping arm: from the front round the handle (fingers open along x), lift it to the
+        # handover point
+        h = transform_point(world.pose(name), m["handle_point"])
+        forward = tcp_quat([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0])
+        reach(ga, h + [0.0, -0.10, 0.0], forward, "in front of the handle")
+        move(ga, h - world.tcp_pose(ga)[:3], "round the handle")
+        grip(ga, 0.0)
+        base_now = transform_point(world.pose(name), [0.0, 0.0, 0.0])
+        move(ga, np.asarray(info["handover_base"], float) - base_now, "to the handover point", ok=tolerant)
+
+        # 2. receiving arm: top-down onto the head (from above, straight down), close
+        head = transform_point(world.pose(name), m["head_grasp_point"])
+        reach(ra, head + [0.0, 0.0, 0.10], top_down_quat([1.0, 0.0, 0.0]), "above the head")
+        move(ra, head - world.tcp_pose(ra)[:3], "onto the head")
+        grip(ra, 0.0)
+
+        # 3. hand over: the grasping arm lets go and backs off; the receiver carries it to its side
+        grip(ga, 1.0)
+        move(ga, (0.0, -0.10, 0.0), "back off", ok=tolerant)
+        move(ra, (side * 0.15, 0.0, 0.03), "to the receiver's side", ok=tolerant)
+        if not world.gripper_touches(ra, name):
+            raise OracleFailed("the receiver does not hold the microphone")
+        call("done", report=f"the {ga} arm picked up the microphone and handed it to the {ra} arm, which holds it "
+                            "raised on its side", success_claim=True)
+
+
+TASK = HandoverMic

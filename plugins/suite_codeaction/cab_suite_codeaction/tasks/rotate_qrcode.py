@@ -1,0 +1,209 @@
+"""rotate_qrcode: turn the QR-code payment board round so it faces the robot the right way up,
+and leave it lying flat on the table.
+
+Description
+    A rigid QR-code payment board (a white 7 x 10 cm plaque, 1.4 cm thick, printed with a real,
+    scannable QR code and a coloured 'scan to pay' header band above the code) lies flat on the
+    table, face up, but turned round: its code reads upside down (the header toward the robot),
+    give or take 40 degrees. The robot must turn it face-up the right way round for a person at
+    the robot, the header at the far side and the code upright, and leave it flat on the table
+    (both grippers open).
+
+Randomisation (per seed; FACTS B.6)
+    Board variant 0-3 (upstream ``070_paymentsign`` ids: header colour and encoded text differ).
+    ``rand_pose``: x in [-0.25, 0.25] redrawn until |x| >= 0.05, y in [-0.2, 0.0], lying on the
+    table (centre 1 mm above its resting height), base quaternion [0, 0, 0.707, 0.707] in
+    upstream's mesh frame (this board's frame turned +90 deg about x, see below), i.e. a half turn
+    about the vertical from the goal, composed with a random turn of +-0.7 rad about the vertical.
+
+Success (final state)
+    ``oriented``: the board's quaternion in upstream's mesh frame, q_mesh = q_board * Rx(90 deg),
+    sign-normalised (q_w >= 0), is within 0.05 of [0.707, 0.707, 0, 0] in every component (the
+    board flat and face-up within ~8 deg of tilt, its header toward +y within ~8 deg of heading);
+    ``on_table``: the board's centre is below z = 0.75 (+ table bias): it lies on the table;
+    ``grippers_open``: both arms' commanded gripper values > 0.8.
+    Guard: the board must stay on the table (not below table top - 0.08 m).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, sphere
+from cab_core.geometry import axis_angle_quat, quat_mul, quat_normalize, transform_point
+from cab_core.scene import Body
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_handover import QR_BOARD_HALF, qr_board
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
+                      yaw_of)
+from ..oracle import OracleFailed, expect, top_down_quat, yaw_axis
+
+NAME = "rotate_qrcode"
+MODEL_IDS = (0, 1, 2, 3)
+MESH_FRAME = tuple(float(v) for v in axis_angle_quat([1.0, 0.0, 0.0], np.pi / 2))  # ours -> upstream mesh frame
+BASE_QUAT_MESH = (0.0, 0.0, 0.707, 0.707)  # FACTS B.6, upstream mesh frame
+TARGET_QUAT_MESH = (0.707, 0.707, 0.0, 0.0)
+QUAT_TOL = 0.05
+ON_TABLE_Z = 0.75  # + table bias
+YAW_RAND = 0.7
+GRIPPER_OPEN = 0.8
+GRASP_TCP_HEIGHT = 0.040  # TCP above the table top for the grasp: fingertips 4.6 mm above it
+
+
+def mesh_quat(q_board) -> np.ndarray:
+    """The board's orientation in upstream's mesh frame, sign-normalised (q_w >= 0)."""
+    q = quat_mul(np.asarray(q_board, float), MESH_FRAME)
+    return -q if q[0] < 0 else q
+
+
+def board_base_quat() -> np.ndarray:
+    """Our board-frame quaternion whose mesh-frame quaternion is FACTS' base [0, 0, 0.707, 0.707]:
+    a half turn about z."""
+    q = quat_mul(quat_normalize(BASE_QUAT_MESH), [MESH_FRAME[0], -MESH_FRAME[1], -MESH_FRAME[2], -MESH_FRAME[3]])
+    return quat_normalize(q)
+
+
+class RotateQrcodeVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.board = info["board"]["name"]
+        self.arms = list(info["arms"])
+        self.z_max = float(info["on_table_z"])
+        self.target = np.asarray(TARGET_QUAT_MESH, float)
+        self.guarded_objects = (self.board,)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        p = w.pose(self.board)
+        q = mesh_quat(p[3:])
+        err = np.abs(q - self.target)
+        oriented = bool(np.all(err < QUAT_TOL))
+        on_table = bool(p[2] < self.z_max)
+        grips = {a: w.gripper_command(a) for a in self.arms}
+        open_ = all(g > GRIPPER_OPEN for g in grips.values())
+        values = {"quat_err_max": float(err.max()), "board_z": float(p[2]), "board_yaw": yaw_of(p[3:])}
+        values.update({f"q_mesh_{k}": float(v) for k, v in zip("wxyz", q)})
+        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        return Evaluation(success=oriented and on_table and open_,
+                          predicates={"oriented": oriented, "on_table": on_table, "grippers_open": open_},
+                          values=values)
+
+
+class RotateQrcode(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+        model_id = int(rng.choice(MODEL_IDS))
+        z = top + QR_BOARD_HALF[2] + 0.001
+        pose = sample_until(
+            lambda: rand_pose(rng, (-0.25, 0.25), (-0.2, 0.0), (z,), rotate_rand=True,
+                              rotate_lim=(0.0, 0.0, YAW_RAND), qpos=board_base_quat()),
+            lambda p: abs(p[0]) >= 0.05, what="the QR board")
+        shapes, facts = qr_board(model_id)
+        scene.bodies.append(Body("qrcode_board", shapes, pose=tuple(pose), kind="dynamic", mass=facts["mass_kg"],
+                                 angular_damping=0.1))
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "on_table_z": ON_TABLE_Z + (top - 0.74),
+            "arms": ["left", "right"],
+            "gripper_open_threshold": GRIPPER_OPEN,
+            "orientation_test": {"mesh_frame_quat": list(MESH_FRAME), "target_mesh_quat": list(TARGET_QUAT_MESH),
+                                 "tolerance": QUAT_TOL,
+                                 "goal_in_board_frame": "identity: face up (+z), header toward +y"},
+            "board": {
+                "name": "qrcode_board",
+                "frame": "board body: origin at the plaque's centre, +z out of the printed face, +y toward the "
+                         "header band (the top of the code), +x to the code's right",
+                "initial_pose": pose_list(pose),
+                "yaw": round(yaw_of(pose[3:]), 6),
+                **facts,
+                "grasp_tcp_height": GRASP_TCP_HEIGHT,
+            },
+            "suggested_arm": "right" if pose[0] > 0 else "left",
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return RotateQrcodeVerifier(instance.info)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = RotateQrcodeVerifier(w.info).evaluate(w).predicates
+        return [p["oriented"], p["oriented"] and p["on_table"]]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        b = info["board"]
+        top = float(info["table_top_z"])
+        h = float(b["grasp_tcp_height"])
+        # the expert's grasp TCP, in the board frame (lying flat: its centre is half_size[2] above the table)
+        centre_to_tcp = np.asarray(b["grasp_point"], float) + [0.0, 0.0, h - float(b["half_size"][2])]
+        return [
+            SpatialRule("Approach qrcode", "either", lambda w: transform_point(w.pose(b["name"]), centre_to_tcp),
+                        sphere(2.0)),
+            # table-relative: the expert's TCP height when it sets the board down; XY unrestricted
+            SpatialRule("Return to table", "either", lambda w: np.array([0.0, 0.0, top + h]),
+                        box(None, None, (-5.0, 6.0)), prerequisites=(0,)),
+        ]
+
+    # -- reference solution -----------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """The arm on the board's side grasps it top-down across its width, lifts it 6 cm, turns the
+        wrist by the board's heading error (about half a turn, the shorter way), sets it down flat
+        where it was, lets go and rises (8 tool calls)."""
+        info = world.info
+        b = info["board"]
+        arm = info["suggested_arm"]
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+
+        def move(d, what, ok=("SUCCESS",)):
+            return expect(call("move_delta", arm=arm, dx=float(d[0]), dy=float(d[1]), dz=float(d[2])), what, ok)
+
+        def reach(xyz, quat, what, ok=("SUCCESS",)):
+            args = {"arm": arm, "target_xyz": [float(v) for v in xyz]}
+            if quat is not None:
+                args["target_quat"] = [float(v) for v in quat]
+            return expect(call("reach_tcp", **args), what, ok)
+
+        def grip(pos):
+            return expect(call("set_gripper", arm=arm, pos=float(pos)), "set_gripper")
+
+        top = float(info["table_top_z"])
+        h = float(b["grasp_tcp_height"])
+        pose = world.pose(b["name"])
+        across = yaw_axis(pose[3:], (1.0, 0.0, 0.0))  # the board's width direction (its +x)
+        turn = -float(np.arctan2(across[1], across[0]))  # heading error: +x must point along world +x
+        # the opening line is +-across; take the sign whose heading after the turn is nearer the
+        # arm's natural top-down roll (opening along -x for the left arm, +x for the right)
+        rest = np.array([-1.0, 0.0, 0.0]) if arm == "left" else np.array([1.0, 0.0, 0.0])
+        c, s = np.cos(turn), np.sin(turn)
+        after = np.array([c * across[0] - s * across[1], s * across[0] + c * across[1], 0.0])
+        sign = 1.0 if float(np.dot(after, rest)) >= 0 else -1.0
+        o_grasp, o_place = sign * across, sign * after
+        g = transform_point(pose, b["grasp_point"])
+        g[2] = top + h
+        reach(g + [0.0, 0.0, 0.12], top_down_quat(o_grasp), "above the board")
+        move(g - world.tcp_pose(arm)[:3], "down to the board")
+        grip(0.0)
+        move((0.0, 0.0, 0.06), "lift", ok=tolerant)
+        # turn the wrist in place, then set the board down flat where it was
+        here = world.tcp_pose(arm)[:3]
+        reach(here, top_down_quat(o_place), "turn the board")
+        move((g[0], g[1], top + h + 0.003) - world.tcp_pose(arm)[:3], "set down", ok=tolerant)
+        grip(1.0)
+        move((0.0, 0.0, 0.08), "rise", ok=tolerant)
+        if not all(world.gripper_command(a) > GRIPPER_OPEN for a in info["arms"]):
+            raise OracleFailed("a gripper is not open")
+        call("done", report="turned the QR board round so it reads upright from the robot, flat and face-up on the "
+                            "table", success_claim=True)
+
+
+TASK = RotateQrcode
