@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cab_core.catalog import load_catalog
+
 from cab_core import catalog
 from cab_core.errors import PluginError
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
@@ -27,7 +29,8 @@ from cab_suite_codeaction.tasks import TASK_MODULES, load_tasks
 from cab_suite_codeaction.tasks import beat_block_hammer as bbh
 
 SEEDS = range(20)
-TASKS = load_tasks()
+# the three tasks this file covers; every other task has its own test file (tests/test_suite_*.py)
+TASKS = load_tasks(("beat_block_hammer", "stack_blocks_three", "open_microwave"))
 
 
 @pytest.fixture(autouse=True)
@@ -72,7 +75,12 @@ def test_suite_registers_through_the_plugin_manager():
     pm = build_plugin_manager(extra=[plugin], autoload=False)
     assert "codeaction" in registry("task_suites", pm)
     tasks = all_tasks(pm)
-    assert set(tasks) == set(TASKS) == {"beat_block_hammer", "stack_blocks_three", "open_microwave"}
+    from cab_suite_codeaction.tasks import TASK_MODULES
+
+    assert set(TASKS) <= set(tasks)
+    assert sorted(tasks) == sorted(TASK_MODULES)  # one task per registered module, named as its module
+    catalog = [t["name"] for t in load_catalog()["tasks"]]
+    assert set(tasks) <= set(catalog)
     assert all(isinstance(t, Task) for t in tasks.values())
 
 
@@ -87,7 +95,11 @@ def test_duplicate_task_ids_fail():
 
 
 def test_one_module_per_task_named_after_it():
-    assert set(TASK_MODULES) == set(TASKS)
+    every = load_tasks()
+    assert set(TASK_MODULES) == set(every)
+    for name, task in every.items():
+        assert task.__class__.__module__.rsplit(".", 1)[1] == name
+        assert task.info == catalog.task_info(name)
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))
