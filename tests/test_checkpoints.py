@@ -81,3 +81,10 @@ def test_latch_credits_declared_subgoals():
 ])
 def test_region_shapes(test, delta, expect):
     assert test(np.asarray(delta, float)) is expect
+
+
+def test_any_of_prerequisites():
+    rule = SpatialRule("place", "either", lambda w: (0, 0, 0), sphere(2), prerequisites=(0, 1), any_prerequisite=True)
+    assert rule.ready([None, {"calls": 1}]) and not rule.ready([None, None])
+    strict = SpatialRule("place", "either", lambda w: (0, 0, 0), sphere(2), prerequisites=(0, 1))
+    assert not strict.ready([None, {"calls": 1}]) and strict.ready([{"calls": 1}, {"calls": 2}])

@@ -63,6 +63,13 @@ class SpatialRule:
     test: Test | None
     prerequisites: tuple[int, ...] = ()
     lift_above_cm: float | Callable[[object], float] | None = None
+    any_prerequisite: bool = False  # the catalog's "1 or 2": one matched prerequisite suffices
+
+    def ready(self, matched: list) -> bool:
+        if not self.prerequisites:
+            return True
+        done = [matched[j] is not None for j in self.prerequisites]
+        return any(done) if self.any_prerequisite else all(done)
 
 
 @dataclass
@@ -159,7 +166,7 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
         for i, r in enumerate(rules):
             if sp_first[i] is not None or k == 0:
                 continue
-            if any(sp_first[j] is None for j in r.prerequisites):
+            if not r.ready(sp_first):
                 continue
             arms = [a for a in sorted(snap["arms"])] if r.arm == "either" else [r.arm]
             for a in arms:

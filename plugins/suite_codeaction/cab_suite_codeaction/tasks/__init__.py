@@ -19,6 +19,8 @@ TASK_MODULES: tuple[str, ...] = (
     "handover_mic",
     "place_mouse_pad",
     "rotate_qrcode",
+    "open_laptop_setup_arm",
+    "place_dual_shoes",
 )
 
 

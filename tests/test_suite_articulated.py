@@ -1,0 +1,451 @@
+"""The ``articulated`` group of the CodeActionBench suite: open_laptop_setup_arm and
+place_dual_shoes. Deterministic seeded layouts within the FACTS ranges, consistent privileged
+facts (URDF frames, functional points), verifiers that reject the initial scene and accept
+hand-built success states, and the catalog's subgoal and spatial-checkpoint counts.
+
+Verifiers are exercised through :class:`FakeWorld` (plain data, no simulator); the ``sim`` tests use
+the project's SAPIEN backend when it and the embodiment are installed.
+"""
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from cab_core import catalog
+from cab_core.analysis.checkpoints import SpatialRule
+from cab_core.geometry import pose_mul, quat_to_mat, transform_point
+from cab_core.scene import ArticulatedObject
+from cab_core.task import SceneInstance
+
+from cab_suite_codeaction import common
+from cab_suite_codeaction.assets_articulated import lid_rotation
+from cab_suite_codeaction.tasks import open_laptop_setup_arm as laptop_mod
+from cab_suite_codeaction.tasks import place_dual_shoes as shoes_mod
+
+SEEDS = range(20)
+LAPTOP = laptop_mod.TASK()
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    # generated assets go to a per-session temp cache, never ~/.cache or the source tree
+    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
+
+
+class FakeWorld:
+    """WorldView-compatible stand-in: poses, joint positions, the laptop's lid link pose (from the
+    URDF's hinge frame), TCP poses and gripper commands from plain data."""
+
+    def __init__(self, instance: SceneInstance, grip: float = 1.0):
+        self.info = instance.info
+        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
+        self.qpositions = {a.name: np.array(a.qpos or (), dtype=float) for a in instance.scene.articulations}
+        for a in instance.scene.articulations:
+            self.poses[a.name] = np.array(a.pose, dtype=float)
+        self.tcps = {"left": np.array([-0.300, -0.194, 0.942, 0.7071, 0, 0, 0.7071]),
+                     "right": np.array([0.305, -0.193, 0.941, 0.7071, 0, 0, 0.7071])}
+        self.grip = {"left": grip, "right": grip}
+
+    def pose(self, name):
+        return self.poses[name].copy()
+
+    def qpos(self, name):
+        return self.qpositions.get(name, np.zeros(0)).copy()
+
+    def link_pose(self, name, link):
+        lap = self.info["laptop"]
+        assert name == lap["name"]
+        root = self.poses[name]
+        if link == lap["base_link"]:
+            return root.copy()
+        assert link == lap["lid_link"]
+        from cab_core.geometry import mat_to_quat
+
+        q = float(self.qpositions[name][lap["lid_joint_index"]])
+        local = np.concatenate([lap["hinge_point_base"], mat_to_quat(lid_rotation(q))])
+        return pose_mul(root, local)
+
+    def tcp_pose(self, arm):
+        return self.tcps[arm].copy()
+
+    def gripper_command(self, arm):
+        return float(self.grip[arm])
+
+    def contacts(self):
+        return []
+
+    def in_contact(self, a, b, min_impulse=0.0):
+        return False
+
+
+def _check_rules(rules, info, name):
+    spec = catalog.task_info(name).spatial_checkpoints
+    assert len(rules) == len(spec)
+    for rule, c in zip(rules, spec):
+        assert isinstance(rule, SpatialRule) and rule.name == c["name"]
+        assert rule.arm == {"L": "left", "R": "right", "Either": "either"}[c["arm"]]
+        assert all(0 <= p < len(rules) for p in rule.prerequisites)
+
+
+# =================================================================================================
+# open_laptop_setup_arm
+# =================================================================================================
+def test_laptop_task_info_and_doc():
+    assert LAPTOP.info == catalog.task_info("open_laptop_setup_arm")
+    inst = LAPTOP.build(LAPTOP.info.seed, None)
+    assert LAPTOP.verifier(inst).scoring == LAPTOP.info.scoring == "final"
+    for section in ("Description", "Randomisation", "Success"):
+        assert section in laptop_mod.__doc__
+
+
+def test_laptop_build_is_deterministic_and_json():
+    for seed in (0, 7):
+        a, b = LAPTOP.build(seed, None), LAPTOP.build(seed, None)
+        assert a.scene == b.scene
+        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
+        names = a.scene.names()
+        assert len(names) == len(set(names)) and {"table", "wall", "laptop"} <= set(names)
+
+
+def test_laptop_layouts_and_urdf():
+    layouts, models = set(), set()
+    for seed in SEEDS:
+        inst = LAPTOP.build(seed, None)
+        (lap,) = inst.scene.articulations
+        m = inst.info["laptop"]
+        assert isinstance(lap, ArticulatedObject) and lap.fix_root and lap.joint_friction > 0
+        x, y, z = lap.pose[:3]
+        assert -0.05 <= x <= 0.05 and -0.1 <= y <= 0.05 and z == pytest.approx(0.74)
+        assert np.allclose(quat_to_mat(lap.pose[3:])[:, 2], (0, 0, 1))  # yaw only
+        assert abs(common.yaw_of(lap.pose[3:])) <= np.pi / 3 + 1e-9
+        lo, hi = m["lid_limits"]
+        assert lap.qpos == pytest.approx((lo + 0.2 * (hi - lo),))
+        assert m["success_qpos"] == pytest.approx(lo + 0.4 * (hi - lo))
+        assert inst.info["suggested_arm"] == ("right" if common.yaw_of(lap.pose[3:]) > 0 else "left")
+        root = ET.parse(lap.urdf).getroot()
+        assert {l.get("name") for l in root.iter("link")} == {m["base_link"], m["lid_link"]}
+        (joint,) = root.iter("joint")
+        assert joint.get("name") == m["lid_joint"] and joint.get("type") == "revolute"
+        lim = joint.find("limit")
+        assert (float(lim.get("lower")), float(lim.get("upper"))) == (lo, hi)
+        assert np.allclose([float(v) for v in joint.find("axis").get("xyz").split()], m["hinge_axis_base"])
+        assert np.allclose([float(v) for v in joint.find("origin").get("xyz").split()], m["hinge_point_base"])
+        w, d, t = m["size"]
+        assert 0.28 <= w <= 0.36 and 0.20 <= d <= 0.24 and 0.012 <= t <= 0.025
+        assert m["edge_point_lid"][1] == pytest.approx(-d)  # the lid's front edge
+        models.add(m["model_id"])
+        layouts.add(tuple(np.round(lap.pose, 6)))
+    assert len(layouts) == len(SEEDS) and len(models) >= 3
+
+
+def test_laptop_lid_opens_upward_and_faces_the_robot():
+    m = LAPTOP.build(0, None).info["laptop"]
+    edge0 = lid_rotation(0.0) @ np.asarray(m["edge_point_lid"])
+    edge1 = lid_rotation(1.0) @ np.asarray(m["edge_point_lid"])
+    assert edge1[2] > edge0[2] + 0.1 and edge0[1] < 0  # front edge rises; the front is -y_base
+    # at yaw 0 the front (base -y) faces the robot (world -y)
+    assert np.allclose(m["front_dir_world"], [np.sin(m["yaw"]), -np.cos(m["yaw"]), 0], atol=1e-6)
+
+
+def _laptop_success(inst, w, frac=0.6, tcp_offset=(0.0, -0.05, 0.0), arm="right"):
+    lo, hi = inst.info["laptop"]["lid_limits"]
+    w.qpositions["laptop"] = np.array([lo + frac * (hi - lo)])
+    v = LAPTOP.verifier(inst)
+    edge = v.edge_point(w)
+    w.tcps[arm][:3] = edge + np.asarray(tcp_offset)
+    return v
+
+
+def test_laptop_verifier():
+    for seed in SEEDS:
+        inst = LAPTOP.build(seed, None)
+        ev = LAPTOP.verifier(inst).evaluate(FakeWorld(inst))
+        assert ev.success is False and ev.predicates == {"lid_open": False, "gripper_at_lid_edge": False}
+    inst = LAPTOP.build(0, None)
+    w = FakeWorld(inst)
+    v = _laptop_success(inst, w)
+    assert v.guarded_objects == ()
+    ev = v.evaluate(w)
+    assert ev.success and ev.predicates == {"lid_open": True, "gripper_at_lid_edge": True}
+    assert ev.values["lid_fraction"] == pytest.approx(0.6)
+    # either arm counts (the benchmark's adaptation)
+    w = FakeWorld(inst)
+    assert _laptop_success(inst, w, arm="left").evaluate(w).success
+    # thresholds: 40% of the range, 0.1 m from the edge
+    w = FakeWorld(inst)
+    assert _laptop_success(inst, w, frac=0.401).evaluate(w).success
+    w = FakeWorld(inst)
+    ev = _laptop_success(inst, w, frac=0.399).evaluate(w)
+    assert ev.predicates == {"lid_open": False, "gripper_at_lid_edge": True}
+    w = FakeWorld(inst)
+    ev = _laptop_success(inst, w, tcp_offset=(0.0, -0.101, 0.0)).evaluate(w)
+    assert ev.predicates == {"lid_open": True, "gripper_at_lid_edge": False}
+
+
+def test_laptop_checkpoints():
+    inst = LAPTOP.build(0, None)
+    w = FakeWorld(inst)
+    assert LAPTOP.subgoals(w) == [False, False]
+    assert len(LAPTOP.subgoals(w)) == LAPTOP.info.subgoals.__len__() == 2
+    _laptop_success(inst, w, frac=0.6, tcp_offset=(0.0, 0.0, 0.2))
+    assert LAPTOP.subgoals(w) == [True, False]
+    _laptop_success(inst, w)
+    assert LAPTOP.subgoals(w) == [True, True]
+    rules = LAPTOP.spatial_checkpoints(inst.info)
+    _check_rules(rules, inst.info, "open_laptop_setup_arm")
+    assert rules[1].prerequisites == (0,)
+    # the approach reference sits in front of / under the lid's front edge at the start
+    w = FakeWorld(inst)
+    edge = LAPTOP.verifier(inst).edge_point(w)
+    ref = np.asarray(rules[0].reference(w))
+    assert np.linalg.norm(ref - edge) < 0.08 and ref[2] < edge[2]
+    # the open reference is above the closed lid's edge height: the lid has been lifted
+    assert np.asarray(rules[1].reference(w))[2] > edge[2] + 0.05
+
+
+# --- with the SAPIEN backend --------------------------------------------------------------------
+def _backend():
+    from cab_core.plugins import create
+
+    try:
+        sim = create("simulators", "sapien", {"render": False})
+        emb = create("embodiments", "aloha_agilex", {})
+    except Exception as e:  # backend or embodiment not installed / not ready
+        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
+    return sim, emb
+
+
+@pytest.mark.sim
+def test_sim_laptop_frames_hinge_and_verdicts():
+    from cab_core.verifier import WorldView
+
+    sim, emb = _backend()
+    inst = LAPTOP.build(LAPTOP.info.seed, emb)
+    m = inst.info["laptop"]
+    try:
+        sim.build(inst.scene, emb)
+        sim.step(LAPTOP.settle_steps())
+        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        v = LAPTOP.verifier(inst)
+        assert v.evaluate(w).success is False
+        q0 = m["initial_qpos"]
+        assert float(w.qpos("laptop")[0]) == pytest.approx(q0, abs=0.01)  # the hinge holds the lid
+        # the simulator's lid link is where the documented frames put it
+        fake = FakeWorld(inst)
+        fake.qpositions["laptop"] = np.array([float(w.qpos("laptop")[0])])
+        assert np.allclose(w.link_pose("laptop", m["lid_link"])[:3], fake.link_pose("laptop", m["lid_link"])[:3],
+                           atol=1e-3)
+        # open the lid to 60% of its range: the friction hinge holds it there
+        lo, hi = m["lid_limits"]
+        sim.set_object_qpos("laptop", [lo + 0.6 * (hi - lo)])
+        sim.step(250)
+        assert float(w.qpos("laptop")[0]) == pytest.approx(lo + 0.6 * (hi - lo), abs=0.01)
+        ev = v.evaluate(w)
+        assert ev.predicates == {"lid_open": True, "gripper_at_lid_edge": False}
+        # bring the laptop (its root is fixed, but can be teleported) so that the lid edge is 5 cm
+        # in front of the right gripper
+        shift = w.tcp_pose("right")[:3] - v.edge_point(w) + np.array([0.0, 0.05, 0.0])
+        pose = np.asarray(w.pose("laptop"), float)
+        pose[:3] += shift
+        sim.set_object_pose("laptop", pose)
+        sim.step(2)
+        ev = v.evaluate(w)
+        assert ev.success, ev
+        assert ev.values["tcp_to_edge_right"] == pytest.approx(0.05, abs=0.005)
+        assert LAPTOP.subgoals(w) == [True, True]
+    finally:
+        sim.close()
+
+
+# =================================================================================================
+# place_dual_shoes
+# =================================================================================================
+SHOES = shoes_mod.TASK()
+
+
+def test_shoes_task_info_and_doc():
+    assert SHOES.info == catalog.task_info("place_dual_shoes")
+    inst = SHOES.build(SHOES.info.seed, None)
+    v = SHOES.verifier(inst)
+    assert v.scoring == SHOES.info.scoring == "final"
+    assert set(v.guarded_objects) == {"left_shoe", "right_shoe"} and v.guard_min_z == pytest.approx(0.64 - 0.08)
+    for section in ("Description", "Randomisation", "Success"):
+        assert section in shoes_mod.__doc__
+
+
+def test_shoes_build_is_deterministic_and_json():
+    for seed in (6, 7):
+        a, b = SHOES.build(seed, None), SHOES.build(seed, None)
+        assert a.scene == b.scene
+        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
+        names = a.scene.names()
+        assert len(names) == len(set(names)) and {"table", "wall", "left_shoe", "right_shoe", "shoe_box"} <= set(names)
+
+
+def _footprint(inst, side):
+    from cab_suite_codeaction.assets_articulated import SHOE_STYLES, shoe_outline
+
+    style = SHOE_STYLES[inst.info["style_id"]]
+    o = shoe_outline(style, side)
+    local = np.stack([o[:, 1], np.zeros(len(o)), o[:, 0]], axis=1)  # design (X, Y) -> body (z, x)
+    pose = np.asarray(inst.scene.body(f"{side}_shoe").pose)
+    return np.array([transform_point(pose, p) for p in local])
+
+
+def test_shoes_layouts():
+    layouts, styles = set(), set()
+    for seed in SEEDS:
+        inst = SHOES.build(seed, None)
+        sc = inst.scene
+        assert sc.body("table").pose[2] + 0.025 == pytest.approx(0.64)  # table_z_bias -0.1
+        box = sc.body("shoe_box")
+        assert box.kind == "static" and np.allclose(box.pose, (0.0, -0.13, 0.64, 1, 0, 0, 0))
+        half = np.asarray(inst.info["box"]["outer_size"][:2]) / 2
+        for side, (lo, hi) in (("left", (-0.3, -0.2)), ("right", (0.2, 0.3))):
+            b = sc.body(f"{side}_shoe")
+            x, y, z = b.pose[:3]
+            assert b.kind == "dynamic" and 0.1 <= b.mass <= 0.3
+            assert lo <= x <= hi and -0.1 <= y <= 0.05 and np.hypot(x, y) >= 0.15
+            assert z == pytest.approx(0.641)
+            r = quat_to_mat(b.pose[3:])
+            assert np.allclose(r[:, 1], (0, 0, 1), atol=1e-9)  # upright: the shoe's +y is world up
+            foot = _footprint(inst, side)[:, :2]
+            d = np.maximum(np.abs(foot - box.pose[:2]) - half, 0.0)
+            assert np.min(np.hypot(d[:, 0], d[:, 1])) >= 0.035 - 1e-9
+            assert np.min(foot[:, 0] if side == "right" else -foot[:, 0]) > 0.0  # on its own side
+        styles.add(inst.info["style_id"])
+        layouts.add(tuple(np.round(np.concatenate([sc.body("left_shoe").pose, sc.body("right_shoe").pose]), 6)))
+    assert len(layouts) == len(SEEDS) and len(styles) >= 3
+    # headings cover all directions
+    heads = [SHOES.build(s, None).info["shoes"][side]["toe_heading"] for s in SEEDS for side in ("left", "right")]
+    assert max(heads) > 2.0 and min(heads) < -2.0 and any(abs(h) < 1.0 for h in heads)
+
+
+def test_shoe_geometry_fits_the_box_and_the_gripper():
+    from cab_suite_codeaction.assets_articulated import SHOE_STYLES, shoe_geometry, shoe_outline
+
+    info = SHOES.build(6, None).info
+    inner_l, inner_w, _ = info["box"]["inner_size"]
+    gap = info["places"]["right"][1] - info["places"]["left"][1]
+    assert gap == pytest.approx(0.08)
+    for style in SHOE_STYLES:
+        g = shoe_geometry(style)
+        assert 0.17 <= g["length"] <= 0.21 and g["length"] < inner_l - 0.08  # room for the fingers
+        assert g["width"] < gap - 0.01 and gap + g["width"] < inner_w - 0.02  # side by side in the box
+        # the pinch point is on the heel counter's flat back, inside its thickness
+        assert g["heel_wall_center"][2] == pytest.approx(-g["length"] / 2 + g["wall_thickness"] / 2)
+        for foot in ("left", "right"):
+            o = shoe_outline(style, foot)
+            assert np.min(o[:, 0]) == pytest.approx(-g["length"] / 2)
+            assert np.max(o[:, 0]) == pytest.approx(g["length"] / 2)
+            assert np.max(np.abs(o[:, 1])) <= g["width"] / 2 + 0.002
+    grasp = np.asarray(info["shoe"]["grasp_tcp_point"])
+    assert info["shoe"]["sole_thickness"] + 0.035 < grasp[1] < info["shoe"]["heel_height"] + 0.035
+
+
+def _in_box(inst, w, swap=False, d_left=(0, 0, 0), d_right=(0, 0, 0), q_left=None):
+    places = inst.info["places"]
+    z = inst.info["box"]["pose"][2] + inst.info["floor_offset"]
+    q = np.asarray(inst.info["target_quat"])
+    a, b = ("right", "left") if swap else ("left", "right")
+    w.poses["left_shoe"] = np.array([*places[a], z, *(q if q_left is None else q_left)]) + np.r_[d_left, 0, 0, 0, 0]
+    w.poses["right_shoe"] = np.array([*places[b], z, *q]) + np.r_[d_right, 0, 0, 0, 0]
+
+
+def test_shoes_verifier():
+    from cab_core.geometry import axis_angle_quat, quat_mul
+
+    for seed in SEEDS:
+        inst = SHOES.build(seed, None)
+        ev = SHOES.verifier(inst).evaluate(FakeWorld(inst))
+        assert ev.success is False and ev.predicates["assignment_xy"] is False
+    inst = SHOES.build(6, None)
+    v = SHOES.verifier(inst)
+    w = FakeWorld(inst)
+    _in_box(inst, w)
+    ev = v.evaluate(w)
+    assert ev.success and ev.predicates == {"assignment_xy": True, "heights": True, "orientations": True,
+                                            "grippers_open": True}
+    assert ev.values["swapped_assignment"] == 0.0
+    _in_box(inst, w, swap=True)  # the benchmark accepts the swapped pairing
+    ev = v.evaluate(w)
+    assert ev.success and ev.values["swapped_assignment"] == 1.0
+    _in_box(inst, w, d_left=(0.049, -0.049, 0.029))
+    assert v.evaluate(w).success
+    _in_box(inst, w, d_left=(0.051, 0.0, 0.0))
+    assert v.evaluate(w).predicates["assignment_xy"] is False
+    _in_box(inst, w, d_right=(0.0, 0.0, 0.031))
+    ev = v.evaluate(w)
+    assert not ev.success and ev.predicates["heights"] is False and ev.predicates["assignment_xy"] is True
+    # both shoes at the same place is not an assignment
+    _in_box(inst, w, d_right=(0.0, -0.08, 0.0))
+    assert v.evaluate(w).predicates["assignment_xy"] is False
+    # orientation: a 0.2 rad turn about the vertical is within 0.07 per component, 0.35 rad is not;
+    # the toe pointing right (a half turn) is wrong
+    q = np.asarray(inst.info["target_quat"])
+    for ang, ok in ((0.2, True), (-0.2, True), (0.35, False), (np.pi, False)):
+        _in_box(inst, w, q_left=quat_mul(axis_angle_quat([0, 0, 1], ang), q))
+        assert v.evaluate(w).predicates["orientations"] is ok, ang
+    _in_box(inst, w, q_left=-q)  # sign-normalised
+    assert v.evaluate(w).success
+    _in_box(inst, w)
+    w.grip["right"] = 0.8
+    ev = v.evaluate(w)
+    assert not ev.success and ev.predicates["grippers_open"] is False
+
+
+def test_shoes_checkpoints():
+    inst = SHOES.build(6, None)
+    w = FakeWorld(inst)
+    assert SHOES.subgoals(w) == [False, False]
+    assert len(SHOES.subgoals(w)) == len(SHOES.info.subgoals) == 2
+    _in_box(inst, w, d_left=(0, 0, 0.05))  # above the box: xy assignment only
+    assert SHOES.subgoals(w) == [True, False]
+    _in_box(inst, w)
+    w.grip["left"] = 0.0  # subgoals ignore the grippers
+    assert SHOES.subgoals(w) == [True, True]
+    rules = SHOES.spatial_checkpoints(inst.info)
+    _check_rules(rules, inst.info, "place_dual_shoes")
+    assert rules[2].prerequisites == (0, 1)
+    w = FakeWorld(inst)
+    for rule, side in zip(rules[:2], ("left", "right")):
+        ref = np.asarray(rule.reference(w))
+        pose = w.poses[f"{side}_shoe"]
+        assert np.hypot(*(ref[:2] - pose[:2])) == pytest.approx(inst.info["shoe"]["length"] / 2, abs=0.01)
+        assert rule.test(np.zeros(3)) and not rule.test(np.array([0.0, 0.0, 7.0]))
+    ref = np.asarray(rules[2].reference(w))
+    # the release reference: over the box's heel end, just above the floor
+    assert 0.0 < ref[0] < 0.15 and ref[1] == pytest.approx(-0.13) and 0.64 + 0.01 + 0.035 < ref[2] < 0.64 + 0.12
+
+
+@pytest.mark.sim
+def test_sim_shoes_settle_and_rest_in_the_box():
+    from cab_core.verifier import WorldView
+
+    sim, emb = _backend()
+    inst = SHOES.build(SHOES.info.seed, emb)
+    try:
+        sim.build(inst.scene, emb)
+        sim.step(SHOES.settle_steps())
+        before = {n: sim.get_object_pose(n) for n in ("left_shoe", "right_shoe")}
+        sim.step(250)
+        for n, p in before.items():
+            assert np.linalg.norm(sim.get_object_pose(n)[:3] - p[:3]) < 1e-3, n
+            assert abs(p[2] - 0.64) < 2e-3  # the sole stands on the lowered table
+        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        v = SHOES.verifier(inst)
+        assert v.evaluate(w).success is False
+        # both shoes into the box, toes left: they stand side by side on its floor
+        fake = FakeWorld(inst)
+        _in_box(inst, fake)
+        for n in ("left_shoe", "right_shoe"):
+            sim.set_object_pose(n, fake.poses[n] + np.r_[0, 0, 0.002, 0, 0, 0, 0])
+        sim.step(250)
+        ev = v.evaluate(w)
+        assert ev.success, ev
+        assert abs(ev.values["left_shoe_dz"]) < 0.002 and abs(ev.values["right_shoe_dz"]) < 0.002
+    finally:
+        sim.close()
