@@ -14,7 +14,7 @@ import numpy as np
 
 from . import __version__
 from .budget import BudgetLedger
-from .errors import AttemptEnded, BudgetExhausted, CabError, ToolArgumentError
+from .errors import AttemptEnded, BudgetExhausted, CabError, ObservationUnavailable, ToolArgumentError
 from .recording import RECORD_VERSION, Recorder
 from .robot.context import ObservationStore, RobotContext
 from .scene import CameraSpec
@@ -281,6 +281,9 @@ class Episode:
             msg = str(e)
             return ({"error": msg if msg.startswith(("bad arguments", "unknown tool")) else f"bad arguments: {msg}",
                      "code": "invalid_tool_arguments"}, [], None)
+        except ObservationUnavailable as e:
+            return ({"error": f"observation unavailable: {e}", "code": "observation_unavailable", "available": False},
+                    [], None)
 
     def _done(self, args: dict, t0: float) -> ToolResponse:
         report = args.get("report")

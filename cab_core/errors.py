@@ -56,3 +56,7 @@ class SandboxUnavailable(CabError):
 
 class AttemptEnded(CabError):
     """Raised to an agent that calls a tool after its attempt ended."""
+
+
+class ObservationUnavailable(CabError):
+    """A camera could not deliver an image (e.g. a physics-only build); the attempt goes on."""

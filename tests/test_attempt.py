@@ -122,3 +122,11 @@ def test_run_code_routes_tools_through_the_host_and_charges_once(tmp_path):
         kinds = [e["kind"] for e in events(tmp_path)]
         assert kinds.count("internal_call") == 2
         assert (tmp_path / "programs" / "prog_001.py").read_text() == code
+
+
+def test_camera_without_renderer_is_a_read_failure_not_a_crash(tmp_path):
+    with episode(tmp_path, "sim.render=false", "record.video=false") as ep:
+        r = ep.call("capture_head", {})
+        assert r.payload["code"] == "observation_unavailable" and r.payload["available"] is False
+        assert not r.ended and not ep.ended
+        assert ep.call("get_arm_pose", {"arm": "left"}).payload["tcp_pose"]

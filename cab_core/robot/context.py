@@ -164,6 +164,11 @@ class RobotContext:
     def capture(self, camera: str, annotation: dict | None = None) -> Observation:
         if camera not in CAMERAS:
             raise ToolArgumentError(f"camera must be one of {list(CAMERAS)}, got {camera!r}")
-        img = self.sim.render(camera)
+        from ..errors import ObservationUnavailable, SimulatorError
+
+        try:
+            img = self.sim.render(camera)
+        except SimulatorError as e:  # RendererUnavailable included: a read failure, not a crash
+            raise ObservationUnavailable(f"{camera}: {e}") from e
         return self.obs.add(camera, img, self.camera_K(camera), self.camera_E(camera), self.tick,
                             self.clock.steps, annotation)
