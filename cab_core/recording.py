@@ -80,6 +80,10 @@ class VideoWriter:
 class Recorder:
     def __init__(self, root: Path, observers: Iterable[Any] = ()):
         self.root = Path(root)
+        if (self.root / "events.jsonl").exists() or (self.root / "result.json").exists():
+            from .errors import ConfigError
+
+            raise ConfigError(f"{self.root} already holds an attempt's records; choose another output directory")
         self.root.mkdir(parents=True, exist_ok=True)
         (self.root / "observations").mkdir(exist_ok=True)
         (self.root / "programs").mkdir(exist_ok=True)

@@ -17,14 +17,16 @@ Frames
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from cab_core.scene import Box, Cylinder, Material, Mesh, Shape
 
-from .common import mesh_asset, srgb
+from .common import assets_dir, mesh_asset, srgb
 
 # quaternions that turn a primitive's local x axis (SAPIEN's cylinder axis) onto z or y
 X_TO_Z = (float(np.cos(-np.pi / 4)), 0.0, float(np.sin(-np.pi / 4)), 0.0)
@@ -47,7 +49,7 @@ class PotVariant:
     handle_rgb: tuple[float, float, float]
     metallic: bool
     mass: float  # kg (an empty pot)
-    handle_len: float = 0.045  # radial: from the wall outward
+    handle_len: float = 0.040  # radial: from the wall to the tab's rounded end
     handle_width: float = 0.030  # tangential (what the fingers close on)
     handle_thick: float = 0.016  # vertical
     wall: float = 0.006
@@ -55,10 +57,12 @@ class PotVariant:
 
 
 POT_VARIANTS = (
-    PotVariant(0.095, 0.100, (0.78, 0.12, 0.10), (0.08, 0.08, 0.08), False, 0.9),  # red enamel
-    PotVariant(0.090, 0.088, (0.72, 0.73, 0.75), (0.55, 0.56, 0.58), True, 0.8),  # stainless steel
-    PotVariant(0.085, 0.110, (0.12, 0.22, 0.50), (0.10, 0.10, 0.10), False, 0.8),  # blue enamel
-    PotVariant(0.100, 0.092, (0.92, 0.88, 0.76), (0.50, 0.33, 0.18), False, 1.0),  # cream, wooden handles
+    # sizes keep handle end to handle end <= 25 cm, so that a sauce can fits beside the pot within
+    # move_can_pot's 0.2 m of its centre
+    PotVariant(0.085, 0.095, (0.78, 0.12, 0.10), (0.08, 0.08, 0.08), False, 0.75),  # red enamel
+    PotVariant(0.080, 0.085, (0.72, 0.73, 0.75), (0.55, 0.56, 0.58), True, 0.65),  # stainless steel
+    PotVariant(0.075, 0.100, (0.12, 0.22, 0.50), (0.10, 0.10, 0.10), False, 0.65),  # blue enamel
+    PotVariant(0.085, 0.088, (0.92, 0.88, 0.76), (0.50, 0.33, 0.18), False, 0.80),  # cream, wooden handles
 )
 POT_WALL_SEGMENTS = 20
 
@@ -78,17 +82,36 @@ def pot_geometry(v: PotVariant) -> dict[str, Any]:
     }
 
 
+@lru_cache(maxsize=64)
+def _pot_meshes(v: PotVariant, model_id: int, where: str) -> dict[str, str]:
+    """The pot's round visual meshes (outer wall, inner lining, rolled rim, inner floor) as OBJ
+    assets, written once per variant and cache folder (exporting them dominates a scene build)."""
+    import trimesh
+
+    R, H, t = v.radius, v.height, v.wall
+    outer = trimesh.creation.annulus(R - t * 0.5, R, H, sections=64)
+    outer.apply_translation((0.0, 0.0, H / 2))
+    lining = trimesh.creation.annulus(R - t, R - t * 0.5, H - v.bottom - 0.002, sections=64)
+    lining.apply_translation((0.0, 0.0, v.bottom + (H - v.bottom - 0.002) / 2))
+    rim = trimesh.creation.annulus(R - t - 0.001, R + 0.003, 0.006, sections=64)  # a rolled lip, 1 mm proud
+    rim.apply_translation((0.0, 0.0, H - 0.002))
+    floor = trimesh.creation.cylinder(R - t, 0.001, sections=64)
+    floor.apply_translation((0.0, 0.0, v.bottom + 0.0005))
+    return {name: mesh_asset(f"pot{model_id}_{name}", mesh)
+            for name, mesh in (("wall", outer), ("lining", lining), ("rim", rim), ("floor", floor))}
+
+
 def pot_shapes(v: PotVariant, model_id: int) -> list[Shape]:
     """Bottom disc and a ring of wall boxes (collision), a smooth wall and rim (visual meshes), and
     the two handle tabs (boxes) with a rounded end."""
-    import trimesh
-
     body = _mat(v.body_rgb, roughness=0.3 if v.metallic else 0.35, metallic=0.85 if v.metallic else 0.0)
     inner = _mat(tuple(min(1.0, c * 1.1 + 0.05) for c in v.body_rgb) if v.metallic else (0.85, 0.85, 0.83),
                  roughness=0.4, metallic=0.6 if v.metallic else 0.0)
     handle = _mat(v.handle_rgb, roughness=0.5, metallic=0.7 if v.metallic else 0.0, friction=GRIP_FRICTION)
     R, H, t = v.radius, v.height, v.wall
-    shapes = [Shape(Cylinder(R, v.bottom / 2), pose=(0.0, 0.0, v.bottom / 2, *X_TO_Z), material=body)]
+    shapes = [Shape(Cylinder(R, v.bottom / 2), pose=(0.0, 0.0, v.bottom / 2, *X_TO_Z), material=body, visual=False),
+              Shape(Cylinder(R - 0.0015, v.bottom / 2), pose=(0.0, 0.0, v.bottom / 2, *X_TO_Z), material=body,
+                    collision=False)]
     # collision wall: boxes around the circle (tangential width covers the chord with overlap)
     n = POT_WALL_SEGMENTS
     seg_w = 2 * R * np.tan(np.pi / n) * 1.05
@@ -99,29 +122,23 @@ def pot_shapes(v: PotVariant, model_id: int) -> list[Shape]:
         shapes.append(Shape(Box((t / 2, seg_w / 2, wall_h / 2)),
                             pose=((R - t / 2) * np.cos(a), (R - t / 2) * np.sin(a), v.bottom + wall_h / 2,
                                   float(c), 0.0, 0.0, float(s)), material=body, visual=False))
-    # visual wall (outer colour), inner lining and a rolled rim
-    outer = trimesh.creation.annulus(R - t * 0.5, R, H, sections=64)
-    outer.apply_translation((0.0, 0.0, H / 2))
-    lining = trimesh.creation.annulus(R - t, R - t * 0.5, H - v.bottom, sections=64)
-    lining.apply_translation((0.0, 0.0, v.bottom + (H - v.bottom) / 2))
-    rim = trimesh.creation.annulus(R - t, R + 0.003, 0.006, sections=64)
-    rim.apply_translation((0.0, 0.0, H - 0.003))
-    floor = trimesh.creation.cylinder(R - t, 0.001, sections=64)
-    floor.apply_translation((0.0, 0.0, v.bottom + 0.0005))
-    for name, mesh, mat in (("wall", outer, body), ("lining", lining, inner), ("rim", rim, body),
-                            ("floor", floor, inner)):
-        shapes.append(Shape(Mesh(mesh_asset(f"pot{model_id}_{name}", mesh)), material=mat, collision=False))
+    meshes = _pot_meshes(v, model_id, str(assets_dir()))
+    if not all(os.path.isfile(m) for m in meshes.values()):  # the cache folder was emptied meanwhile
+        _pot_meshes.cache_clear()
+        meshes = _pot_meshes(v, model_id, str(assets_dir()))
+    for name, mat in (("wall", body), ("lining", inner), ("rim", body), ("floor", inner)):
+        shapes.append(Shape(Mesh(meshes[name]), material=mat, collision=False))
     g = pot_geometry(v)
+    w = v.handle_width
     for sign, point in zip((-1, 1), g["handle_points"]):
-        # the tab reaches 5 mm into the wall so that it is one piece with it
-        x0, x1 = R - 0.005, R + v.handle_len
-        shapes.append(Shape(Box(((x1 - x0) / 2, v.handle_width / 2, v.handle_thick / 2)),
+        # a flat tab with a rounded end (reaching R + handle_len), 5 mm into the wall so that it is
+        # one piece with it, and a rivet plate on the wall (visual)
+        x0, x1 = R - 0.005, R + v.handle_len - w / 2
+        shapes.append(Shape(Box(((x1 - x0) / 2, w / 2, v.handle_thick / 2)),
                             pose=(sign * (x0 + x1) / 2, 0.0, point[2], *IDENTITY_Q), material=handle))
-        # a rounded end (visual), and a rivet plate on the wall
-        shapes.append(Shape(Cylinder(v.handle_width / 2, v.handle_thick / 2),
-                            pose=(sign * (R + v.handle_len), 0.0, point[2], *X_TO_Z), material=handle,
-                            collision=False))
-        shapes.append(Shape(Box((0.002, v.handle_width / 2 + 0.006, v.handle_thick / 2 + 0.006)),
+        shapes.append(Shape(Cylinder(w / 2, v.handle_thick / 2), pose=(sign * x1, 0.0, point[2], *X_TO_Z),
+                            material=handle))
+        shapes.append(Shape(Box((0.002, w / 2 + 0.006, v.handle_thick / 2 + 0.006)),
                             pose=(sign * (R + 0.001), 0.0, point[2], *IDENTITY_Q), material=handle, collision=False))
     return shapes
 
@@ -142,7 +159,8 @@ class RollerVariant:
 
 ROLLER_VARIANTS = {
     0: RollerVariant(0.025, 0.200, 0.014, 0.070, (0.86, 0.70, 0.48), (0.55, 0.34, 0.17), 650.0),  # beech
-    2: RollerVariant(0.028, 0.220, 0.015, 0.075, (0.93, 0.93, 0.91), (0.40, 0.24, 0.12), 900.0),  # white, walnut handles
+    # painted white, walnut handles
+    2: RollerVariant(0.028, 0.220, 0.015, 0.075, (0.93, 0.93, 0.91), (0.40, 0.24, 0.12), 900.0),
 }
 
 

@@ -21,6 +21,9 @@ TASK_MODULES: tuple[str, ...] = (
     "rotate_qrcode",
     "open_laptop_setup_arm",
     "place_dual_shoes",
+    "lift_pot",
+    "grab_roller_dual_contact",
+    "move_can_pot",
 )
 
 

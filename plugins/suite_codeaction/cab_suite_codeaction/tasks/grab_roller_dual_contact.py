@@ -1,0 +1,166 @@
+"""grab_roller_dual_contact: grab the rolling pin with both arms and lift it.
+
+Description
+    A rolling pin (a wooden barrel with a slim handle at each end) lies on the table in front of the
+    robot, its axis roughly left-right. The robot must hold it with both grippers, one at each end,
+    and lift it off the table.
+
+Randomisation (per seed)
+    Model variant 0 or 2 (as upstream's ``102_roller`` ids {0, 2}): a beech pin 35.6 cm long
+    (barrel 20 x 5 cm, handles 7 cm x 2.8 cm) or a white one with walnut handles 38.4 cm long
+    (barrel 22 x 5.6 cm, handles 7.5 x 3 cm); 0.25-0.45 kg. Drawn with ``rand_pose``: centre
+    x in [-0.15, 0.15], y in [-0.25, -0.05], yaw in +-0.8 rad (FACTS B.6: upstream rotates +-0.8
+    about the model's local y, which is the vertical once it lies down); the barrel rests on the
+    table (axis 0.2 mm above its resting height), so the handles are clear of the table.
+
+Success (final state; upstream's check plus CodeActionBench's contact terms)
+    ``left_closed`` / ``right_closed``: each gripper's commanded value < 0.2;
+    ``roller_raised``: the roller's centre (on its axis) is above z = 0.80 (it rests at 0.765 or
+    0.768);
+    ``left_contact`` / ``right_contact``: each gripper's finger links are in live contact with the
+    roller (contacts that carry no impulse are ignored).
+    Guard: the roller must not fall off the table.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.geometry import transform_point
+from cab_core.scene import Body
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_pots import ROLLER_VARIANTS, roller_geometry, roller_shapes
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of
+from ..oracle import OracleFailed, closest_opening, expect, top_down_quat, yaw_axis
+
+NAME = "grab_roller_dual_contact"
+MODEL_IDS = (0, 2)
+RAISED_Z = 0.80
+GRIPPER_CLOSED = 0.2
+# the oracle's TCP sits this far above a handle's axis (fingertips 2 cm clear of the table)
+GRASP_ABOVE_AXIS = 0.018
+LIFT_M = 0.10
+
+
+class GrabRollerVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.roller = info["roller"]["name"]
+        self.raised_z = float(info["raised_z"])
+        self.guarded_objects = (self.roller,)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        z = float(w.pose(self.roller)[2])
+        grips = {a: w.gripper_command(a) for a in ("left", "right")}
+        preds = {
+            "left_closed": grips["left"] < GRIPPER_CLOSED,
+            "right_closed": grips["right"] < GRIPPER_CLOSED,
+            "roller_raised": z > self.raised_z,
+            "left_contact": bool(w.gripper_touches("left", self.roller)),
+            "right_contact": bool(w.gripper_touches("right", self.roller)),
+        }
+        return Evaluation(success=all(preds.values()), predicates=preds,
+                          values={"roller_z": z, "gripper_left": grips["left"], "gripper_right": grips["right"]})
+
+
+class GrabRollerDualContact(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        model_id = int(MODEL_IDS[int(rng.integers(0, len(MODEL_IDS)))])
+        v = ROLLER_VARIANTS[model_id]
+        pose = rand_pose(rng, (-0.15, 0.15), (-0.25, -0.05), (top + v.barrel_radius + 2e-4,), rotate_rand=True,
+                         rotate_lim=(0.0, 0.0, 0.8))
+        scene = base_scene()
+        scene.bodies.append(Body("roller", roller_shapes(v), pose=tuple(pose), kind="dynamic", density=v.density,
+                                 angular_damping=0.2))
+        g = roller_geometry(v)
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "raised_z": RAISED_Z,
+            "gripper_closed_threshold": GRIPPER_CLOSED,
+            "roller": {
+                "name": "roller",
+                "model_id": model_id,
+                "frame": "roller body: origin at the centre of the axis, the axis along x; handle 0 at -x, "
+                         "handle 1 at +x",
+                "initial_pose": pose_list(pose),
+                "initial_z": round(float(pose[2]), 6),
+                "yaw": round(yaw_of(pose[3:]), 6),
+                "length": round(g["length"], 6),
+                "barrel_radius": g["barrel_radius"],
+                "barrel_length": g["barrel_length"],
+                "handle_radius": g["handle_radius"],
+                "handle_length": g["handle_length"],
+                "handle_points": [vec(h) for h in g["handle_points"]],  # contact points 0 (-x), 1 (+x)
+                "axis": vec(g["axis"]),
+                "mass_kg": round(float(v.density * np.pi * (v.barrel_radius ** 2 * v.barrel_len
+                                                            + 2 * v.handle_radius ** 2 * v.handle_len)), 4),
+            },
+            "handle_arms": ["left", "right"],  # handle 0 lies on the left (-x) for every drawn yaw
+            "grasp_above_axis": GRASP_ABOVE_AXIS,
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return GrabRollerVerifier(instance.info)
+
+    # --- checkpoints ---------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = GrabRollerVerifier(w.info).evaluate(w).predicates
+        return [p["left_contact"], p["right_contact"], p["roller_raised"], all(p.values())]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        r = info["roller"]
+        name = r["name"]
+        up = np.array([0.0, 0.0, float(info["grasp_above_axis"])])
+
+        def end(i: int):
+            # expert TCP-to-object offset: above the handle's centre
+            return lambda w: transform_point(w.pose(name), r["handle_points"][i]) + up
+
+        lift = max(0.0, 100.0 * (float(info["raised_z"]) - float(r["initial_z"])))
+        return [
+            SpatialRule("Approach left end", "left", end(0), cylinder(4.0, 3.0)),
+            SpatialRule("Approach right end", "right", end(1), cylinder(5.0, 3.0)),
+            SpatialRule("Lift left", "left", None, None, prerequisites=(0,), lift_above_cm=lift),
+            SpatialRule("Lift right", "right", None, None, prerequisites=(1,), lift_above_cm=lift),
+        ]
+
+    # --- reference solution ----------------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """Top-down grasps on both handles (fingers across each handle), close both, lift together
+        with a paired Cartesian move (6 tool calls)."""
+        info = world.info
+        r = info["roller"]
+        pose = world.pose(r["name"])
+        up = np.array([0.0, 0.0, float(info["grasp_above_axis"])])
+        g = [transform_point(pose, h) + up for h in r["handle_points"]]
+        across = np.cross([0.0, 0.0, 1.0], yaw_axis(pose[3:], (1.0, 0.0, 0.0)))
+        q = {arm: top_down_quat(closest_opening(world.tcp_pose(arm)[3:], [across])) for arm in ("left", "right")}
+        hover = 0.20
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+        expect(call("reach_both_tcp", left_xyz=vec(g[0] + [0, 0, hover]), right_xyz=vec(g[1] + [0, 0, hover]),
+                    left_quat=vec(q["left"]), right_quat=vec(q["right"])), "hover above the handles")
+        now = {arm: world.tcp_pose(arm)[:3] for arm in ("left", "right")}
+        expect(call("move_both_delta", left_delta=vec(g[0] - now["left"]), right_delta=vec(g[1] - now["right"])),
+               "down onto the handles", tolerant)
+        for arm in ("left", "right"):
+            expect(call("set_gripper", arm=arm, pos=0.0), f"close {arm}")
+        res = call("move_both_delta", left_delta=[0.0, 0.0, LIFT_M], right_delta=[0.0, 0.0, LIFT_M])
+        if res.get("status") is None:
+            raise OracleFailed(f"lift: {res}")
+        call("done", report="holding the rolling pin by both handles, lifted", success_claim=True)
+
+
+TASK = GrabRollerDualContact
