@@ -24,6 +24,12 @@ TASK_MODULES: tuple[str, ...] = (
     "lift_pot",
     "grab_roller_dual_contact",
     "move_can_pot",
+    "click_bell",
+    "press_stapler",
+    "scan_object",
+    "pick_diverse_bottles",
+    "put_bottles_dustbin",
+    "dump_bin_bigbin",
 )
 
 

@@ -1,0 +1,208 @@
+"""dump_bin_bigbin: pour the balls from the small table bin into the big dustbin.
+
+Description
+    The table is shifted 0.3 m to the robot's right; left of it stands the big dustbin (a green
+    pedal bin, 0.34 x 0.50 m, rim at 0.62 m, the bucket's floor at 0.20 m). On the table near the
+    robot stands a small round table bin (a desk waste bin 9-10.5 cm tall, 6-7.4 cm across, 80 g,
+    open at the top) holding five small red balls (16 mm, 1 g). The robot must grab the small bin,
+    pour the balls into the big dustbin, and finish holding the small bin above the tabletop.
+
+Randomisation (per seed; FACTS B.6)
+    The small bin's model is drawn from upstream's ``063_tabletrashbin`` ids {0, 3, 7, 8, 9, 10}
+    (six round bins differing in size, taper and colour). Its pose with ``rand_pose``: x in
+    [-0.2, 0.2] with |x| >= 0.05, y in [-0.2, -0.05], a turn about its axis within +-pi/8.5 (upstream's
+    "local y" of its y-up model; it turns the printed logo). The big dustbin is fixed (static, at
+    (-0.45, 0, 0)). The five balls lie on the small bin's floor in a ring 1.45 cm around its axis,
+    turned at random (upstream drops them at the axis +-0.01 m, 0.5 cm apart upward from z 0.78,
+    which overlaps 16 mm balls; dropped ones roll about for seconds).
+
+Success (latch: any physics step, polled every step; RoboTwin's check)
+    ``small_bin_raised``: the small bin's pose (the centre of the bin, on its axis at half height)
+    is at z >= 1.0 m, and ``balls_in_band``: every ball's centre is at 0.13 <= z <= 0.25 m (with
+    this dustbin: lying on its bucket's floor, at 0.208 m), at the same step. The event is false at
+    the start (the bin stands on the table, the balls in it).
+    Final requirements (the benchmark's added instruction "Finish with the small bin held above the
+    tabletop"), at the end of the attempt: ``small_bin_over_table``: the bin's centre is over the
+    table top's footprint; ``small_bin_above_tabletop``: its lowest point (bottom or rim edge) is
+    at least 3 cm above the table top; ``small_bin_held``: a gripper's finger touches it.
+    Guard (the card's destructive check, min_z 0.05 m): the small bin and every ball stay above
+    z = 0.05 m (a ball that misses the dustbin ends on the floor).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BIN_IDS, TABLE_BINS, ball_body, big_dustbin,
+                           big_dustbin_info, table_bin_body, table_bin_info)
+from ..common import CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until, table_top_z, yaw_of
+from ..oracle import Hands, tcp_quat, world_point
+
+NAME = "dump_bin_bigbin"
+TABLE_X = 0.3
+DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+N_BALLS = 5
+BIN_MIN_Z = 1.0
+BALL_BAND = (0.13, 0.25)
+GUARD_MIN_Z = 0.05
+ABOVE_TABLE = 0.03  # the held bin's lowest point above the table top at the end
+BALL_RING = 0.0145  # ring of the five balls on the small bin's floor (neighbours 1.7 cm apart)
+
+# reference solution
+APPROACH_YAW = 1.5  # rad right of straight ahead: the left hand comes from the left (reachable
+# over the whole placement range, close to the robot included; measured with mplib IK)
+GRASP_SHORT = 0.01  # the TCP stops this far short of the bin's axis
+PRE_GRASP = 0.08
+HOVER = 0.10
+LIFT = 0.12
+POUR_TCP = (-0.42, 0.0, 1.06)  # over the dustbin, the bin's centre 6 cm above the 1.0 m mark
+POUR_ROLL = -2.1  # rad about the (forward-pointing) approach axis: the opening turns down to -x
+HOLD_TCP = (-0.12, -0.08, 0.95)  # the end: over the table, the bin's bottom ~16 cm above it
+
+
+class DumpBinBigbinVerifier(Verifier):
+    scoring = "latch"
+    poll_every = 1
+
+    def __init__(self, info: dict[str, Any]):
+        b = info["small_bin"]
+        self.bin = b["name"]
+        self.balls = list(info["balls"]["names"])
+        self.min_z = float(info["bin_min_z"])
+        self.band = tuple(info["ball_band"])
+        self.arms = list(info["arms"])
+        self.table_top = float(info["table_top_z"])
+        self.table_x = tuple(info["table_x_range"])
+        self.table_y = tuple(info["table_y_range"])
+        self.above = float(info["above_table_m"])
+        h = float(b["height"])
+        ring = [(r * np.cos(t), r * np.sin(t), z) for r, z in ((b["radius_bottom"], -h / 2), (b["radius_top"], h / 2))
+                for t in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+        self.hull_points = np.asarray(ring, float)  # the bin's outer edges (bottom and rim circles)
+        self.guarded_objects = (self.bin, *self.balls)
+        self.guard_min_z = float(info["guard_min_z"])
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        bz = float(w.pose(self.bin)[2])
+        zs = [float(w.pose(n)[2]) for n in self.balls]
+        raised = bz >= self.min_z
+        in_band = all(self.band[0] <= z <= self.band[1] for z in zs)
+        values = {"small_bin_z": bz, "balls_z_min": min(zs), "balls_z_max": max(zs),
+                  "balls_in_band_count": float(sum(self.band[0] <= z <= self.band[1] for z in zs))}
+        return Evaluation(success=raised and in_band,
+                          predicates={"small_bin_raised": raised, "balls_in_band": in_band}, values=values)
+
+    def lowest_z(self, w: WorldView) -> float:
+        p = w.pose(self.bin)
+        return float(min(transform_point(p, q)[2] for q in self.hull_points))
+
+    def final_requirements(self, w: WorldView) -> dict[str, bool]:
+        p = w.pose(self.bin)
+        over = bool(self.table_x[0] <= p[0] <= self.table_x[1] and self.table_y[0] <= p[1] <= self.table_y[1])
+        return {"small_bin_over_table": over,
+                "small_bin_above_tabletop": bool(self.lowest_z(w) >= self.table_top + self.above),
+                "small_bin_held": any(w.gripper_touches(a, self.bin) for a in self.arms)}
+
+
+class DumpBinBigbin(CodeActionTask):
+    name = NAME
+
+    def settle_steps(self) -> int:
+        return 150  # the balls come to rest on the small bin's floor
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene(table_x=TABLE_X)
+        scene.bodies.append(big_dustbin("dustbin", DUSTBIN_POSE))
+        model_id = int(TABLE_BIN_IDS[int(rng.integers(0, len(TABLE_BIN_IDS)))])
+        style = TABLE_BINS[model_id]
+        pose = sample_until(
+            lambda: rand_pose(rng, (-0.2, 0.2), (-0.2, -0.05), (top + style.height / 2 + 0.001,), rotate_rand=True,
+                              rotate_lim=(0.0, 0.0, np.pi / 8.5)),
+            lambda p: abs(p[0]) >= 0.05, what="the small bin")
+        scene.bodies.append(table_bin_body("small_bin", style, f"tablebin-{model_id}", pose))
+        floor_top = pose[2] - style.height / 2 + BIN_FLOOR
+        names = []
+        turn = float(rng.uniform(0.0, 2 * np.pi))
+        for i in range(N_BALLS):
+            a = turn + 2 * np.pi * i / N_BALLS
+            name = f"ball{i + 1}"
+            scene.bodies.append(ball_body(name, (pose[0] + BALL_RING * np.cos(a), pose[1] + BALL_RING * np.sin(a),
+                                                 floor_top + BALL_RADIUS + 0.0005, 1.0, 0.0, 0.0, 0.0)))
+            names.append(name)
+        b = table_bin_info(style, model_id)
+        b.update(pose=pose_list(pose), yaw=round(yaw_of(pose[3:]), 6))
+        info = {
+            "task": self.name, "seed": int(seed), "table_top_z": top, "table_x": TABLE_X,
+            "table_x_range": [TABLE_X - 0.6, TABLE_X + 0.6], "table_y_range": [-0.35, 0.35],
+            "dustbin": big_dustbin_info(DUSTBIN_POSE),
+            "small_bin": b,
+            "balls": {"names": names, "radius": BALL_RADIUS, "mass_kg": BALL_MASS},
+            "bin_min_z": BIN_MIN_Z, "ball_band": list(BALL_BAND), "above_table_m": ABOVE_TABLE,
+            "guard_min_z": GUARD_MIN_Z,
+            "arms": list(arm_names(embodiment)),
+            "latch_subgoals": [2],  # the latched event is the third subgoal ("hold together")
+            "grasp_short_m": GRASP_SHORT,
+            "pour_tcp": list(POUR_TCP),  # the reference solution's TCP while pouring
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return DumpBinBigbinVerifier(instance.info)
+
+    # -- analysis -------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = DumpBinBigbinVerifier(w.info).evaluate(w).predicates
+        return [p["small_bin_raised"], p["balls_in_band"], p["small_bin_raised"] and p["balls_in_band"]]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        b = info["small_bin"]
+        pour = info["pour_tcp"]
+        return [
+            # the TCP at the bin's grasp point (its centre), following the bin
+            SpatialRule("Approach deskbin", "either", lambda w: world_point(w.pose(b["name"]), b["grasp_point"]),
+                        cylinder(6, (-5, 4))),
+            SpatialRule("Pour over bin", "either", lambda w: pour, box(22.0, 32.4, 8), prerequisites=(0,)),
+        ]
+
+    # -- reference solution ---------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """The left hand grasps the small bin across its middle, coming from the left (fingers
+        closing front and back), lifts it, carries it over the dustbin with the hand turned to
+        point forward, rolls the wrist 120 deg so the opening turns down and left, rolls back
+        (the balls land meanwhile, the bin still above 1 m) and holds the bin over the table. The
+        right arm first moves up and aside when the bin stands on its side (11-12 calls)."""
+        info = world.info
+        b = info["small_bin"]
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+        a = np.array([np.sin(APPROACH_YAW), np.cos(APPROACH_YAW), 0.0])
+        q_grasp = tcp_quat(a, (-a[1], a[0], 0.0))  # opening horizontal, the gripper's z axis up
+        q_fwd = tcp_quat((0.0, 1.0, 0.0), (-1.0, 0.0, 0.0))
+        q_pour = [float(v) for v in quat_mul(q_fwd, axis_angle_quat([1.0, 0.0, 0.0], POUR_ROLL))]
+        pose = world.pose(b["name"])
+        if pose[0] > 0.05:
+            Hands(call, "right").move(dx=0.10, dy=-0.05, dz=0.08, what="right arm aside", ok=tolerant)
+        hands = Hands(call, "left")
+        g = world_point(pose, b["grasp_point"]) - GRASP_SHORT * a
+        # above the side of the bin first (a planned path may sweep low), then straight down and in
+        hands.reach(g - PRE_GRASP * a + [0.0, 0.0, HOVER], q_grasp, "above the side of the small bin")
+        hands.move(dz=-HOVER, what="down beside the small bin")
+        hands.move(*(g - world.tcp_pose("left")[:3]), what="around the small bin")
+        hands.grip(0.0)
+        hands.move(dz=LIFT, what="lift", ok=tolerant)
+        hands.reach(POUR_TCP, q_fwd, "over the dustbin")
+        hands.reach(POUR_TCP, q_pour, "pour", ok=tolerant)
+        hands.reach(POUR_TCP, q_fwd, "turn back", ok=tolerant)
+        hands.reach(HOLD_TCP, q_fwd, "hold over the table")
+        call("done", report="poured the balls into the big dustbin; holding the small bin above the table",
+             success_claim=True)
+
+
+TASK = DumpBinBigbin

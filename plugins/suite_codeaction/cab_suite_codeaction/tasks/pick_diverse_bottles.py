@@ -1,0 +1,158 @@
+"""pick_diverse_bottles: pick up both bottles together and hold them in front of the robot.
+
+Description
+    Two bottles stand upright on the table, one on the left half and one on the right half. Each is
+    one of twenty generated bottles of ten kinds (water, wine, beer, contoured soda, milk, juice,
+    squeeze sauce, pill bottle, sports bottle with a waist, oil, lotion; 10.5-25 cm tall, 5-7.2 cm
+    across the body, 0.07-0.30 kg), with a cap and, on most, a paper label band. The robot must
+    pick up both bottles and hold them up together in front of itself (in the head camera's view):
+    the left bottle with the left arm, the right one with the right arm.
+
+Randomisation (per seed; FACTS B.6)
+    Each bottle's model is drawn from ids 0-19 (the two may be equal). Bottle 1 with ``rand_pose``
+    at x in [-0.25, -0.05], y in [0.03, 0.23]; bottle 2 at x in [0.05, 0.25], same y; each with a
+    random turn about its own (vertical) axis within +-1 rad (upstream's "+-1 about local y" of its
+    y-up model frame). They stand on the table (base 1 mm above the top at spawn).
+
+Success (final state; RoboTwin's check)
+    For each bottle, its functional point 0 (the centre of the bottle, on its axis at half its
+    height) must lie within 0.1 m in x and in y of its target, (-0.06, -0.105) for bottle 1 and
+    (0.06, -0.105) for bottle 2, and above z = 0.89 (raised 4-15 cm above its resting height):
+    ``bottle1_xy``, ``bottle1_raised``, ``bottle2_xy``, ``bottle2_raised``. Upstream's extra
+    "never fell below 0.78" flag belongs to its expert replay; here a knocked-off bottle is caught by
+    the guard (a bottle below table top - 0.08 m fails the attempt).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.geometry import transform_point
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_bins import DIVERSE_BOTTLES, bottle_body, bottle_info
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, yaw_of
+from ..oracle import Hands, tcp_quat, world_point
+
+NAME = "pick_diverse_bottles"
+TARGET_XY = {"bottle1": (-0.06, -0.105), "bottle2": (0.06, -0.105)}
+XY_TOLERANCE = 0.1
+MIN_Z = 0.89
+ARM_OF = {"bottle1": "left", "bottle2": "right"}
+# the reference solution holds each bottle's centre here (well inside the tolerance, grippers 23 cm
+# apart so the two hands never meet; in the head camera's view)
+HOLD_POINT = {"bottle1": (-0.115, -0.105, 0.98), "bottle2": (0.115, -0.105, 0.98)}
+GRASP_SHORT = 0.01  # the TCP stops this far short of the bottle's axis (the palm stays off the bottle)
+PRE_GRASP = 0.10
+FORWARD = (0.0, 1.0, 0.0)
+
+
+class PickDiverseBottlesVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.bottles = [(key, info[key]["name"], np.asarray(info[key]["functional_point"], float),
+                         np.asarray(info["target_xy"][key], float)) for key in ("bottle1", "bottle2")]
+        self.tol = float(info["xy_tolerance"])
+        self.min_z = float(info["min_z"])
+        self.guarded_objects = tuple(b[1] for b in self.bottles)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        preds: dict[str, bool] = {}
+        values: dict[str, float] = {}
+        for key, name, fp_local, target in self.bottles:
+            fp = transform_point(w.pose(name), fp_local)
+            d = fp[:2] - target
+            preds[f"{key}_xy"] = bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol)
+            preds[f"{key}_raised"] = bool(fp[2] > self.min_z)
+            values.update({f"{key}_dx": float(d[0]), f"{key}_dy": float(d[1]), f"{key}_z": float(fp[2])})
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+
+
+class PickDiverseBottles(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+        info: dict[str, Any] = {"task": self.name, "seed": int(seed), "table_top_z": top,
+                                "target_xy": {k: list(v) for k, v in TARGET_XY.items()},
+                                "xy_tolerance": XY_TOLERANCE, "min_z": MIN_Z, "arm_of": dict(ARM_OF)}
+        for key, xlim in (("bottle1", (-0.25, -0.05)), ("bottle2", (0.05, 0.25))):
+            model_id = int(rng.integers(0, len(DIVERSE_BOTTLES)))
+            style = DIVERSE_BOTTLES[model_id]
+            pose = rand_pose(rng, xlim, (0.03, 0.23), (top + style.height / 2 + 0.001,), rotate_rand=True,
+                             rotate_lim=(0.0, 0.0, 1.0))
+            scene.bodies.append(bottle_body(key, style, f"bottle001-{model_id}", pose))
+            b = bottle_info(style, model_id, "001_bottle")
+            b.update(name=key, pose=pose_list(pose), yaw=round(yaw_of(pose[3:]), 6))
+            info[key] = b
+        # the reference solution's hold poses (TCP), for the spatial checkpoints
+        info["hold_point"] = {k: list(v) for k, v in HOLD_POINT.items()}
+        info["hold_tcp"] = {ARM_OF[k]: pose_list(_hold_tcp(info, k)) for k in ("bottle1", "bottle2")}
+        info["grasp_short_m"] = GRASP_SHORT
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return PickDiverseBottlesVerifier(instance.info)
+
+    # -- analysis -------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = PickDiverseBottlesVerifier(w.info).evaluate(w).predicates
+        first = p["bottle1_xy"] and p["bottle1_raised"]
+        second = p["bottle2_xy"] and p["bottle2_raised"]
+        return [first, second, first and second]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        def grasp_ref(key: str):
+            b = info[key]
+            return lambda w: _grasp_tcp(w.pose(b["name"]), b)
+
+        hold = info["hold_tcp"]
+        return [
+            SpatialRule("Approach bottle 1", "left", grasp_ref("bottle1"), cylinder(3, 3)),
+            SpatialRule("Approach bottle 2", "right", grasp_ref("bottle2"), cylinder(3, 3)),
+            SpatialRule("Hold left", "left", lambda w: hold["left"], box(10, 10, (-10, None)), prerequisites=(0,)),
+            SpatialRule("Hold right", "right", lambda w: hold["right"], box(10, 10, (-10, None)), prerequisites=(1,)),
+        ]
+
+    # -- reference solution ---------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """Each arm in turn (left first): a side grasp of the bottle's body from the front (fingers
+        closing across it), lift, and carry the bottle's centre to its hold point in front of the
+        robot; the left bottle is held while the right arm fetches the other (11 calls)."""
+        info = world.info
+        q = tcp_quat(FORWARD, (-1.0, 0.0, 0.0))  # as at home: the gripper's z axis up
+        fwd = np.asarray(FORWARD)
+        for key in ("bottle1", "bottle2"):
+            b = info[key]
+            arm = ARM_OF[key]
+            hands = Hands(call, arm)
+            g = _grasp_tcp(world.pose(b["name"]), b)
+            hands.reach(g - PRE_GRASP * fwd, q, "in front of the bottle")
+            hands.move(*(g - world.tcp_pose(arm)[:3]), what="around the bottle")
+            hands.grip(0.0)
+            hands.move(dz=0.08, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
+            held = world_point(world.pose(b["name"]), b["functional_point"]) - world.tcp_pose(arm)[:3]
+            hands.reach(np.asarray(HOLD_POINT[key]) - held, None, "hold in front")
+        call("done", report="holding both bottles up in front of the robot", success_claim=True)
+
+
+def _grasp_tcp(pose, b: dict) -> np.ndarray:
+    """Where the TCP closes on a standing bottle: its grasp point, GRASP_SHORT toward the robot."""
+    return world_point(pose, b["grasp_point"]) - GRASP_SHORT * np.asarray(FORWARD)
+
+
+def _hold_tcp(info: dict, key: str) -> np.ndarray:
+    """The reference TCP at the hold: the bottle upright, its centre at the hold point."""
+    b = info[key]
+    return np.asarray(HOLD_POINT[key]) + np.asarray(b["grasp_point"]) - np.asarray(b["functional_point"]) \
+        - GRASP_SHORT * np.asarray(FORWARD)
+
+
+TASK = PickDiverseBottles

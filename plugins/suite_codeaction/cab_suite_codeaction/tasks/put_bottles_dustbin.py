@@ -1,0 +1,200 @@
+"""put_bottles_dustbin: put the three bottles into the dustbin left of the table.
+
+Description
+    The table is shifted 0.3 m to the robot's right; in the space this leaves on the left stands a
+    tall open dustbin (a green pedal bin, 0.34 x 0.50 m, rim at 0.62 m, the bucket's floor at 0.20 m),
+    its rim below the table top. Three plastic drink bottles (17.5-20.5 cm tall, about 6 cm across,
+    50-60 g: blue-capped water, a green contoured soda, an orange juice) stand upright on the table.
+    The robot must pick up each bottle and drop it into the dustbin.
+
+Randomisation (per seed; FACTS B.6)
+    The bottle models are fixed (upstream's ``114_bottle`` ids 1, 2, 3) and so is the dustbin
+    (``011_dustbin`` id 0, static, at (-0.45, 0, 0)). Each bottle is drawn with ``rand_pose`` at
+    x in [-0.25, 0.3] with |x| >= 0.05, y in [0.03, 0.23], redrawn until it is >= 0.13 m from the
+    bottles drawn before it; no rotation (upright; the turn about the axis is 0). The bottles stand
+    on the table top (z 0.74).
+
+Success (final state; RoboTwin's check)
+    Every bottle (its pose: the centre of the bottle) lies in the dustbin's region:
+    |x + 0.45| < 0.221, |y| < 0.325 and 0.2 < z < 0.7 (``bottle1_in_bin``, ``bottle2_in_bin``,
+    ``bottle3_in_bin``). With this dustbin the region is its inside: a bottle resting on the
+    bucket's floor has its centre at >= 0.22 m, one left on the table at >= 0.82 m.
+    Guard (the card's destructive check): a bottle below z = 0.1 m (on the floor) or outside
+    x in [-0.85, 0.55], y in [-0.55, 0.55] fails the attempt.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info
+from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
+from ..oracle import Hands, tcp_quat, world_point
+
+NAME = "put_bottles_dustbin"
+TABLE_X = 0.3
+DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+BOTTLE_IDS = (1, 2, 3)
+KEYS = ("bottle1", "bottle2", "bottle3")
+REGION_CENTER = (-0.45, 0.0)
+REGION_HALF = (0.221, 0.325)
+REGION_Z = (0.2, 0.7)
+MIN_PAIR_DIST = 0.13
+GUARD_MIN_Z = 0.1
+GUARD_XY = ((-0.85, 0.55), (-0.55, 0.55))
+APPROACH_YAW = 0.8  # rad right of straight ahead: the approach comes from the front-left
+APPROACH = np.array([np.sin(APPROACH_YAW), np.cos(APPROACH_YAW), 0.0])
+GRASP_SHORT = 0.01  # TCP this far short of the bottle's axis
+PRE_GRASP = 0.10
+LIFT = 0.10
+DROP_CLEARANCE = 0.06  # the held bottle's base above the dustbin's rim when let go
+DROP_Y = (-0.10, 0.0, 0.10)  # where along the dustbin the three bottles are let go
+
+
+class PutBottlesDustbinVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.names = [info[k]["name"] for k in info["bottles"]]
+        self.keys = list(info["bottles"])
+        r = info["region"]
+        self.center = np.asarray(r["center_xy"], float)
+        self.half = np.asarray(r["half_xy"], float)
+        self.z = tuple(r["z_range"])
+        g = info["guard"]
+        self.guarded_objects = tuple(self.names)
+        self.guard_min_z = float(g["min_z"])
+        self.guard_xy = (tuple(g["x"]), tuple(g["y"]))
+
+    def in_region(self, p) -> bool:
+        d = np.abs(np.asarray(p[:2]) - self.center)
+        return bool(d[0] < self.half[0] and d[1] < self.half[1] and self.z[0] < p[2] < self.z[1])
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        preds: dict[str, bool] = {}
+        values: dict[str, float] = {}
+        for key, name in zip(self.keys, self.names):
+            p = w.pose(name)[:3]
+            preds[f"{key}_in_bin"] = self.in_region(p)
+            values.update({f"{key}_dx": float(p[0] - self.center[0]), f"{key}_dy": float(p[1] - self.center[1]),
+                           f"{key}_z": float(p[2])})
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+
+    def guard(self, w: WorldView) -> dict[str, bool]:
+        """``<bottle>_on_table``: above the card's min_z and inside its xy bounds."""
+        (x0, x1), (y0, y1) = self.guard_xy
+        out = {}
+        for n in self.guarded_objects:
+            p = w.pose(n)
+            out[f"{n}_on_table"] = bool(p[2] >= self.guard_min_z and x0 <= p[0] <= x1 and y0 <= p[1] <= y1)
+        return out
+
+
+class PutBottlesDustbin(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene(table_x=TABLE_X)
+        scene.bodies.append(big_dustbin("dustbin", DUSTBIN_POSE))
+        info: dict[str, Any] = {
+            "task": self.name, "seed": int(seed), "table_top_z": top, "table_x": TABLE_X,
+            "table_x_range": [TABLE_X - 0.6, TABLE_X + 0.6],
+            "dustbin": big_dustbin_info(DUSTBIN_POSE),
+            "region": {"center_xy": list(REGION_CENTER), "half_xy": list(REGION_HALF), "z_range": list(REGION_Z)},
+            "guard": {"min_z": GUARD_MIN_Z, "x": list(GUARD_XY[0]), "y": list(GUARD_XY[1])},
+            "bottles": list(KEYS),
+        }
+        drawn: list[np.ndarray] = []
+        for key, model_id in zip(KEYS, BOTTLE_IDS):
+            style = DRINK_BOTTLES[model_id]
+            pose = sample_until(
+                lambda: rand_pose(rng, (-0.25, 0.3), (0.03, 0.23), (top + style.height / 2 + 0.001,)),
+                lambda p: abs(p[0]) >= 0.05 and all(np.hypot(*(p[:2] - q[:2])) >= MIN_PAIR_DIST for q in drawn),
+                what=f"{key}")
+            drawn.append(pose)
+            scene.bodies.append(bottle_body(key, style, f"bottle114-{model_id}", pose))
+            b = bottle_info(style, model_id, "114_bottle")
+            b.update(name=key, pose=pose_list(pose))
+            info[key] = b
+        info["grasp_short_m"] = GRASP_SHORT
+        info["drop_tcp"] = pose_list(_drop_tcp(info, info["bottle1"]))  # the reference solution's release point
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return PutBottlesDustbinVerifier(instance.info)
+
+    # -- analysis -------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = PutBottlesDustbinVerifier(w.info).evaluate(w).predicates
+        each = [p[f"{k}_in_bin"] for k in w.info["bottles"]]
+        return each + [all(each)]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        def grasp_ref(key: str):
+            b = info[key]
+            return lambda w: _grasp_tcp(w.pose(b["name"]), b)
+
+        drop = info["drop_tcp"]
+        rules = [SpatialRule(f"Approach bottle {i}", "either", grasp_ref(k), cylinder(4, (-8, 6)))
+                 for i, k in enumerate(info["bottles"])]
+        # "prerequisite: 1 or 2 or 3": an approach of any bottle
+        rules.append(SpatialRule("Drop over bin", "either", lambda w: drop, box(22.0, 32.4, 8),
+                                 prerequisites=(0, 1, 2), any_prerequisite=True))
+        return rules
+
+    # -- reference solution ---------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """The left arm does all three bottles, the one nearest the dustbin first: the others then
+        all stand to the right of the one being carried (never under its way to the dustbin) and
+        off its approach line, which comes from the front-left (0.8 rad right of straight ahead):
+        a side grasp of the body, a lift, a carry to above the dustbin, let go 6 cm above the rim
+        (the three at different places along y) and rise. The right arm first moves out of the left
+        arm's way when a bottle stands on its side (22 calls)."""
+        info = world.info
+        q = tcp_quat(APPROACH, (-APPROACH[1], APPROACH[0], 0.0))  # the gripper's z axis up
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+        if any(world.pose(info[k]["name"])[0] > 0.05 for k in info["bottles"]):
+            Hands(call, "right").move(dx=0.15, dy=-0.05, dz=0.05, what="right arm aside", ok=tolerant)
+        hands = Hands(call, "left")
+        order = sorted(info["bottles"], key=lambda k: world.pose(info[k]["name"])[0])
+        for i, key in enumerate(order):
+            b = info[key]
+            g = _grasp_tcp(world.pose(b["name"]), b)
+            hands.reach(g - PRE_GRASP * APPROACH, q, "before the bottle")
+            hands.move(*(g - world.tcp_pose("left")[:3]), what="around the bottle")
+            hands.grip(0.0)
+            hands.move(dz=LIFT, what="lift", ok=tolerant)
+            held = world.pose(b["name"])[:3] - world.tcp_pose("left")[:3]
+            hands.reach(_drop_tcp(info, b, held, DROP_Y[i]), None, "over the dustbin")
+            hands.grip(1.0)
+            # up and clear of the table's edge before the next bottle (the hand is below its top)
+            hands.move(dz=0.15, what="rise", ok=tolerant)
+        call("done", report="dropped the three bottles into the dustbin", success_claim=True)
+
+
+def _grasp_tcp(pose, b: dict) -> np.ndarray:
+    """Where the TCP closes on a standing bottle: its grasp point, GRASP_SHORT back along the
+    reference solution's approach."""
+    return world_point(pose, b["grasp_point"]) - GRASP_SHORT * APPROACH
+
+
+def _drop_tcp(info: dict, b: dict, held=None, dy: float = 0.0) -> np.ndarray:
+    """TCP over the middle of the dustbin (shifted ``dy`` along y) with the held bottle's base
+    DROP_CLEARANCE above the rim. ``held``: the bottle centre relative to the TCP (default: upright,
+    grasped as planned)."""
+    d = info["dustbin"]
+    if held is None:
+        held = np.asarray(b["functional_point"]) - np.asarray(b["grasp_point"]) + GRASP_SHORT * APPROACH
+    centre = np.array([d["opening_center"][0], d["opening_center"][1] + dy,
+                       d["rim_z"] + DROP_CLEARANCE + b["height"] / 2])
+    return centre - np.asarray(held, float)
+
+
+TASK = PutBottlesDustbin
