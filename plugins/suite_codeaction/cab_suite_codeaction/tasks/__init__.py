@@ -30,6 +30,10 @@ TASK_MODULES: tuple[str, ...] = (
     "pick_diverse_bottles",
     "put_bottles_dustbin",
     "dump_bin_bigbin",
+    "place_bread_basket",
+    "place_bread_skillet",
+    "place_cans_plasticbox",
+    "place_object_basket",
 )
 
 

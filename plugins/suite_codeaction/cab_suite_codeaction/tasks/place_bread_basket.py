@@ -1,0 +1,300 @@
+"""place_bread_basket: put every piece of bread on the table into the basket.
+
+Description
+    A wicker bread basket (oval or rectangular, 31-34 x 24-26 cm at the rim, 6-7 cm deep, flared walls)
+    stands at the front centre of the table; two pieces of bread (a roll, a tin loaf, a round bun,
+    a baguette piece or a rye loaf, 8.5-13 cm long, 5.8-8 cm wide) lie to its left and right or on
+    one side. The robot must put every piece of bread into the basket and let go of them.
+
+Randomisation (per seed; FACTS B.6)
+    Basket model 0-4 (upstream's ``076_breadbasket`` ids), at (0, -0.2) on the table, yaw
+    uniform in +-3.14. Two breads, each of model {0, 1, 3, 5, 6} (``075_bread`` ids), drawn with
+    ``rand_pose``: x in [-0.27, 0.27] with |x| >= 0.15, y in [-0.2, 0.05], yaw +-pi/4, centre
+    >= 0.1 m from the basket's and from the other bread's. This model adds one constraint (upstream's
+    meshes and ours differ): the bread's footprint keeps >= 1 cm from the basket's and the other
+    bread's footprints, so no bread starts inside or under the basket. As upstream, a bread that
+    finds no valid place in 50 draws is left out (then fewer breads lie on the table; ``info``
+    lists the breads present).
+
+Success (final state)
+    ``bread<i>_in_basket`` for every bread: its centre within 0.05 m of the basket's centre in x
+    and in y, and its z above table top - 0.01 (upstream's z > 0.73);
+    ``grippers_open``: every arm's commanded gripper value > 0.8.
+    Guard: no bread and not the basket may fall off the table.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.geometry import quat_to_mat
+from cab_core.scene import Body
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_placing import BREAD_BASKET_MASS, BREAD_BASKETS, BREAD_MASS, bread_basket_shapes, bread_shapes
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
+from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
+
+NAME = "place_bread_basket"
+BASKET_XY = (0.0, -0.2)
+BREAD_IDS = (0, 1, 3, 5, 6)
+N_BREADS = 2
+MAX_DRAWS = 50
+XY_TOLERANCE = 0.05
+Z_BELOW_TABLE = 0.01  # upstream: bread z > 0.73 (table top 0.74)
+GRIPPER_OPEN = 0.8
+FOOTPRINT_GAP = 0.01
+SLOT_GAP = 0.004  # between a placed bread's side and the basket's long axis
+TIP_BELOW_TCP = 0.0354  # fingertips ahead of the TCP (aloha_agilex)
+TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
+
+
+def grasp_tcp_dz(height: float, table_top: float, centre_z: float) -> float:
+    """TCP height above the bread's centre for a top-down grasp: 1 cm above the centre, but the
+    fingertips stay >= 3 mm above the table."""
+    return float(max(0.010, table_top + TIP_BELOW_TCP + 0.003 - centre_z))
+
+
+def pick_top_down(call, world: WorldView, arm: str, name: str, dz: float, *, hover: float = 0.20,
+                  lift: float = 0.10, across=(0.0, 1.0, 0.0), quat=None) -> None:
+    """Open fingers across the object's ``across`` axis (or ``quat``), a planned reach to ``hover``
+    above the grasp (the planned path may dip several cm: keep it high), then straight down to the
+    TCP ``dz`` above the object's origin where the object is now (the reach may have nudged it),
+    close, lift straight up."""
+    hands = Hands(call, arm)
+    p = world.pose(name)
+    q = quat if quat is not None else top_down_quat(
+        closest_opening(world.tcp_pose(arm)[3:], [yaw_axis(p[3:], across)]))
+    hands.reach([p[0], p[1], p[2] + dz + hover], q, "hover above the object")
+    p = world.pose(name)
+    hands.move(*(np.array([p[0], p[1], p[2] + dz]) - world.tcp_pose(arm)[:3]), what="down to the grasp")
+    hands.grip(0.0)
+    hands.move(dz=lift, what="lift", ok=TOLERANT)
+
+
+def place_at(call, world: WorldView, arm: str, tcp_target, quat, *, refine=None, hover: float = 0.16,
+             retreat: float = 0.08, open_to: float = 1.0) -> None:
+    """A planned reach to ``hover`` above the TCP target, straight down to it (or to
+    ``refine()``, the target recomputed from the state once above it) stopping on contact, open,
+    straight up by ``retreat``."""
+    hands = Hands(call, arm)
+    hands.reach(np.asarray(tcp_target, float) + [0.0, 0.0, hover], quat, "above the place")
+    t = np.asarray(refine() if refine is not None else tcp_target, float)
+    hands.move(*(t - world.tcp_pose(arm)[:3]), what="down to the place", ok=TOLERANT)
+    hands.grip(open_to)
+    hands.move(dz=retreat, what="retreat", ok=TOLERANT)
+
+
+def _rect_corners(c: np.ndarray, half: np.ndarray, yaw: float) -> np.ndarray:
+    u = np.array([np.cos(yaw), np.sin(yaw)])
+    v = np.array([-u[1], u[0]])
+    return np.array([c + sx * half[0] * u + sy * half[1] * v for sx in (-1, 1) for sy in (-1, 1)])
+
+
+def rects_apart(a: tuple, b: tuple, gap: float) -> bool:
+    """Whether two oriented rectangles (centre, half-sizes, yaw) are separated by >= ``gap``
+    along some axis of either (separating-axis test)."""
+    ca, cb = _rect_corners(*a), _rect_corners(*b)
+    for yaw in (a[2], b[2]):
+        for ax in (np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])):
+            pa, pb = ca @ ax, cb @ ax
+            if pa.min() - pb.max() >= gap or pb.min() - pa.max() >= gap:
+                return True
+    return False
+
+
+class PlaceBreadBasketVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.basket = info["basket"]["name"]
+        self.breads = [b["name"] for b in info["breads"]]
+        self.tol = float(info["xy_tolerance"])
+        self.z_min = float(info["bread_min_z"])
+        self.arms = list(info["arms"])
+        self.guarded_objects = (*self.breads, self.basket)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        b = np.asarray(w.pose(self.basket)[:3], dtype=float)
+        preds: dict[str, bool] = {}
+        values: dict[str, float] = {}
+        for i, name in enumerate(self.breads):
+            p = np.asarray(w.pose(name)[:3], dtype=float)
+            d = p - b
+            preds[f"bread{i}_in_basket"] = bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol and p[2] > self.z_min)
+            values.update({f"bread{i}_dx": float(d[0]), f"bread{i}_dy": float(d[1]), f"bread{i}_z": float(p[2])})
+        grips = {a: w.gripper_command(a) for a in self.arms}
+        preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
+        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+
+
+class PlaceBreadBasket(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+
+        basket_id = int(rng.integers(0, len(BREAD_BASKETS)))
+        bshapes, bdims = bread_basket_shapes(basket_id)
+        bpose = rand_pose(rng, (BASKET_XY[0],), (BASKET_XY[1],), (top + 0.0005,), rotate_rand=True,
+                          rotate_lim=(0.0, 0.0, 3.14))
+        byaw = yaw_of(bpose[3:])
+        basket_rect = (bpose[:2], np.asarray(bdims["outer_half_size"]), byaw)
+        scene.bodies.append(Body("bread_basket", bshapes, pose=tuple(bpose), kind="dynamic", mass=BREAD_BASKET_MASS))
+
+        breads: list[dict[str, Any]] = []
+        rects: list[tuple] = []
+        for i in range(N_BREADS):
+            model = int(BREAD_IDS[int(rng.integers(0, len(BREAD_IDS)))])
+            shapes, dims = bread_shapes(model)
+            length, width, height = dims["size"]
+            half = np.array([length / 2, width / 2])
+            pose = None
+            for _ in range(MAX_DRAWS):
+                p = rand_pose(rng, (-0.27, 0.27), (-0.2, 0.05), (top + height / 2 + 0.001,), rotate_rand=True,
+                              rotate_lim=(0.0, 0.0, np.pi / 4))
+                rect = (p[:2], half, yaw_of(p[3:]))
+                if (abs(p[0]) >= 0.15 and np.hypot(*(p[:2] - bpose[:2])) >= 0.1
+                        and all(np.hypot(*(p[:2] - r[0])) >= 0.1 for r in rects)
+                        and rects_apart(rect, basket_rect, FOOTPRINT_GAP)
+                        and all(rects_apart(rect, r, FOOTPRINT_GAP) for r in rects)):
+                    pose = p
+                    break
+            if pose is None:  # as upstream: this bread is not placed
+                continue
+            rects.append((pose[:2], half, yaw_of(pose[3:])))
+            name = f"bread{len(breads)}"
+            scene.bodies.append(Body(name, shapes, pose=tuple(pose), kind="dynamic", mass=BREAD_MASS))
+            breads.append({
+                "name": name, **dims, "pose": pose_list(pose), "yaw": round(yaw_of(pose[3:]), 6),
+                "grasp_tcp_dz": round(grasp_tcp_dz(height, top, float(pose[2])), 6),
+            })
+
+        floor = float(bdims["floor_top_z"])
+        # expert release: the bread's bottom 4 mm above the basket floor, TCP at its grasp height
+        release = [floor + 0.004 + b["size"][2] / 2 + b["grasp_tcp_dz"] for b in breads]
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "xy_tolerance": XY_TOLERANCE,
+            "bread_min_z": round(top - Z_BELOW_TABLE, 6),
+            "gripper_open_threshold": GRIPPER_OPEN,
+            "arms": list(arm_names(embodiment)),
+            "basket": {
+                "name": "bread_basket",
+                "frame": "basket body: origin at the centre of its bottom face, x along its long axis, z up",
+                "pose": pose_list(bpose),
+                "yaw": round(byaw, 6),
+                **bdims,
+            },
+            "breads": breads,  # frames: centre of the bread's bounding box, x along its length, z up
+            "bread_frame": "bread body: centre of its bounding box, x along its length, y across (grasp), z up",
+            "release_tcp_dz": round(float(np.mean(release)), 6) if release else None,
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return PlaceBreadBasketVerifier(instance.info)
+
+    # --- checkpoints ---------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        """(1) first bread in the basket region, (2) second bread in the basket region (a missing
+        bread counts as in place)."""
+        p = PlaceBreadBasketVerifier(w.info).evaluate(w).predicates
+        return [bool(p.get("bread0_in_basket", True)), bool(p.get("bread1_in_basket", True))]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        breads = info["breads"]
+        basket = info["basket"]["name"]
+
+        def approach(i: int):
+            if i >= len(breads):
+                return lambda w: [np.nan, np.nan, np.nan]
+            b = breads[i]
+            return lambda w: np.asarray(w.pose(b["name"])[:3], float) + [0.0, 0.0, b["grasp_tcp_dz"]]
+
+        dz = float(info["release_tcp_dz"] or 0.0)
+        return [
+            SpatialRule("Approach bread 0", "either", approach(0), cylinder(2, 3)),
+            SpatialRule("Approach bread 1", "either", approach(1), cylinder(2, 3)),
+            # the catalog's prerequisite is "1 or 2" (any); listed as both here (the checkpoint
+            # evaluator requires every listed prerequisite)
+            SpatialRule("Release over basket", "either",
+                        lambda w: np.asarray(w.pose(basket)[:3], float) + [0.0, 0.0, dz], cylinder(7, (-2, 3)),
+                        prerequisites=(0, 1), any_prerequisite=True),
+        ]
+
+    # --- reference solution ----------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """Each bread is picked top-down across its width by the arm on its side, turned so that it
+        lies across the basket, and laid on the basket floor beside the basket's long axis; the
+        second one is let go just above the first one's top, so the fingers clear it. Breads on
+        both sides are both picked up first (one per arm), then placed one after the other; the
+        first arm steps aside before the second places."""
+        info = world.info
+        bk = info["basket"]
+        floor = float(bk["floor_top_z"])
+        breads = sorted(info["breads"], key=lambda b: b["pose"][0])  # left to right
+        arms = ["left" if world.pose(b["name"])[0] < 0 else "right" for b in breads]
+
+        def pick(b: dict, arm: str) -> None:
+            pick_top_down(call, world, arm, b["name"], float(b["grasp_tcp_dz"]))
+
+        placed_heights: list[float] = []
+        used_slots: list[float] = []
+
+        def place(b: dict, arm: str) -> None:
+            # slot: beside the basket's long axis, on the arm's side if still free
+            bp = world.pose(bk["name"])
+            u = yaw_axis(bp[3:], (1.0, 0.0, 0.0))
+            side = 1.0 if (u[0] >= 0) == (arm == "right") else -1.0
+            if side in used_slots:
+                side = -side
+            used_slots.append(side)
+            width, height = b["size"][1], b["size"][2]
+            # fingers open along the basket's long axis: the bread lies across the basket
+            tcp = world.tcp_pose(arm)
+            qr = top_down_quat(closest_opening(tcp[3:], [u]))
+
+            def target(held: np.ndarray) -> np.ndarray:
+                bp = world.pose(bk["name"])
+                centre = bp[:3] + side * (width / 2 + SLOT_GAP) * u
+                z_tcp = bp[2] + floor + 0.004 + height / 2 - held[2]
+                if placed_heights:  # fingertips above the bread already in the basket
+                    z_tcp = max(z_tcp, bp[2] + floor + max(placed_heights) + TIP_BELOW_TCP + 0.006)
+                return np.array([centre[0] - held[0], centre[1] - held[1], z_tcp])
+
+            # the bread relative to the TCP as held, turned with the wrist (estimate; measured again
+            # once the wrist has turned)
+            held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(b["name"])[:3] - tcp[:3]))
+            place_at(call, world, arm, target(held0), qr,
+                     refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
+            placed_heights.append(height)
+
+        def aside(arm: str) -> None:
+            Hands(call, arm).move(dx=-0.18 if arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
+
+        if len(breads) == 2 and arms[0] != arms[1]:
+            pick(breads[0], arms[0])
+            pick(breads[1], arms[1])
+            place(breads[0], arms[0])
+            aside(arms[0])
+            place(breads[1], arms[1])
+        else:
+            for k, (b, arm) in enumerate(zip(breads, arms)):
+                if k and arms[k - 1] != arm:
+                    aside(arms[k - 1])
+                pick(b, arm)
+                place(b, arm)
+        call("done", report="put every piece of bread into the basket", success_claim=True)
+
+
+TASK = PlaceBreadBasket

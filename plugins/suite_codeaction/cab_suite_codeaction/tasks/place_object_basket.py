@@ -1,0 +1,212 @@
+"""place_object_basket: put the object into the basket, then pick the basket up.
+
+Description
+    A basket (26.5 x 24 cm, 8 cm deep) with a fixed handle arching over it from end to end (its top
+    bar 9 cm above the rim, along the basket's long side, left to right) stands at the front middle
+    of the table; a small object lies on one side: a toy car (8-9 cm long) or a pack of playing
+    cards (8.9 x 6.4 x 2 cm). The robot must put the object into the basket and then pick the
+    basket up (with the object in it).
+
+Randomisation (per seed; FACTS B.6)
+    The object's side ("the arm", upstream's random arm choice) is drawn first: left or right.
+    Basket model {0, 1} (upstream's ``110_basket`` ids) at x = +0.02 when the object is on the
+    left (-0.02 when on the right), y in [-0.08, -0.05], no rotation. Object: a pack of playing
+    cards (``081_playingcards`` {0, 1, 2}) or a toy car (``057_toycar`` {0..5}), type first then
+    model, at x in [-0.25, -0.20] (left) or [0.20, 0.25], y in [-0.1, 0.1], its length along
+    world y (the car facing away from the robot), yaw +-pi/6.
+
+Success (final state; upstream's predicate, axes renamed for this model)
+    ``basket_raised``: basket z - its initial z > 0.02;
+    ``object_raised``: object z - its initial z > 0.02;
+    ``basket_upright``: the basket's up axis (its body z; upstream's mesh has y up) has a world-z
+    component > 0.5;
+    ``object_near_basket``: |dx| + |dy| + |dz| < 0.15 between the object's and the basket's
+    origins;
+    ``object_off_table``: the object does not touch the table;
+    ``object_touches_basket``: the object touches the basket.
+    Initial z: the spawn poses (the scene settles them by < 1 mm).
+    Guard: neither the basket nor the object may fall off the table.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, box, cylinder, sphere
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.scene import Body
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CAR_MASS, TOY_CARS,
+                              handled_basket_shapes, playing_cards_shapes, toy_car_shapes)
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
+from ..oracle import Hands, closest_opening, top_down_quat
+from .place_bread_basket import grasp_tcp_dz, pick_top_down, place_at
+
+NAME = "place_object_basket"
+RISE = 0.02
+UPRIGHT = 0.5
+NEAR_L1 = 0.15
+SLOT_Y = -0.058  # the object's place in the basket: the front half, under the handle's side
+RELEASE_GAP = 0.004
+TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
+
+
+class PlaceObjectBasketVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.basket = info["basket"]["name"]
+        self.object = info["object"]["name"]
+        self.basket_z0 = float(info["basket"]["pose"][2])
+        self.object_z0 = float(info["object"]["pose"][2])
+        self.guarded_objects = (self.object, self.basket)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        bp, op = w.pose(self.basket), w.pose(self.object)
+        up = float(quat_to_mat(bp[3:])[2, 2])
+        l1 = float(np.sum(np.abs(np.asarray(op[:3]) - np.asarray(bp[:3]))))
+        preds = {
+            "basket_raised": bool(bp[2] - self.basket_z0 > RISE),
+            "object_raised": bool(op[2] - self.object_z0 > RISE),
+            "basket_upright": up > UPRIGHT,
+            "object_near_basket": l1 < NEAR_L1,
+            "object_off_table": not w.in_contact(self.object, "table"),
+            "object_touches_basket": bool(w.in_contact(self.object, self.basket)),
+        }
+        values = {"basket_rise": float(bp[2] - self.basket_z0), "object_rise": float(op[2] - self.object_z0),
+                  "basket_up_z": up, "object_basket_l1": l1}
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+
+
+class PlaceObjectBasket(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        scene = base_scene()
+
+        side = -1.0 if rng.random() < 0.5 else 1.0  # the object's side (-1: left)
+        basket_id = int(rng.integers(0, len(HANDLED_BASKETS)))
+        bshapes, bdims = handled_basket_shapes(basket_id)
+        basket_pose = rand_pose(rng, (-0.02 * side,), (-0.08, -0.05), (top + 0.0005,))
+
+        if rng.random() < 0.5:
+            kind, model = "playingcards", int(rng.integers(0, len(PLAYING_CARDS)))
+            oshapes, odims = playing_cards_shapes(model)
+            mass = CARDS_MASS
+        else:
+            kind, model = "toycar", int(rng.integers(0, len(TOY_CARS)))
+            oshapes, odims = toy_car_shapes(model)
+            mass = TOY_CAR_MASS
+        h = odims["size"][2]
+        q0 = (float(np.cos(np.pi / 4)), 0.0, 0.0, float(np.sin(np.pi / 4)))  # length along world y
+        xlim = (-0.25, -0.20) if side < 0 else (0.20, 0.25)
+        obj_pose = rand_pose(rng, xlim, (-0.1, 0.1), (top + h / 2 + 0.001,), rotate_rand=True,
+                             rotate_lim=(0.0, 0.0, np.pi / 6), qpos=q0)
+
+        scene.bodies.append(Body("basket", bshapes, pose=tuple(basket_pose), kind="dynamic", mass=HB_MASS))
+        scene.bodies.append(Body("object", oshapes, pose=tuple(obj_pose), kind="dynamic", mass=mass))
+        gdz = grasp_tcp_dz(h, top, float(obj_pose[2]))
+        obj_arm = "left" if side < 0 else "right"
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "arms": list(arm_names(embodiment)),
+            "rise": RISE,
+            "upright_min": UPRIGHT,
+            "near_l1": NEAR_L1,
+            "basket": {
+                "name": "basket",
+                "frame": "basket body: origin at the centre of its bottom face, x along its long side and the "
+                         "handle bar, z up",
+                **bdims,
+                "pose": pose_list(basket_pose),
+            },
+            "object": {
+                "name": "object",
+                "type": kind,
+                "frame": "object body: centre of its bounding box, x along its length, y across (grasp), z up",
+                **odims,
+                "pose": pose_list(obj_pose),
+                "yaw": round(yaw_of(obj_pose[3:]), 6),
+                "grasp_tcp_dz": round(gdz, 6),
+            },
+            "object_arm": obj_arm,
+            "basket_arm": "right" if obj_arm == "left" else "left",
+            "slot_in_basket": [0.0, SLOT_Y, bdims["floor_top_z"]],  # the expert's place (basket frame)
+            # expert release: TCP above the basket origin, at the slot
+            "release_tcp_dz": round(bdims["floor_top_z"] + RELEASE_GAP + h / 2 + gdz, 6),
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return PlaceObjectBasketVerifier(instance.info)
+
+    # --- checkpoints ---------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        """(1) object near and touching the basket; (2) basket raised > 2 cm; (3) everything
+        together (raised upright basket carrying the raised object off the table)."""
+        p = PlaceObjectBasketVerifier(w.info).evaluate(w).predicates
+        return [p["object_near_basket"] and p["object_touches_basket"], p["basket_raised"], all(p.values())]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        obj, bk = info["object"], info["basket"]
+        slot = np.asarray(info["slot_in_basket"], float)
+        rdz = float(info["release_tcp_dz"]) - float(bk["floor_top_z"])
+        bar = np.asarray(bk["handle_bar_point"], float)
+        return [
+            SpatialRule("Approach object", "either",
+                        lambda w: np.asarray(w.pose(obj["name"])[:3], float) + [0.0, 0.0, obj["grasp_tcp_dz"]],
+                        sphere(2)),
+            SpatialRule("Place in basket", "either",
+                        lambda w: transform_point(w.pose(bk["name"]), slot) + [0.0, 0.0, rdz],
+                        cylinder(7, (-2, 4)), prerequisites=(0,)),
+            SpatialRule("Approach basket", "either", lambda w: transform_point(w.pose(bk["name"]), bar),
+                        box(10, 4, (-3, 8))),
+            SpatialRule("Basket lift", "either", None, None, prerequisites=(2,), lift_above_cm=2.0),
+        ]
+
+    # --- reference solution ----------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """The arm on the object's side picks it top-down across its width, turns it so that its
+        length runs front to back, lays it on the basket floor in the front half (beside the
+        handle's line, fingers along the handle) and lets go, then steps aside. The other arm
+        takes the handle bar from above, fingers across it, and lifts the basket 10 cm."""
+        info = world.info
+        obj, bk = info["object"], info["basket"]
+        o_arm, b_arm = info["object_arm"], info["basket_arm"]
+
+        # 1. pick the object (lifted 20 cm: clear of the handle on the way to the basket)
+        pick_top_down(call, world, o_arm, obj["name"], float(obj["grasp_tcp_dz"]), lift=0.20)
+        # 2. into the basket's front half: fingers open along +x (the wrist camera toward the robot)
+        tcp = world.tcp_pose(o_arm)
+        qr = top_down_quat([1.0, 0.0, 0.0])
+        h = float(obj["size"][2])
+
+        def target(held: np.ndarray) -> np.ndarray:
+            slot = transform_point(world.pose(bk["name"]), info["slot_in_basket"])
+            return np.array([slot[0] - held[0], slot[1] - held[1], slot[2] + RELEASE_GAP + h / 2 - held[2]])
+
+        held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(obj["name"])[:3] - tcp[:3]))
+        # from high above: the carried object clears the handle (its bar 17 cm above the table)
+        place_at(call, world, o_arm, target(held0), qr, hover=0.26, retreat=0.10,
+                 refine=lambda: target(world.pose(obj["name"])[:3] - world.tcp_pose(o_arm)[:3]))
+        Hands(call, o_arm).move(dx=-0.18 if o_arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
+
+        # 3. the other arm: the handle bar from above, fingers across it (along y)
+        # (the planned reach turns the wrist and dips the hand ~8 cm on the way: rise first and
+        # come from 20 cm above the bar, so the fingers pass over the handle)
+        Hands(call, b_arm).move(dz=0.15, what="rise before turning the wrist", ok=TOLERANT)
+        qb = top_down_quat(closest_opening(world.tcp_pose(b_arm)[3:], [np.array([0.0, 1.0, 0.0])]))
+        pick_top_down(call, world, b_arm, bk["name"], float(bk["handle_bar_point"][2]), hover=0.20, lift=0.10,
+                      quat=qb)
+        call("done", report="put the object into the basket and lifted the basket by its handle", success_claim=True)
+
+
+TASK = PlaceObjectBasket
