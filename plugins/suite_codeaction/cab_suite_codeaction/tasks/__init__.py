@@ -34,6 +34,9 @@ TASK_MODULES: tuple[str, ...] = (
     "place_bread_skillet",
     "place_cans_plasticbox",
     "place_object_basket",
+    "blocks_ranking_size",
+    "stack_bowls_three",
+    "hanging_mug",
 )
 
 

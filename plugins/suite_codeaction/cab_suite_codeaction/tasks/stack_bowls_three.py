@@ -1,0 +1,283 @@
+"""stack_bowls_three: stack three bowls into one another.
+
+Description
+    Three identical small bowls (cream glaze with a blue band under the rim; 11.6 cm across the
+    rim, 5 cm tall, 4.5 mm walls flaring out from a 6.4 cm foot, the top 1.5 cm upright) stand
+    on the table. The robot must stack them, each one inside the one below, and let go.
+
+Randomisation (per seed; FACTS B.6, RoboTwin's resample-until loops)
+    Three bowls (RoboTwin's ``002_bowl`` model 3 for all three, here one generated model) with
+    ``rand_pose``: x in [-0.3, 0.3], y in [-0.15, 0.15] with ``ylim_prop``, standing on the table,
+    no rotation (they are round); each redrawn until |x| >= 0.09, its centre is >= 0.13 m from
+    (0, -0.1) and >= 0.13 m from every bowl drawn before it. The three are then numbered by y
+    (bowl1 nearest the robot).
+
+Success (final state)
+    Sort the bowls by height (origin z: the centre of the bowl's bottom).
+    ``pair_aligned_01`` / ``pair_aligned_12``: consecutive bowls within 0.04 m in x and in y;
+    ``heights_ok``: z - [0.74, 0.77, 0.81] < 0.02 for the sorted bowls (one-sided: a bowl nested
+    one or two levels up sits 2.1 / 4.2 cm higher here);
+    ``grippers_open``: every arm's commanded gripper value > 0.8.
+    Guard: no bowl may fall off the table.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from cab_core.analysis.checkpoints import SpatialRule, annulus
+from cab_core.geometry import mat_to_quat, quat_to_mat
+from cab_core.scene import Body, Material, Shape, cache_dir
+from cab_core.task import SceneInstance, rng_for
+from cab_core.verifier import Evaluation, Verifier, WorldView
+
+from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
+                      srgb, table_top_z)
+from ..oracle import Hands, OracleFailed, top_down_quat
+
+NAME = "stack_bowls_three"
+BOWL = Vessel(r_bottom=0.032, r_rim=0.058, height=0.05, wall=0.0045, base=0.005, band=0.015)
+BOWL_MASS = 0.12  # kg, a small melamine/porcelain rice bowl
+BOWL_FRICTION = 0.4  # glazed porcelain (0.45 against the robot's 0.5 finger pads, averaged)
+GLAZE = Material(color=srgb(0.93, 0.91, 0.84), roughness=0.3, static_friction=BOWL_FRICTION,
+                 dynamic_friction=BOWL_FRICTION)
+BAND = Material(color=srgb(0.16, 0.34, 0.70), roughness=0.3)
+BOWL_NAMES = ("bowl1", "bowl2", "bowl3")
+CLEAR_CENTRE = (0.0, -0.1)
+CLEAR_RADIUS = 0.13
+MIN_PAIR_DIST = 0.13
+XY_TOLERANCE = 0.04
+HEIGHT_TARGETS = (0.74, 0.77, 0.81)  # sorted by height, + table z bias
+HEIGHT_TOLERANCE = 0.02  # one-sided
+GRIPPER_OPEN = 0.8
+# the reference grasp: a top-down pinch of the wall at the rim, fingers along the radius, the TCP
+# this far above the rim (fingertips 1.5 cm below it), the gripper opened to PINCH_OPEN
+PINCH_ABOVE_RIM = 0.022
+PINCH_OPEN = 0.4  # pads 2.6 cm apart: clear of the 5 mm wall, fingers reach 4.6 cm from the TCP
+RELEASE_PRESS = 0.004  # a carried bowl is lowered this far past its resting height: it sits before the fingers open
+HOVER = 0.22
+PARK_X = 0.28
+
+
+@lru_cache(maxsize=4)
+def bowl_shapes(cache: str) -> tuple[Shape, ...]:
+    """The bowl's shapes (assets written under the cache directory ``cache``)."""
+    shapes = vessel_collision("bowl", BOWL, GLAZE)
+    shapes.append(visual("bowl-visual", revolved(BOWL.profile()), GLAZE))
+    top = BOWL.height - BOWL.wall_horizontal
+    shapes.append(visual("bowl-band", ring_band(BOWL.r_outer, top - 0.009, top - 0.004), BAND))
+    return tuple(shapes)
+
+
+def bowl_body(name: str, pose) -> Body:
+    return Body(name, list(bowl_shapes(str(cache_dir()))), pose=tuple(pose), kind="dynamic", mass=BOWL_MASS)
+
+
+def stack_predicates(ps: list[np.ndarray], z_bias: float = 0.0) -> tuple[dict[str, bool], dict[str, float]]:
+    order = sorted(range(len(ps)), key=lambda i: ps[i][2])
+    s = [ps[i] for i in order]
+    preds = {}
+    values = {}
+    for k in range(len(s) - 1):
+        d = s[k + 1][:2] - s[k][:2]
+        preds[f"pair_aligned_{k}{k + 1}"] = bool(np.all(np.abs(d) < XY_TOLERANCE))
+        values[f"pair_{k}{k + 1}_dx"], values[f"pair_{k}{k + 1}_dy"] = float(d[0]), float(d[1])
+    dz = [float(p[2] - (t + z_bias)) for p, t in zip(s, HEIGHT_TARGETS)]
+    preds["heights_ok"] = all(v < HEIGHT_TOLERANCE for v in dz)
+    values.update({f"level{k}_dz": v for k, v in enumerate(dz)})
+    return preds, values
+
+
+class StackBowlsThreeVerifier(Verifier):
+    scoring = "final"
+
+    def __init__(self, info: dict[str, Any]):
+        self.names = [b["name"] for b in info["bowls"]]
+        self.arms = list(info["arms"])
+        self.z_bias = float(info["table_top_z"]) - 0.74
+        self.guarded_objects = tuple(self.names)
+        self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        ps = [np.asarray(w.pose(n)[:3], float) for n in self.names]
+        preds, values = stack_predicates(ps, self.z_bias)
+        grips = {a: w.gripper_command(a) for a in self.arms}
+        preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
+        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+
+
+class StackBowlsThree(CodeActionTask):
+    name = NAME
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        rng = rng_for(seed, self.name)
+        top = table_top_z()
+        drawn: list[np.ndarray] = []
+        for i in range(3):
+            def ok(p: np.ndarray) -> bool:
+                return (abs(p[0]) >= 0.09
+                        and np.hypot(p[0] - CLEAR_CENTRE[0], p[1] - CLEAR_CENTRE[1]) >= CLEAR_RADIUS
+                        and all(np.hypot(*(p[:2] - q[:2])) >= MIN_PAIR_DIST for q in drawn))
+
+            drawn.append(sample_until(lambda: rand_pose(rng, (-0.3, 0.3), (-0.15, 0.15), (top + 0.0005,),
+                                                        ylim_prop=True), ok, what=f"bowl {i + 1}"))
+        drawn.sort(key=lambda p: p[1])
+        scene = base_scene()
+        bowls = []
+        for name, pose in zip(BOWL_NAMES, drawn):
+            scene.bodies.append(bowl_body(name, pose))
+            bowls.append({"name": name, "pose": pose_list(pose)})
+        grasp_dz = BOWL.height + PINCH_ABOVE_RIM
+        info = {
+            "task": self.name,
+            "seed": int(seed),
+            "table_top_z": top,
+            "bowls": bowls,  # by y, nearest the robot first
+            "bowl": {
+                "frame": "origin at the centre of the bowl's bottom (on the table when it stands there), +z up "
+                         "the axis",
+                "rim_outer_radius": BOWL.r_rim,
+                "bottom_outer_radius": BOWL.r_bottom,
+                "height": BOWL.height,
+                "wall_thickness": BOWL.wall,
+                "bottom_thickness": BOWL.base,
+                "rim_mid_radius": round(BOWL.rim_mid_radius, 6),
+                "nest_rise": round(BOWL.nest_rise, 6),  # one bowl in another sits this much higher
+                "mass_kg": BOWL_MASS,
+                # the reference grasp: TCP over the wall's middle at the rim, this far above the origin
+                "grasp_radius": round(BOWL.rim_mid_radius, 6),
+                "grasp_tcp_dz": round(grasp_dz, 6),
+                "pinch_gripper_command": PINCH_OPEN,
+            },
+            "xy_tolerance": XY_TOLERANCE,
+            "height_targets": [t + top - 0.74 for t in HEIGHT_TARGETS],
+            "height_tolerance": HEIGHT_TOLERANCE,
+            "gripper_open_threshold": GRIPPER_OPEN,
+            "arms": list(arm_names(embodiment)),
+            # kept clear by the layout: where the reference solution builds the stack
+            "stack_target_xy": list(CLEAR_CENTRE),
+        }
+        return SceneInstance(scene=scene, info=info)
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return StackBowlsThreeVerifier(instance.info)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def subgoals(self, w: WorldView) -> list[bool]:
+        p = StackBowlsThreeVerifier(w.info).evaluate(w).predicates
+        return [p["pair_aligned_01"] or p["pair_aligned_12"],
+                p["pair_aligned_01"] and p["pair_aligned_12"] and p["heights_ok"]]
+
+    def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
+        """Approaches: the TCP on a ring around the bowl's current axis at the reference pinch
+        (radius: the rim's wall middle), at the pinch height. Placements: the same ring around the
+        supporting bowl, at the height the pinch has when the moved bowl rests nested in it. The
+        reference stacks bowl2 on bowl1 and bowl3 on bowl2 (bowl1, moved first, is the freely
+        placed base), so placement k needs the approach of the bowl moved there."""
+        b = info["bowl"]
+        r_cm = 100.0 * float(b["grasp_radius"])
+        names = [x["name"] for x in info["bowls"]]
+
+        def ring(name: str, dz: float):
+            return lambda w: np.asarray(w.pose(name)[:3], float) + [0.0, 0.0, dz]
+
+        grasp_dz = float(b["grasp_tcp_dz"])
+        nested_dz = grasp_dz + float(b["nest_rise"])
+        rules = [SpatialRule(f"Approach bowl {i + 1}", "either", ring(n, grasp_dz), annulus(r_cm, 2.0, 5.0))
+                 for i, n in enumerate(names)]
+        rules.append(SpatialRule("Two-bowl placement", "either", ring(names[0], nested_dz), annulus(r_cm, 2.0, 5.0),
+                                 (1,)))
+        rules.append(SpatialRule("Three-bowl placement", "either", ring(names[1], nested_dz),
+                                 annulus(r_cm, 2.0, 5.0), (2,)))
+        return rules
+
+    # -- reference solution -----------------------------------------------------------------------
+    def oracle(self, call, world: WorldView) -> None:
+        """bowl1 to the cleared spot in front of the robot, bowl2 into it, bowl3 into bowl2. Each
+        bowl is pinched top-down at its rim (fingers along the radius, one inside and one outside
+        the wall) by the arm on its side, at the rim point facing that arm's shoulder unless a
+        finger would then come down on another bowl. It hangs a few degrees tilted from the pinch:
+        carried high, the gripper tips back by that much so that it is upright, its axis over the
+        support's; lowered until it sits (a bowl let go from above, or tilted, can wedge on the
+        rim below), let go, and the arm withdraws to its side."""
+        info = world.info
+        b = info["bowl"]
+        top = float(info["table_top_z"])
+        r_g = float(b["grasp_radius"])
+        grasp_dz = float(b["grasp_tcp_dz"])
+        rise = float(b["nest_rise"])
+        names = [x["name"] for x in info["bowls"]]
+        tolerant = ("SUCCESS", "ABORTED", "FAILED")
+        turned: set[str] = set()
+        support = None
+        for name in names:
+            c = np.asarray(world.pose(name)[:3], float)
+            arm = "left" if c[0] < 0 else "right"
+            hands = Hands(call, arm, hover=HOVER)
+            phi = self._pinch_angle(world, name, arm)
+            radial = np.array([np.cos(phi), np.sin(phi), 0.0])
+            q = top_down_quat(radial)
+            if world.gripper_command(arm) != PINCH_OPEN:
+                hands.grip(PINCH_OPEN)
+            if arm not in turned:
+                # turn the gripper down where it is, away from the bowls
+                hands.reach(world.tcp_pose(arm)[:3] + [0.0, 0.0, 0.04], q, "turn the gripper down")
+                turned.add(arm)
+            grasp = c + r_g * radial + [0.0, 0.0, grasp_dz]
+            hands.pick(grasp, q, lift=0.10)
+            tcp = world.tcp_pose(arm)
+            if abs(quat_to_mat(tcp[3:])[2, 0]) < 0.9:
+                raise OracleFailed(f"{name}: the gripper is no longer pointing down")
+            # the carried bowl hangs a few degrees tilted from the pinch (set down tilted, it can
+            # wedge on the rim below): tip the gripper back by that much so the bowl is upright,
+            # its axis on the support's
+            pose = world.pose(name)
+            fix = tilt_correction(quat_to_mat(pose[3:])[:, 2])
+            q_place = mat_to_quat(fix @ quat_to_mat(tcp[3:]))
+            if support is None:
+                target = np.array([info["stack_target_xy"][0], info["stack_target_xy"][1], top - RELEASE_PRESS])
+            else:
+                target = np.asarray(world.pose(support)[:3], float) + [0.0, 0.0, rise - RELEASE_PRESS]
+            tcp_target = target - fix @ (np.asarray(pose[:3], float) - tcp[:3])
+            hands.reach(tcp_target + [0.0, 0.0, HOVER], q_place, "carry above the stack")
+            hands.descend_to(tcp_target[2], "lower the bowl", ok=tolerant)
+            hands.grip(PINCH_OPEN)
+            hands.move(dz=0.08, what="withdraw", ok=tolerant)
+            park_x = -PARK_X if arm == "left" else PARK_X
+            r = hands.move(dx=float(np.clip(park_x - world.tcp_pose(arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05,
+                           what="clear the stack", ok=tolerant)
+            if r["status"] == "FAILED":
+                now = world.tcp_pose(arm)
+                hands.reach([park_x, now[1] - 0.05, now[2] + 0.08], None, "clear the stack", ok=tolerant)
+            support = name
+        for arm in info["arms"]:
+            if world.gripper_command(arm) <= GRIPPER_OPEN:
+                Hands(call, arm).grip(1.0)
+        call("done", report="stacked the three bowls into one another", success_claim=True)
+
+    @staticmethod
+    def _pinch_angle(world: WorldView, name: str, arm: str) -> float:
+        """The rim angle to pinch: toward the arm's shoulder (about (+-0.27, -0.65)), or the
+        nearest angle whose outer finger keeps 2 cm from every other bowl's rim."""
+        info = world.info
+        c = np.asarray(world.pose(name)[:2], float)
+        shoulder = np.array([-0.27 if arm == "left" else 0.27, -0.65])
+        d = shoulder - c
+        phi0 = float(np.arctan2(d[1], d[0]))
+        r_rim = float(info["bowl"]["rim_outer_radius"])
+        reach = float(info["bowl"]["grasp_radius"]) + 0.024 + 0.055 * PINCH_OPEN  # outer finger's outer side
+        others = [np.asarray(world.pose(o["name"])[:2], float) for o in info["bowls"] if o["name"] != name]
+        for step in range(0, 13):
+            for sgn in (1, -1):
+                phi = phi0 + sgn * step * np.pi / 12
+                f = c + reach * np.array([np.cos(phi), np.sin(phi)])
+                if all(np.linalg.norm(f - o) > r_rim + 0.02 for o in others):
+                    return phi
+        return phi0
+
+
+TASK = StackBowlsThree
