@@ -67,6 +67,9 @@ def run_attempt(spec: AttemptSpec) -> dict:
         raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
                           f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
     harness = create("harnesses", spec.harness, {"name": spec.harness})
+    preflight = getattr(harness, "preflight", None)
+    if preflight is not None:  # credentials and endpoints are checked before any simulator starts
+        preflight(spec.model_cfg)
     emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
     planner = create("planners", spec.planner, spec.planner_cfg)
     sim = create("simulators", spec.sim, spec.sim_cfg)
