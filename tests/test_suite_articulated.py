@@ -8,52 +8,36 @@ the project's SAPIEN backend when it and the embodiment are installed.
 """
 from __future__ import annotations
 
-import json
 import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
 
 from cab_core import catalog
-from cab_core.analysis.checkpoints import SpatialRule
 from cab_core.geometry import pose_mul, quat_to_mat, transform_point
 from cab_core.scene import ArticulatedObject
-from cab_core.task import SceneInstance
 
 from cab_suite_codeaction import common
 from cab_suite_codeaction.assets_articulated import lid_rotation
 from cab_suite_codeaction.tasks import open_laptop_setup_arm as laptop_mod
 from cab_suite_codeaction.tasks import place_dual_shoes as shoes_mod
 
+import suite_helpers
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    _cache,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_rules_match_catalog,
+    sapien_backend,
+    world_view,
+)
+
 SEEDS = range(20)
 LAPTOP = laptop_mod.TASK()
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    # generated assets go to a per-session temp cache, never ~/.cache or the source tree
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible stand-in: poses, joint positions, the laptop's lid link pose (from the
-    URDF's hinge frame), TCP poses and gripper commands from plain data."""
-
-    def __init__(self, instance: SceneInstance, grip: float = 1.0):
-        self.info = instance.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
-        self.qpositions = {a.name: np.array(a.qpos or (), dtype=float) for a in instance.scene.articulations}
-        for a in instance.scene.articulations:
-            self.poses[a.name] = np.array(a.pose, dtype=float)
-        self.tcps = {"left": np.array([-0.300, -0.194, 0.942, 0.7071, 0, 0, 0.7071]),
-                     "right": np.array([0.305, -0.193, 0.941, 0.7071, 0, 0, 0.7071])}
-        self.grip = {"left": grip, "right": grip}
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def qpos(self, name):
-        return self.qpositions.get(name, np.zeros(0)).copy()
+class FakeWorld(suite_helpers.FakeWorld):
+    """The shared stand-in, plus the laptop's lid link pose (from the URDF's hinge frame)."""
 
     def link_pose(self, name, link):
         lap = self.info["laptop"]
@@ -68,26 +52,9 @@ class FakeWorld:
         local = np.concatenate([lap["hinge_point_base"], mat_to_quat(lid_rotation(q))])
         return pose_mul(root, local)
 
-    def tcp_pose(self, arm):
-        return self.tcps[arm].copy()
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def contacts(self):
-        return []
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return False
-
 
 def _check_rules(rules, info, name):
-    spec = catalog.task_info(name).spatial_checkpoints
-    assert len(rules) == len(spec)
-    for rule, c in zip(rules, spec):
-        assert isinstance(rule, SpatialRule) and rule.name == c["name"]
-        assert rule.arm == {"L": "left", "R": "right", "Either": "either"}[c["arm"]]
-        assert all(0 <= p < len(rules) for p in rule.prerequisites)
+    check_rules_match_catalog(rules, catalog.task_info(name).spatial_checkpoints)
 
 
 # =================================================================================================
@@ -97,17 +64,11 @@ def test_laptop_task_info_and_doc():
     assert LAPTOP.info == catalog.task_info("open_laptop_setup_arm")
     inst = LAPTOP.build(LAPTOP.info.seed, None)
     assert LAPTOP.verifier(inst).scoring == LAPTOP.info.scoring == "final"
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in laptop_mod.__doc__
+    check_doc_sections(laptop_mod.__doc__)
 
 
 def test_laptop_build_is_deterministic_and_json():
-    for seed in (0, 7):
-        a, b = LAPTOP.build(seed, None), LAPTOP.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall", "laptop"} <= set(names)
+    check_build_is_deterministic_and_json(LAPTOP, required=("table", "wall", "laptop"))
 
 
 def test_laptop_layouts_and_urdf():
@@ -155,7 +116,7 @@ def _laptop_success(inst, w, frac=0.6, tcp_offset=(0.0, -0.05, 0.0), arm="right"
     w.qpositions["laptop"] = np.array([lo + frac * (hi - lo)])
     v = LAPTOP.verifier(inst)
     edge = v.edge_point(w)
-    w.tcps[arm][:3] = edge + np.asarray(tcp_offset)
+    w.tcp[arm][:3] = edge + np.asarray(tcp_offset)
     return v
 
 
@@ -207,28 +168,15 @@ def test_laptop_checkpoints():
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 @pytest.mark.sim
 def test_sim_laptop_frames_hinge_and_verdicts():
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     inst = LAPTOP.build(LAPTOP.info.seed, emb)
     m = inst.info["laptop"]
     try:
         sim.build(inst.scene, emb)
         sim.step(LAPTOP.settle_steps())
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         v = LAPTOP.verifier(inst)
         assert v.evaluate(w).success is False
         q0 = m["initial_qpos"]
@@ -272,17 +220,11 @@ def test_shoes_task_info_and_doc():
     v = SHOES.verifier(inst)
     assert v.scoring == SHOES.info.scoring == "final"
     assert set(v.guarded_objects) == {"left_shoe", "right_shoe"} and v.guard_min_z == pytest.approx(0.64 - 0.08)
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in shoes_mod.__doc__
+    check_doc_sections(shoes_mod.__doc__)
 
 
 def test_shoes_build_is_deterministic_and_json():
-    for seed in (6, 7):
-        a, b = SHOES.build(seed, None), SHOES.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall", "left_shoe", "right_shoe", "shoe_box"} <= set(names)
+    check_build_is_deterministic_and_json(SHOES, seeds=(6, 7), required=("table", "wall", "left_shoe", "right_shoe", "shoe_box"))
 
 
 def _footprint(inst, side):
@@ -423,9 +365,7 @@ def test_shoes_checkpoints():
 
 @pytest.mark.sim
 def test_sim_shoes_settle_and_rest_in_the_box():
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     inst = SHOES.build(SHOES.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
@@ -435,7 +375,7 @@ def test_sim_shoes_settle_and_rest_in_the_box():
         for n, p in before.items():
             assert np.linalg.norm(sim.get_object_pose(n)[:3] - p[:3]) < 1e-3, n
             assert abs(p[2] - 0.64) < 2e-3  # the sole stands on the lowered table
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         v = SHOES.verifier(inst)
         assert v.evaluate(w).success is False
         # both shoes into the box, toes left: they stand side by side on its floor

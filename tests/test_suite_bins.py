@@ -10,7 +10,6 @@ state is a resting one) that a success state built in the simulator passes.
 from __future__ import annotations
 
 import importlib
-import json
 
 import numpy as np
 import pytest
@@ -22,47 +21,22 @@ from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 
 from cab_suite_codeaction import assets_bins, common
 
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_seeds_give_different_layouts,
+    check_verifier_false_on_the_initial_scene,
+    sapien_backend,
+    world_view,
+)
+
 NAMES = ("pick_diverse_bottles", "put_bottles_dustbin", "dump_bin_bigbin")
 TASKS = {n: importlib.import_module(f"cab_suite_codeaction.tasks.{n}").TASK() for n in NAMES}
 SEEDS = range(20)
-HOME_TCP = {"left": [-0.300, -0.194, 0.942, 0.7071068, 0.0, 0.0, 0.7071068],
-            "right": [0.305, -0.193, 0.941, 0.7071068, 0.0, 0.0, 0.7071068]}
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    # generated assets go to a per-session temp cache, never ~/.cache or the source tree
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible: pose, tcp_pose, gripper_command, in_contact, gripper_touches, info."""
-
-    def __init__(self, instance, grip: float = 1.0):
-        self.info = instance.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
-        self.tcp = {a: np.array(p, dtype=float) for a, p in HOME_TCP.items()}
-        self.grip = {"left": grip, "right": grip}
-        self.touching: set[frozenset[str]] = set()
-        self.finger_touch: set[tuple[str, str]] = set()
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def tcp_pose(self, arm):
-        return self.tcp[arm].copy()
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return frozenset((a, b)) in self.touching
-
-    def gripper_touches(self, arm, obj):
-        return (arm, obj) in self.finger_touch
-
-    def contacts(self):
-        return []
 
 
 # --- common to the three tasks ---------------------------------------------------------------------
@@ -76,32 +50,21 @@ def test_catalog_docstring_and_scoring(name):
     if v.scoring == "latch":
         assert v.poll_every == 1
     doc = importlib.import_module(f"cab_suite_codeaction.tasks.{name}").__doc__
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in doc
+    check_doc_sections(doc)
     assert v.guarded_objects
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_build_is_deterministic_and_json(name):
     task = TASKS[name]
-    for seed in (0, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_seeds_give_different_layouts(name):
     task = TASKS[name]
 
-    def layout(seed):
-        sc = task.build(seed, None).scene
-        return tuple(np.round(np.concatenate([b.pose for b in sc.bodies]), 6))
-
-    assert len({layout(s) for s in SEEDS}) == len(SEEDS)
+    check_seeds_give_different_layouts(task, SEEDS)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -128,11 +91,7 @@ def test_checkpoint_declarations_match_the_catalog(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_verifier_false_on_the_initial_scene(name):
     task = TASKS[name]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
-        ev = task.verifier(inst).evaluate(FakeWorld(inst))
-        assert ev.success is False
-        assert ev.predicates and all(isinstance(v, bool) for v in ev.predicates.values())
+    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 # --- assets ---------------------------------------------------------------------------------------------
@@ -378,34 +337,17 @@ def test_dump_bin_bigbin_latch_is_not_true_at_the_start():
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(100)
-        for n in dyn:
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 2e-3, n
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        assert_settles(sim, inst, 100, tol=2e-3)
+        w = world_view(sim, emb, inst)
         v = task.verifier(inst)
         assert v.evaluate(w).success is False
         assert all(v.guard(w).values())
@@ -417,9 +359,7 @@ def test_sim_initial_scene_settles_and_fails(name):
 @pytest.mark.sim
 def test_sim_bottles_resting_in_the_dustbin_pass():
     """Bottles dropped into the dustbin come to rest inside the verifier's region."""
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS["put_bottles_dustbin"]
     inst = task.build(0, emb)
     try:
@@ -430,7 +370,7 @@ def test_sim_bottles_resting_in_the_dustbin_pass():
             q = (1.0, 0.0, 0.0, 0.0) if i == 0 else tuple(axis_angle_quat([1, 0, 0], np.pi / 2))  # standing / lying
             sim.set_object_pose(key, (-0.45 + 0.08 * (i - 1), -0.13 + 0.13 * i, 0.45, *q))
         sim.step(500)
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         v = task.verifier(inst)
         ev = v.evaluate(w)
         assert ev.success, ev
@@ -441,9 +381,7 @@ def test_sim_bottles_resting_in_the_dustbin_pass():
 
 @pytest.mark.sim
 def test_sim_balls_resting_in_the_dustbin_are_in_the_band():
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS["dump_bin_bigbin"]
     inst = task.build(3, emb)
     try:
@@ -454,7 +392,7 @@ def test_sim_balls_resting_in_the_dustbin_are_in_the_band():
         sim.step(300)
         sim.set_object_pose("small_bin", (-0.1, -0.1, 1.02, 1.0, 0.0, 0.0, 0.0))  # held up (about to fall)
         sim.step(1)
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         ev = task.verifier(inst).evaluate(w)
         assert ev.success, ev
         assert task.subgoals(w) == [True, True, True]

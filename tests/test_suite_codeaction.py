@@ -7,7 +7,6 @@ tests use the project's SAPIEN backend when it and an embodiment are installed.
 """
 from __future__ import annotations
 
-import json
 import xml.etree.ElementTree as ET
 from importlib import metadata
 from pathlib import Path
@@ -22,52 +21,28 @@ from cab_core.errors import PluginError
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.plugins import all_tasks, build_plugin_manager, registry
 from cab_core.scene import ArticulatedObject, Box, Shape
-from cab_core.task import SceneInstance, Task
+from cab_core.task import Task
 
 from cab_suite_codeaction import common, plugin
 from cab_suite_codeaction.tasks import TASK_MODULES, load_tasks
 from cab_suite_codeaction.tasks import beat_block_hammer as bbh
 
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_seeds_give_different_layouts,
+    check_verifier_false_on_the_initial_scene,
+    sapien_backend,
+    world_view,
+)
+
 SEEDS = range(20)
 # the three tasks this file covers; every other task has its own test file (tests/test_suite_*.py)
 TASKS = load_tasks(("beat_block_hammer", "stack_blocks_three", "open_microwave"))
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    # generated assets go to a per-session temp cache, never ~/.cache or the source tree
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible: pose/qpos/link_pose/gripper_command/in_contact/contacts/info."""
-
-    def __init__(self, instance: SceneInstance, grip: float = 1.0):
-        self.info = instance.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
-        self.qpositions = {a.name: np.array(a.qpos or (), dtype=float) for a in instance.scene.articulations}
-        for a in instance.scene.articulations:
-            self.poses[a.name] = np.array(a.pose, dtype=float)
-        self.touching: set[frozenset[str]] = set()
-        self.grip = {"left": grip, "right": grip}
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def qpos(self, name):
-        return self.qpositions.get(name, np.zeros(0)).copy()
-
-    def link_pose(self, name, link):
-        raise NotImplementedError
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def contacts(self):
-        return []
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return frozenset((a, b)) in self.touching
 
 
 # --- registration ---------------------------------------------------------------------------------
@@ -110,33 +85,21 @@ def test_task_info_comes_from_the_catalog(name):
     assert verifier.scoring == task.info.scoring
     assert task.__class__.__module__.rsplit(".", 1)[1] == name
     doc = __import__(task.__class__.__module__, fromlist=["x"]).__doc__
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in doc
+    check_doc_sections(doc)
 
 
 # --- determinism and layouts ----------------------------------------------------------------------
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_build_is_deterministic_and_json(name):
     task = TASKS[name]
-    for seed in (0, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))  # serialisable
-        names = a.scene.names()
-        assert len(names) == len(set(names))
-        assert {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task)
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_seeds_give_different_layouts(name):
     task = TASKS[name]
 
-    def layout(seed):
-        sc = task.build(seed, None).scene
-        return tuple(np.round(np.concatenate([b.pose for b in sc.bodies] + [a.pose for a in sc.articulations]), 6))
-
-    assert len({layout(s) for s in SEEDS}) == len(SEEDS)
+    check_seeds_give_different_layouts(task, SEEDS, articulations=True)
 
 
 def _yaw(q):
@@ -242,11 +205,7 @@ def test_door_opens_toward_the_robot():
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_verifier_false_on_the_initial_scene(name):
     task = TASKS[name]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
-        ev = task.verifier(inst).evaluate(FakeWorld(inst))
-        assert ev.success is False
-        assert ev.predicates and all(isinstance(v, bool) for v in ev.predicates.values())
+    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 def _strike(inst, offset=(0.0, 0.0)):
@@ -385,34 +344,17 @@ def test_base_scene_facts():
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 @pytest.mark.sim
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_sim_initial_scene_settles_and_fails(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend({})
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(250)
-        for n in dyn:
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 1e-3, n
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        assert_settles(sim, inst, 250)
+        w = world_view(sim, emb, inst)
         assert task.verifier(inst).evaluate(w).success is False
     finally:
         sim.close()
@@ -437,15 +379,13 @@ def _pose_success_state(name, inst, sim):
 @pytest.mark.sim
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_sim_success_state_passes(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend({})
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         v = task.verifier(inst)
         _pose_success_state(name, inst, sim)
         sim.step(2)

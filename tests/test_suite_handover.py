@@ -6,7 +6,6 @@ match the catalog. Oracle end-to-end runs are not here (the lead runs them centr
 from __future__ import annotations
 
 import importlib
-import json
 
 import numpy as np
 import pytest
@@ -14,9 +13,21 @@ import pytest
 from cab_core import catalog
 from cab_core.analysis.checkpoints import SpatialRule
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.task import SceneInstance, Task
+from cab_core.task import Task
 
 from cab_suite_codeaction import common
+
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_seeds_give_different_layouts,
+    check_verifier_false_on_the_initial_scene,
+    sapien_backend,
+    world_view,
+)
 
 NAMES = ("handover_block", "handover_mic", "place_mouse_pad", "rotate_qrcode")
 SEEDS = range(20)
@@ -34,44 +45,6 @@ TASKS = {n: m.TASK() for n, m in MODULES.items()}
 BUILT = sorted(TASKS)
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible stand-in served from plain data (no simulator)."""
-
-    def __init__(self, instance: SceneInstance, grip: float = 1.0):
-        self.info = instance.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
-        self.touching: set[frozenset[str]] = set()
-        self.gripper_contact: dict[str, set[str]] = {"left": set(), "right": set()}
-        self.grip = {"left": grip, "right": grip}
-        self.tcp = {"left": np.array([-0.3, -0.194, 0.942, 0.7071, 0, 0, 0.7071]),
-                    "right": np.array([0.305, -0.193, 0.941, 0.7071, 0, 0, 0.7071])}
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def qpos(self, name):
-        return np.zeros(0)
-
-    def tcp_pose(self, arm):
-        return self.tcp[arm].copy()
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def contacts(self):
-        return []
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return frozenset((a, b)) in self.touching
-
-    def gripper_touches(self, arm, obj):
-        return obj in self.gripper_contact[arm]
-
 
 def _yaw(q):
     return common.yaw_of(q)
@@ -84,31 +57,20 @@ def test_task_info_and_docstring(name):
     assert isinstance(task, Task) and task.name == name
     assert task.info == catalog.task_info(name)
     assert task.verifier(task.build(task.info.seed, None)).scoring == task.info.scoring
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in MODULES[name].__doc__
+    check_doc_sections(MODULES[name].__doc__)
 
 
 @pytest.mark.parametrize("name", BUILT)
 def test_build_is_deterministic_and_json(name):
     task = TASKS[name]
-    for seed in (0, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task)
 
 
 @pytest.mark.parametrize("name", BUILT)
 def test_seeds_give_different_layouts(name):
     task = TASKS[name]
 
-    def layout(seed):
-        sc = task.build(seed, None).scene
-        return tuple(np.round(np.concatenate([b.pose for b in sc.bodies]), 6))
-
-    assert len({layout(s) for s in SEEDS}) == len(SEEDS)
+    check_seeds_give_different_layouts(task, SEEDS)
 
 
 @pytest.mark.parametrize("name", BUILT)
@@ -136,11 +98,7 @@ def test_checkpoint_declarations_match_the_catalog(name):
 @pytest.mark.parametrize("name", BUILT)
 def test_verifier_false_on_the_initial_scene(name):
     task = TASKS[name]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
-        ev = task.verifier(inst).evaluate(FakeWorld(inst))
-        assert ev.success is False
-        assert ev.predicates and all(isinstance(v, bool) for v in ev.predicates.values())
+    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 # --- handover_block -----------------------------------------------------------------------------------
@@ -249,7 +207,7 @@ def test_handover_mic_verifier():
         w = FakeWorld(inst)
         w.grip[ra] = 0.0
         w.poses["microphone"] = _mic_held(inst, side * 0.15)
-        w.gripper_contact[ra].add("microphone")
+        w.finger_touch.add((ra, "microphone"))
         ev = v.evaluate(w)
         assert ev.success and all(ev.predicates.values()), ev
         assert task.subgoals(w) == [True, True]
@@ -265,9 +223,9 @@ def test_handover_mic_verifier():
         w.grip[ga], w.grip[ra] = 1.0, 0.2
         assert v.evaluate(w).predicates["receiver_closed"] is False
         w.grip[ra] = 0.0
-        w.gripper_contact[ra].clear()
+        w.finger_touch.discard((ra, "microphone"))
         assert v.evaluate(w).predicates["gripper_contact"] is False
-        w.gripper_contact[ga].add("microphone")  # contact with either gripper counts
+        w.finger_touch.add((ga, "microphone"))  # contact with either gripper counts
         assert v.evaluate(w).success
 
 
@@ -404,17 +362,6 @@ def test_rotate_qrcode_verifier():
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 def _home(sim, emb):
     home = []
     for arm in sorted(emb.arms):
@@ -457,22 +404,16 @@ def _success_state(name, inst, sim, emb) -> dict:
 @pytest.mark.sim
 @pytest.mark.parametrize("name", BUILT)
 def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         _home(sim, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(125)
-        for n in dyn:
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 1e-3, n
+        assert_settles(sim, inst, 125)
         grips = {a: 1.0 for a in emb.arms}
-        w = WorldView(sim, emb, grips, inst.info)
+        w = world_view(sim, emb, inst, grips)
         v = task.verifier(inst)
         assert v.evaluate(w).success is False
         assert not any(task.subgoals(w))

@@ -9,7 +9,6 @@ the ``sim`` tests build the catalog instance with the project's SAPIEN backend.
 from __future__ import annotations
 
 import importlib
-import json
 
 import numpy as np
 import pytest
@@ -17,9 +16,20 @@ import pytest
 from cab_core import catalog
 from cab_core.analysis.checkpoints import SpatialRule
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.task import SceneInstance
 
 from cab_suite_codeaction import common
+
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_seeds_give_different_layouts,
+    check_verifier_false_on_the_initial_scene,
+    sapien_backend,
+    world_view,
+)
 
 MODULES = ("blocks_ranking_size", "stack_bowls_three", "hanging_mug")
 SEEDS = range(20)
@@ -33,43 +43,6 @@ def _task(name):
     return mod, mod.TASK()
 
 
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    # generated assets go to a per-session temp cache, never ~/.cache or the source tree
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible: pose / qpos / tcp_pose / gripper_command / in_contact / info."""
-
-    def __init__(self, instance: SceneInstance, grip: float = 1.0):
-        self.info = instance.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
-        for a in instance.scene.articulations:
-            self.poses[a.name] = np.array(a.pose, dtype=float)
-        self.grip = {"left": grip, "right": grip}
-        self.tcp = {"left": np.array([-0.3, -0.194, 0.942, 0.707107, 0, 0, 0.707107]),
-                    "right": np.array([0.305, -0.193, 0.941, 0.707107, 0, 0, 0.707107])}
-        self.touching: set[frozenset[str]] = set()
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def qpos(self, name):
-        return np.zeros(0)
-
-    def tcp_pose(self, arm):
-        return self.tcp[arm].copy()
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def contacts(self):
-        return []
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return frozenset((a, b)) in self.touching
-
 
 def _yaw(q):
     return common.yaw_of(q)
@@ -80,8 +53,7 @@ def _yaw(q):
 def test_catalog_docstring_and_scoring(name):
     mod, task = _task(name)
     assert task.name == name and task.info == catalog.task_info(name)
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in mod.__doc__
+    check_doc_sections(mod.__doc__)
     inst = task.build(task.info.seed, None)
     v = task.verifier(inst)
     assert v.scoring == task.info.scoring == "final"
@@ -91,34 +63,20 @@ def test_catalog_docstring_and_scoring(name):
 @pytest.mark.parametrize("name", MODULES)
 def test_build_is_deterministic_and_json(name):
     _, task = _task(name)
-    for seed in (0, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task)
 
 
 @pytest.mark.parametrize("name", MODULES)
 def test_seeds_give_different_layouts(name):
     _, task = _task(name)
 
-    def layout(seed):
-        sc = task.build(seed, None).scene
-        return tuple(np.round(np.concatenate([b.pose for b in sc.bodies] + [a.pose for a in sc.articulations]), 6))
-
-    assert len({layout(s) for s in SEEDS}) == len(SEEDS)
+    check_seeds_give_different_layouts(task, SEEDS, articulations=True)
 
 
 @pytest.mark.parametrize("name", MODULES)
 def test_verifier_false_on_the_initial_scene(name):
     _, task = _task(name)
-    for seed in SEEDS:
-        inst = task.build(seed, None)
-        ev = task.verifier(inst).evaluate(FakeWorld(inst))
-        assert ev.success is False
-        assert ev.predicates and all(isinstance(v, bool) for v in ev.predicates.values())
+    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -423,17 +381,6 @@ def test_hanging_mug_spatial_rules():
 
 
 # --- with the SAPIEN backend ----------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 def _pose_success_state(name, inst, sim):
     if name == "blocks_ranking_size":
         x = -0.07
@@ -460,20 +407,14 @@ def _pose_success_state(name, inst, sim):
 @pytest.mark.sim
 @pytest.mark.parametrize("name", MODULES)
 def test_sim_initial_scene_fails_and_success_state_passes(name):
-    from cab_core.verifier import WorldView
-
     _, task = _task(name)
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(100)
-        for n in dyn:  # the scene is at rest after settling
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 1e-3, n
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        assert_settles(sim, inst, 100)
+        w = world_view(sim, emb, inst)
         v = task.verifier(inst)
         assert v.evaluate(w).success is False
         assert not any(task.subgoals(w))

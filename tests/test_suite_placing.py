@@ -10,7 +10,6 @@ setting object poses passes).
 from __future__ import annotations
 
 import importlib
-import json
 
 import numpy as np
 import pytest
@@ -19,10 +18,19 @@ from cab_core import catalog
 from cab_core.analysis.checkpoints import SpatialRule
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.scene import Body, Box, Cylinder, Shape
-from cab_core.task import SceneInstance
 
 from cab_suite_codeaction import assets_placing as assets
 from cab_suite_codeaction import common
+
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    sapien_backend,
+    world_view,
+)
 
 NAMES = ("place_bread_basket", "place_bread_skillet", "place_cans_plasticbox", "place_object_basket")
 SEEDS = range(20)
@@ -31,10 +39,6 @@ TASKS = {n: m.TASK() for n, m in MODULES.items()}
 TOP = 0.74
 STAND_TOP = TOP + 0.04
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
 
 
 @pytest.fixture(scope="module")
@@ -52,32 +56,6 @@ def builds(tmp_path_factory):
             os.environ["CAB_CACHE_DIR"] = old
 
 
-class FakeWorld:
-    """WorldView-compatible: poses, gripper commands, contacts (pairs) and gripper contacts."""
-
-    def __init__(self, inst: SceneInstance, grip: float = 1.0):
-        self.info = inst.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in inst.scene.bodies}
-        self.touching: set[frozenset[str]] = set()
-        self.gripper_on: set[tuple[str, str]] = set()
-        self.grip = {"left": grip, "right": grip}
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return frozenset((a, b)) in self.touching
-
-    def gripper_touches(self, arm, obj):
-        return (arm, obj) in self.gripper_on
-
-    def contacts(self):
-        return []
-
-
 def _yaw(q):
     return common.yaw_of(q)
 
@@ -93,20 +71,13 @@ def test_task_info_docstring_and_scoring(name):
     assert task.name == name and task.info == catalog.task_info(name)
     inst = task.build(task.info.seed, None)
     assert task.verifier(inst).scoring == task.info.scoring == "final"
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in MODULES[name].__doc__
+    check_doc_sections(MODULES[name].__doc__)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_build_is_deterministic_and_json(name):
     task = TASKS[name]
-    for seed in (task.info.seed, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task, seeds=(task.info.seed, 7))
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -319,11 +290,11 @@ def test_place_bread_skillet_verifier(builds):
     w.poses["bread"][2] += 0.08
     assert v.evaluate(w).success
     # still held: geometry holds but a gripper touches the bread
-    w.gripper_on.add(("right", "bread"))
+    w.finger_touch.add(("right", "bread"))
     ev = v.evaluate(w)
     assert not ev.success and ev.predicates["bread_released"] is False
     assert task.subgoals(w) == [True, False]
-    w.gripper_on.clear()
+    w.finger_touch.clear()
     # bread held 7 cm above the pan point: height term fails
     w.poses["bread"][2] += 0.04
     assert v.evaluate(w).predicates == {"bread_over_pan": True, "bread_at_pan_height": False, "bread_released": True}
@@ -394,17 +365,6 @@ def test_place_object_basket_verifier(builds):
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 def _sim_success(name, inst, sim):
     w = FakeWorld(inst)
     if name == "place_bread_basket":
@@ -425,9 +385,7 @@ def _sim_success(name, inst, sim):
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     if name == "place_object_basket":
@@ -436,13 +394,10 @@ def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(100)
-        for n in dyn:  # nothing moves once settled
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 1e-3, n
+        before = assert_settles(sim, inst, 100)  # nothing moves once settled
+        for n in before:
             assert np.linalg.norm(before[n][:3] - np.asarray(inst.scene.body(n).pose[:3])) < 3e-3, n
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         v = task.verifier(inst)
         assert v.evaluate(w).success is False
         assert not any(task.subgoals(w))

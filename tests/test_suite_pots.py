@@ -8,7 +8,6 @@ scene with the SAPIEN backend (physics only) and check that it settles and fails
 from __future__ import annotations
 
 import importlib
-import json
 
 import numpy as np
 import pytest
@@ -19,46 +18,22 @@ from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_
 
 from cab_suite_codeaction import common
 
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_seeds_give_different_layouts,
+    check_verifier_false_on_the_initial_scene,
+    sapien_backend,
+    world_view,
+)
+
 NAMES = ("lift_pot", "grab_roller_dual_contact", "move_can_pot")
 TASKS = {n: importlib.import_module(f"cab_suite_codeaction.tasks.{n}").TASK() for n in NAMES}
 SEEDS = range(20)
-HOME_TCP = {"left": [-0.300, -0.194, 0.942, 0.7071068, 0.0, 0.0, 0.7071068],
-            "right": [0.305, -0.193, 0.941, 0.7071068, 0.0, 0.0, 0.7071068]}
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible: pose, tcp_pose, gripper_command, in_contact, gripper_touches, info."""
-
-    def __init__(self, instance, grip: float = 1.0):
-        self.info = instance.info
-        self.poses = {b.name: np.array(b.pose, dtype=float) for b in instance.scene.bodies}
-        self.tcp = {a: np.array(p, dtype=float) for a, p in HOME_TCP.items()}
-        self.grip = {"left": grip, "right": grip}
-        self.touching: set[frozenset[str]] = set()
-        self.finger_touch: set[tuple[str, str]] = set()
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def tcp_pose(self, arm):
-        return self.tcp[arm].copy()
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return frozenset((a, b)) in self.touching
-
-    def gripper_touches(self, arm, obj):
-        return (arm, obj) in self.finger_touch
-
-    def contacts(self):
-        return []
 
 
 def _yaw(q):
@@ -74,41 +49,27 @@ def test_catalog_docstring_and_scoring(name):
     v = task.verifier(inst)
     assert v.scoring == task.info.scoring == "final"
     doc = importlib.import_module(f"cab_suite_codeaction.tasks.{name}").__doc__
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in doc
+    check_doc_sections(doc)
     assert v.guarded_objects and v.guard_min_z == pytest.approx(0.74 - 0.08)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_build_is_deterministic_and_json(name):
     task = TASKS[name]
-    for seed in (0, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_seeds_give_different_layouts(name):
     task = TASKS[name]
 
-    def layout(seed):
-        return tuple(np.round(np.concatenate([b.pose for b in task.build(seed, None).scene.bodies]), 6))
-
-    assert len({layout(s) for s in SEEDS}) == len(SEEDS)
+    check_seeds_give_different_layouts(task, SEEDS)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_verifier_false_on_the_initial_scene(name):
     task = TASKS[name]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
-        ev = task.verifier(inst).evaluate(FakeWorld(inst))
-        assert ev.success is False
-        assert ev.predicates and all(isinstance(v, bool) for v in ev.predicates.values())
+    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -349,34 +310,17 @@ def test_move_can_pot_euler_matches_transforms3d_convention():
 
 
 # --- with the SAPIEN backend (physics only) ----------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(250)
-        for n in dyn:
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 1e-3, n
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        assert_settles(sim, inst, 250)
+        w = world_view(sim, emb, inst)
         ev = task.verifier(inst).evaluate(w)
         assert ev.success is False
         assert not any(task.subgoals(w))

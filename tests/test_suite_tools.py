@@ -4,7 +4,6 @@ hand-built success states, and catalog-sized checkpoint lists."""
 from __future__ import annotations
 
 import importlib
-import json
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -18,6 +17,17 @@ from cab_core.simulator import Contact
 from cab_suite_codeaction import assets_tools as at
 from cab_suite_codeaction.common import yaw_of
 
+from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
+    FakeWorld,
+    _cache,
+    assert_settles,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_seeds_give_different_layouts,
+    sapien_backend,
+    world_view,
+)
+
 NAMES = ("click_bell", "press_stapler", "scan_object")
 SEEDS = range(20)
 
@@ -28,43 +38,6 @@ def _task(name):
 
 TASKS = {n: _task(n) for n in NAMES}
 
-
-@pytest.fixture(autouse=True)
-def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "cab-cache"))
-
-
-class FakeWorld:
-    """WorldView-compatible stand-in: poses, joint positions, contacts (with points) and gripper
-    commands from plain data."""
-
-    def __init__(self, inst, grip: float = 1.0):
-        self.info = inst.info
-        self.poses = {b.name: np.array(b.pose, float) for b in inst.scene.bodies}
-        self.qpositions = {}
-        for a in inst.scene.articulations:
-            self.poses[a.name] = np.array(a.pose, float)
-            self.qpositions[a.name] = np.array(a.qpos or (), float)
-        self.contact_list: list[Contact] = []
-        self.grip = {"left": grip, "right": grip}
-
-    def pose(self, name):
-        return self.poses[name].copy()
-
-    def qpos(self, name):
-        return self.qpositions.get(name, np.zeros(0)).copy()
-
-    def link_pose(self, name, link):
-        raise NotImplementedError
-
-    def gripper_command(self, arm):
-        return float(self.grip[arm])
-
-    def contacts(self):
-        return list(self.contact_list)
-
-    def in_contact(self, a, b, min_impulse=0.0):
-        return any({c.a, c.b} == {a, b} for c in self.contact_list)
 
 
 # --- catalog, determinism, layouts ----------------------------------------------------------------
@@ -78,8 +51,7 @@ def test_catalog_entry_docstring_and_counts(name):
     if v.scoring == "latch":
         assert v.poll_every == 1
     doc = importlib.import_module(f"cab_suite_codeaction.tasks.{name}").__doc__
-    for section in ("Description", "Randomisation", "Success"):
-        assert section in doc
+    check_doc_sections(doc)
     w = FakeWorld(inst)
     subs = task.subgoals(w)
     assert len(subs) == len(task.info.subgoals) and all(isinstance(s, bool) for s in subs)
@@ -93,24 +65,14 @@ def test_catalog_entry_docstring_and_counts(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_build_is_deterministic_and_json(name):
     task = TASKS[name]
-    for seed in (0, 7):
-        a, b = task.build(seed, None), task.build(seed, None)
-        assert a.scene == b.scene
-        assert json.dumps(a.info, sort_keys=True) == json.dumps(b.info, sort_keys=True)
-        json.loads(json.dumps(a.info))
-        names = a.scene.names()
-        assert len(names) == len(set(names)) and {"table", "wall"} <= set(names)
+    check_build_is_deterministic_and_json(task)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_seeds_give_different_layouts(name):
     task = TASKS[name]
 
-    def layout(seed):
-        sc = task.build(seed, None).scene
-        return tuple(np.round(np.concatenate([b.pose for b in sc.bodies] + [a.pose for a in sc.articulations]), 6))
-
-    assert len({layout(s) for s in SEEDS}) == len(SEEDS)
+    check_seeds_give_different_layouts(task, SEEDS, articulations=True)
 
 
 def test_click_bell_layouts():
@@ -336,36 +298,19 @@ def test_scan_object_verifier():
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------
-def _backend():
-    from cab_core.plugins import create
-
-    try:
-        sim = create("simulators", "sapien", {"render": False})
-        emb = create("embodiments", "aloha_agilex", {})
-    except Exception as e:  # backend or embodiment not installed / not ready
-        pytest.skip(f"SAPIEN backend or embodiment unavailable: {e}")
-    return sim, emb
-
-
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    from cab_core.verifier import WorldView
-
-    sim, emb = _backend()
+    sim, emb = sapien_backend()
     task = TASKS[name]
     inst = task.build(task.info.seed, emb)
     try:
         sim.build(inst.scene, emb)
         sim.step(task.settle_steps())
-        dyn = [b.name for b in inst.scene.bodies if b.kind == "dynamic"]
-        before = {n: sim.get_object_pose(n) for n in dyn}
-        sim.step(100)
-        for n in dyn:
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - before[n][:3]) < 1e-3, n
+        assert_settles(sim, inst, 100)
         for a in inst.scene.articulations:
             assert np.allclose(sim.get_object_qpos(a.name), a.qpos or (), atol=1e-3)
-        w = WorldView(sim, emb, {a: 1.0 for a in emb.arms}, inst.info)
+        w = world_view(sim, emb, inst)
         ev = task.verifier(inst).evaluate(w)
         assert ev.success is False and task.subgoals(w) == [False] * len(task.info.subgoals)
     finally:

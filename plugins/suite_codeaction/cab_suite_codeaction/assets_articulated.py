@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .common import box_inertia, srgb, urdf_inertial, urdf_part
+from .common import box_inertia, hinged_urdf, srgb, urdf_inertial, urdf_part
 
 
 # =================================================================================================
@@ -119,27 +119,10 @@ def laptop_urdf(v: LaptopVariant) -> str:
     ladd("logo", "cylinder", (0.022, 0.0008), (0, -D / 2, T + 0.0004), rgba=logo, collision=False)
     lid_inertial = urdf_inertial(LID_MASS, (0, -D / 2, T / 2), box_inertia(LID_MASS, (W, D, T)))
     hx, hy, hz = laptop_geometry(v)["hinge_base"]
-    nl = "\n    "
-    return f"""<?xml version="1.0"?>
-<robot name="laptop">
-  <link name="base">
-    {base_inertial}
-    {nl.join(parts)}
-  </link>
-  <link name="lid">
-    {lid_inertial}
-    {nl.join(lparts)}
-  </link>
-  <joint name="lid_hinge" type="revolute">
-    <parent link="base"/>
-    <child link="lid"/>
-    <origin xyz="{hx:.6g} {hy:.6g} {hz:.6g}" rpy="0 0 0"/>
-    <axis xyz="-1 0 0"/>
-    <limit lower="0" upper="{LID_UPPER}" effort="100" velocity="10"/>
-    <dynamics damping="{HINGE_DAMPING}" friction="{HINGE_FRICTION}"/>
-  </joint>
-</robot>
-"""
+    return hinged_urdf("laptop", base_inertial=base_inertial, base_parts=parts, child="lid",
+                       child_inertial=lid_inertial, child_parts=lparts, joint="lid_hinge", origin=(hx, hy, hz),
+                       axis="-1 0 0", upper=LID_UPPER, velocity=10, damping=HINGE_DAMPING,
+                       friction=HINGE_FRICTION)
 
 
 # =================================================================================================

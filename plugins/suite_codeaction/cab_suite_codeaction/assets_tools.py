@@ -18,7 +18,7 @@ import numpy as np
 from cab_core.geometry import axis_angle_quat, quat_to_mat
 from cab_core.scene import Box, Cylinder, Material, Shape
 
-from .common import (box_inertia, mesh_shape, srgb, urdf_asset, urdf_inertial, urdf_part)
+from .common import (box_inertia, hinged_urdf, mesh_shape, srgb, urdf_asset, urdf_inertial, urdf_part)
 
 # x-axis primitives (SAPIEN cylinders) stood upright: local x -> world z
 X_TO_Z = tuple(float(v) for v in axis_angle_quat([0.0, 1.0, 0.0], -np.pi / 2))
@@ -213,27 +213,10 @@ def stapler_urdf(model_id: int) -> str:
     base_inertial = urdf_inertial(0.3, (0, 0, STAPLER_BASE_T), box_inertia(0.3, (L, W, STAPLER_BASE_T * 2)))
     arm_inertial = urdf_inertial(STAPLER_ARM_MASS, (-STAPLER_COM_BEHIND_HINGE, 0, 0),
                                  box_inertia(STAPLER_ARM_MASS, (arm_len, W, STAPLER_ARM_T)))
-    nl = "\n    "
-    return f"""<?xml version="1.0"?>
-<robot name="stapler{model_id}">
-  <link name="base">
-    {base_inertial}
-    {nl.join(bparts)}
-  </link>
-  <link name="arm">
-    {arm_inertial}
-    {nl.join(aparts)}
-  </link>
-  <joint name="hinge" type="revolute">
-    <parent link="base"/>
-    <child link="arm"/>
-    <origin xyz="{hx:.6g} 0 {hz:.6g}" rpy="0 0 0"/>
-    <axis xyz="0 1 0"/>
-    <limit lower="0" upper="{STAPLER_PRESS_TRAVEL}" effort="100" velocity="5"/>
-    <dynamics damping="{STAPLER_JOINT_DAMPING}" friction="0"/>
-  </joint>
-</robot>
-"""
+    return hinged_urdf(f"stapler{model_id}", base_inertial=base_inertial, base_parts=bparts, child="arm",
+                       child_inertial=arm_inertial, child_parts=aparts, joint="hinge", origin=(hx, 0, hz),
+                       axis="0 1 0", upper=STAPLER_PRESS_TRAVEL, velocity=5, damping=STAPLER_JOINT_DAMPING,
+                       friction=0)
 
 
 def stapler_asset(model_id: int) -> str:

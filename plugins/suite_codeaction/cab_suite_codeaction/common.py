@@ -252,6 +252,34 @@ def urdf_inertial(mass: float, com: Sequence[float], diag: Sequence[float]) -> s
             f'<inertia ixx="{ixx:.6g}" ixy="0" ixz="0" iyy="{iyy:.6g}" iyz="0" izz="{izz:.6g}"/></inertial>')
 
 
+def hinged_urdf(robot: str, *, base_inertial: str, base_parts: Sequence[str], child: str, child_inertial: str,
+                child_parts: Sequence[str], joint: str, origin: Sequence[float], axis: str, upper: float,
+                velocity: float, damping: float, friction: float) -> str:
+    """A two-link URDF: a ``base`` link and a ``child`` link on one revolute ``joint`` (lower limit 0)."""
+    nl = "\n    "
+    ox, oy, oz = origin
+    return f"""<?xml version="1.0"?>
+<robot name="{robot}">
+  <link name="base">
+    {base_inertial}
+    {nl.join(base_parts)}
+  </link>
+  <link name="{child}">
+    {child_inertial}
+    {nl.join(child_parts)}
+  </link>
+  <joint name="{joint}" type="revolute">
+    <parent link="base"/>
+    <child link="{child}"/>
+    <origin xyz="{ox:.6g} {oy:.6g} {oz:.6g}" rpy="0 0 0"/>
+    <axis xyz="{axis}"/>
+    <limit lower="0" upper="{upper}" effort="100" velocity="{velocity}"/>
+    <dynamics damping="{damping}" friction="{friction}"/>
+  </joint>
+</robot>
+"""
+
+
 def box_inertia(mass: float, size: Sequence[float]) -> tuple[float, float, float]:
     x, y, z = size
     return (mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12)

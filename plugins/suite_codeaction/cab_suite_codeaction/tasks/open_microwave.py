@@ -34,8 +34,8 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.verifier import Evaluation, Verifier, WorldView
 
 from ..oracle import Hands, tcp_quat
-from ..common import (CodeActionTask, base_scene, box_inertia, pose_list, rand_pose, srgb, table_top_z,
-                      urdf_asset, urdf_inertial, urdf_part, vec)
+from ..common import (CodeActionTask, base_scene, box_inertia, hinged_urdf, pose_list, rand_pose, srgb,
+                      table_top_z, urdf_asset, urdf_inertial, urdf_part, vec)
 
 NAME = "open_microwave"
 OPEN_FRACTION = 0.6
@@ -163,27 +163,9 @@ def microwave_urdf(v: Variant) -> str:
     door_inertial = urdf_inertial(door_mass, (door_w / 2, -DOOR_T / 2, H / 2),
                                   box_inertia(door_mass, (door_w, DOOR_T, H)))
     hinge = geometry(v)["hinge"]
-    nl = "\n    "
-    return f"""<?xml version="1.0"?>
-<robot name="microwave">
-  <link name="base">
-    {base_inertial}
-    {nl.join(parts)}
-  </link>
-  <link name="door">
-    {door_inertial}
-    {nl.join(dparts)}
-  </link>
-  <joint name="door_hinge" type="revolute">
-    <parent link="base"/>
-    <child link="door"/>
-    <origin xyz="{hinge[0]:.6g} {hinge[1]:.6g} {hinge[2]:.6g}" rpy="0 0 0"/>
-    <axis xyz="0 0 -1"/>
-    <limit lower="0" upper="{DOOR_UPPER}" effort="100" velocity="10"/>
-    <dynamics damping="{JOINT_DAMPING}" friction="{JOINT_FRICTION}"/>
-  </joint>
-</robot>
-"""
+    return hinged_urdf("microwave", base_inertial=base_inertial, base_parts=parts, child="door",
+                       child_inertial=door_inertial, child_parts=dparts, joint="door_hinge", origin=hinge[:3],
+                       axis="0 0 -1", upper=DOOR_UPPER, velocity=10, damping=JOINT_DAMPING, friction=JOINT_FRICTION)
 
 
 class OpenMicrowaveVerifier(Verifier):

@@ -39,7 +39,7 @@ from cab_core.verifier import Evaluation, Verifier, WorldView
 from ..assets_handover import QR_BOARD_HALF, qr_board
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
                       yaw_of)
-from ..oracle import OracleFailed, expect, top_down_quat, yaw_axis
+from ..oracle import Hands, OracleFailed, top_down_quat, yaw_axis
 
 NAME = "rotate_qrcode"
 MODEL_IDS = (0, 1, 2, 3)
@@ -164,17 +164,11 @@ class RotateQrcode(CodeActionTask):
         arm = info["suggested_arm"]
         tolerant = ("SUCCESS", "ABORTED", "FAILED")
 
+        hands = Hands(call, arm)
+        reach, grip = hands.reach, hands.grip
+
         def move(d, what, ok=("SUCCESS",)):
-            return expect(call("move_delta", arm=arm, dx=float(d[0]), dy=float(d[1]), dz=float(d[2])), what, ok)
-
-        def reach(xyz, quat, what, ok=("SUCCESS",)):
-            args = {"arm": arm, "target_xyz": [float(v) for v in xyz]}
-            if quat is not None:
-                args["target_quat"] = [float(v) for v in quat]
-            return expect(call("reach_tcp", **args), what, ok)
-
-        def grip(pos):
-            return expect(call("set_gripper", arm=arm, pos=float(pos)), "set_gripper")
+            return hands.move(*d[:3], what=what, ok=ok)
 
         top = float(info["table_top_z"])
         h = float(b["grasp_tcp_height"])
