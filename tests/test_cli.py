@@ -75,3 +75,15 @@ def test_gallery_renders_initial_scenes(tmp_path):
     img = Image.open(tmp_path / "stack_blocks_three.png")
     assert img.size == (640, 480)
     assert "stack_blocks_three.png" in (tmp_path / "README.md").read_text()
+
+
+@pytest.mark.parametrize("model,var", [("opus5", "ANTHROPIC_API_KEY"), ("gpt56", "OPENAI_API_KEY")])
+def test_missing_key_is_one_line_before_any_simulator(model, var, tmp_path):
+    env = {k: "" for k in ("ANTHROPIC_API_KEY", "OPENAI_API_KEY", "GEMINI_API_KEY", "GOOGLE_API_KEY")}
+    e = {k: v for k, v in os.environ.items() if k not in env}
+    r = subprocess.run([os.path.join(BIN, "cab"), "+sim=sapien", f"+model={model}", f"hydra.run.dir={tmp_path}/d"],
+                       cwd=tmp_path, env=e, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    lines = [l for l in r.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1 and var in lines[0], r.stderr
+    assert not (tmp_path / "d" / "events.jsonl").exists()  # nothing was built

@@ -1,0 +1,252 @@
+"""The reference agent loop (FACTS A.10 "Loop"; paper Appendix "Reference harness").
+
+One sequential model/message/tool loop: request → record the turn → run the response's tool
+calls in order → append neutral tool results → repeat until the attempt ends. Retries live in
+the provider (``retry.py``): a retried request never repeats an executed action. Provider
+waiting time is credited back to the wall budget."""
+from __future__ import annotations
+
+import io
+import json
+import logging
+import time
+
+import numpy as np
+
+from cab_core.errors import AttemptEnded, CabError, ConfigError
+
+from .context import ContextOverflow, ReferenceContextPolicy
+from .pricing import cost, usage_dict
+from .prompt import NUDGE, first_user_message, system_prompt
+from .types import Capabilities, Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
+
+log = logging.getLogger(__name__)
+
+MAX_NO_TOOL_TURNS = 3
+CANCELLED = "cancelled: an earlier action in this response aborted"
+MALFORMED_KEY = "__malformed_json_arguments__"
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    from PIL import Image as PILImage
+
+    buf = io.BytesIO()
+    PILImage.fromarray(np.asarray(image, dtype=np.uint8)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _provider_name(model_cfg: dict) -> str:
+    name = model_cfg.get("provider")
+    if not name:
+        raise ConfigError(f"model {model_cfg.get('name')!r}: the reference harness needs model.provider "
+                          "(anthropic, openai, google, openai_compatible)")
+    return str(name)
+
+
+def create_provider(model_cfg: dict):
+    """The provider named by ``model.provider``, through the plugin registry (falling back to this
+    package's own providers when the plugin is not installed as an entry point)."""
+    name = _provider_name(model_cfg)
+    try:
+        from cab_core.plugins import create
+
+        return create("model_providers", name, dict(model_cfg))
+    except CabError:
+        from .plugin import PROVIDERS
+
+        if name in PROVIDERS:
+            return PROVIDERS[name](dict(model_cfg))
+        raise
+
+
+class ReferenceHarness:
+    """``ReferenceHarness(cfg).run(episode, model_cfg)``. ``provider`` / ``policy`` may be
+    injected (tests); otherwise they come from the model config."""
+
+    def __init__(self, cfg: dict | None = None, provider=None, policy=None):
+        self.cfg = dict(cfg or {})
+        self.provider = provider
+        self.policy = policy
+
+    # -- before the simulator starts ----------------------------------------------------------
+    def preflight(self, model_cfg: dict) -> None:
+        """Build the provider and check its credentials without network; raises ConfigError
+        naming the missing environment variable. The runner calls this before any simulator."""
+        if self.provider is None:
+            self.provider = create_provider(model_cfg)
+        self.provider.check_credentials()
+
+    # -- helpers ------------------------------------------------------------------------------
+    @staticmethod
+    def _tools(episode) -> list[ToolSpec]:
+        return [ToolSpec(t["name"], t.get("description", ""), t.get("parameters") or {"type": "object", "properties": {}})
+                for t in episode.tool_specs()]
+
+    def _policy(self, model_cfg: dict):
+        if self.policy is not None:
+            return self.policy
+        cfg = model_cfg.get("context") or {}
+        return ReferenceContextPolicy.from_cfg(cfg)
+
+    def _images(self, episode, obs_ids: list[str], cap: int, call: ToolCall) -> tuple[list[Image], list[str]]:
+        ids = list(dict.fromkeys(obs_ids))
+        withheld = ids[:-cap] if cap and len(ids) > cap else []
+        ids = ids[-cap:] if cap else []
+        out = []
+        for oid in ids:
+            try:
+                out.append(Image(png_bytes(episode.image(oid)), oid, f"{oid} from {call.name} ({call.call_id})"))
+            except Exception as e:  # an observation that cannot be read is reported, not fatal
+                withheld.append(oid)
+                log.warning("observation %s unavailable: %r", oid, e)
+        return out, withheld
+
+    # -- the loop -----------------------------------------------------------------------------
+    def run(self, episode, model_cfg: dict) -> None:
+        if self.provider is None:
+            self.preflight(model_cfg)
+        provider = self.provider
+        caps: Capabilities = provider.capabilities
+        policy = self._policy(model_cfg)
+        pricing = model_cfg.get("pricing")
+        limit = model_cfg.get("context_tokens")
+        limit = int(limit) if limit else None
+        max_images = int(getattr(policy, "max_images_per_result", 6))  # per tool result (FACTS A.7/A.10)
+        tools = self._tools(episode)
+        rc = dict(getattr(getattr(episode, "spec", None), "sandbox", None) or {})
+        if hasattr(episode, "spec"):
+            rc["max_internal_calls"] = episode.spec.run_code_max_internal_calls
+        system = system_prompt(episode.ledger.remaining(), run_code=rc)
+        fixed = int((len(system) + len(json.dumps([t.__dict__ for t in tools]))) / 4)
+        history: list[Message] = [Message("user", [Text(first_user_message(episode.instruction))])]
+        no_tool_turns = 0
+        forced_limit: int | None = None
+        turn = 0
+        max_turns = int(self.cfg.get("max_turns") or 4 * int(episode.ledger.tool_calls.limit) + 16)
+        totals = {"input_tokens": 0, "output_tokens": 0, "reasoning_tokens": 0, "cache_read_tokens": 0,
+                  "cache_write_tokens": 0, "usd": 0.0, "waited_s": 0.0, "latency_s": 0.0}
+
+        while not episode.ended:
+            if turn >= max_turns:
+                episode.end("harness_turn_limit", f"{max_turns} model turns without the attempt ending")
+                break
+            # the wall clock is checked per model turn (FACTS A.9); the other budgets at tool dispatch
+            if episode.ledger.exhausted_reason() == "wall_budget":
+                episode.end("wall_budget", "wall-clock budget spent before the next model turn")
+                break
+            turn += 1
+            try:
+                request = policy.build(history, caps, forced_limit or limit, fixed_tokens=fixed)
+            except ContextOverflow as e:
+                episode.recorder.event("context_overflow", turn=turn, estimated=e.estimated, limit=e.limit)
+                episode.end("context_length_exceeded", str(e))
+                break
+            t0 = time.monotonic()
+            try:
+                resp = provider.complete(system, request, tools)
+            except ProviderError as e:
+                waited = float(getattr(e, "waited_s", 0.0) or 0.0)
+                episode.ledger.credit_wall(waited)
+                totals["waited_s"] += waited
+                if e.kind == "context_length" and forced_limit is None:
+                    # one forced-compaction retry (FACTS A.10), declined at the floor
+                    est = policy.estimate(request, fixed)
+                    forced_limit = int(min(est, limit or est) * 0.7)
+                    episode.recorder.event("forced_compaction", turn=turn, estimated=est, new_limit=forced_limit,
+                                           error=str(e)[:240])
+                    continue
+                if e.kind == "context_length":
+                    episode.end("context_length_exceeded", str(e)[:240])
+                    break
+                episode.recorder.event("provider_failure", turn=turn, error_kind=e.kind, status=e.status,
+                                       retryable=e.retryable, attempts=getattr(e, "attempts", None),
+                                       waited_s=round(waited, 3), message=str(e)[:1000],
+                                       latency_s=round(time.monotonic() - t0, 3))
+                episode.end("provider_failure", f"{e.kind}" + (f" (HTTP {e.status})" if e.status else "")
+                            + f": {str(e)[:200]}")
+                break
+            episode.ledger.credit_wall(resp.waited_s)
+            c = cost(resp.usage, pricing)
+            for k, v in usage_dict(resp.usage).items():
+                totals[k] += v
+            totals["usd"] += c["usd"] or 0.0
+            totals["waited_s"] += resp.waited_s
+            totals["latency_s"] += resp.latency_s
+            msg = resp.message
+            calls = [p for p in msg.parts if isinstance(p, ToolCall)]
+            episode.recorder.event(
+                "model_turn", turn=turn, model=resp.model, request_id=resp.request_id,
+                stop_reason=resp.stop_reason, raw_stop_reason=resp.raw_stop_reason,
+                usage=usage_dict(resp.usage), cost=c, latency_s=round(resp.latency_s, 3),
+                waited_s=round(resp.waited_s, 3), request_messages=len(request),
+                request_estimated_tokens=policy.estimate(request, fixed),
+                text="\n".join(p.text for p in msg.parts if isinstance(p, Text)),
+                thinking="\n".join(p.text for p in msg.parts if isinstance(p, Thinking)),
+                tool_calls=[{"call_id": p.call_id, "name": p.name, "arguments": p.arguments,
+                             **({"raw_arguments": p.raw_arguments} if p.arguments is None else {})} for p in calls])
+            history.append(msg)
+            if not calls:
+                if resp.stop_reason == "refusal":
+                    episode.end("model_refusal", "the model refused")
+                    break
+                if resp.stop_reason == "max_tokens":
+                    episode.end("output_length_exceeded", "the response hit the output limit without a tool call")
+                    break
+                no_tool_turns += 1
+                if no_tool_turns >= MAX_NO_TOOL_TURNS:
+                    episode.end("no_tool_calls", f"{MAX_NO_TOOL_TURNS} responses in a row without tool calls")
+                    break
+                history.append(Message("user", [Text(NUDGE)]))
+                continue
+            no_tool_turns = 0
+            self._run_calls(episode, calls, history, caps, max_images)
+        episode.recorder.event("model_usage_total", **{k: round(v, 6) if isinstance(v, float) else v
+                                                       for k, v in totals.items()}, turns=turn)
+
+    def _run_calls(self, episode, calls: list[ToolCall], history: list[Message], caps: Capabilities,
+                   max_images: int) -> None:
+        aborted = False
+        results: list[ToolResult] = []
+        followup: list = []
+        for call in calls:
+            if episode.ended:
+                results.append(ToolResult(call.call_id, call.name, json.dumps(
+                    {"error": "not executed: the attempt has ended", "attempt_ended": True}), is_error=True))
+                continue
+            if aborted:
+                results.append(ToolResult(call.call_id, call.name, json.dumps({"error": CANCELLED, "code": "cancelled"}),
+                                          is_error=True))
+                continue
+            args = call.arguments
+            malformed = args is None or not isinstance(args, dict)
+            if malformed:  # charged like any invalid call (FACTS A.9)
+                args = {MALFORMED_KEY: (call.raw_arguments or "")[:2000]}
+            try:
+                r = episode.call(call.name, args)
+            except AttemptEnded as e:
+                results.append(ToolResult(call.call_id, call.name, json.dumps({"error": str(e), "attempt_ended": True}),
+                                          is_error=True))
+                continue
+            payload = dict(r.payload)
+            if malformed and payload.get("code") == "invalid_tool_arguments":
+                payload["error"] = ("bad arguments: the arguments are not a valid JSON object: "
+                                    + (call.raw_arguments or "")[:200])
+            imgs, withheld = self._images(episode, r.obs_ids, max_images, call)
+            if withheld:
+                payload.setdefault("images_not_attached", withheld)
+            is_error = bool(payload.get("error"))
+            text = json.dumps(payload, default=str)
+            if caps.images_in_tool_results:
+                results.append(ToolResult(call.call_id, call.name, text, images=imgs, is_error=is_error))
+            else:
+                if imgs:
+                    text += "\n" + "Images attached in the next user message: " + ", ".join(i.obs_id for i in imgs)
+                results.append(ToolResult(call.call_id, call.name, text, is_error=is_error))
+                for im in imgs:
+                    followup += [Text(f"[image {im.label}]"), im]
+            if r.status == "ABORTED":
+                aborted = True
+        for res in results:
+            history.append(Message("tool", [res]))
+        if followup:
+            history.append(Message("user", followup))

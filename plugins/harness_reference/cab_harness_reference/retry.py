@@ -1,0 +1,76 @@
+"""Bounded retries of one model request (FACTS A.10 "Retries"): exponential backoff with full
+jitter on rate limits, timeouts and server errors; never on auth, bad requests or context length.
+
+A retried request never repeats an executed action: the loop retries only the model request,
+before any tool of that response runs. The time spent waiting is returned so the loop can credit
+it back to the wall budget (provider outage is not the model's time)."""
+from __future__ import annotations
+
+import random
+import time
+from dataclasses import dataclass, field
+from typing import Callable, TypeVar
+
+from .types import ProviderError
+
+T = TypeVar("T")
+
+RETRYABLE_KINDS = frozenset({"rate_limit", "timeout", "server"})
+
+
+@dataclass
+class RetryPolicy:
+    """``max_attempts`` requests in all; delay before retry *n* (1-based) is drawn uniformly from
+    ``[0, min(max_delay_s, base_delay_s[kind] * 2**(n-1))]`` (full jitter)."""
+    max_attempts: int = 3
+    base_delay_s: dict = field(default_factory=lambda: {"rate_limit": 60.0, "timeout": 2.0, "server": 2.0})
+    max_delay_s: float = 300.0
+    sleep: Callable[[float], None] = time.sleep
+    rng: random.Random = field(default_factory=random.Random)
+
+    @classmethod
+    def from_cfg(cls, cfg: dict | None, **kw) -> "RetryPolicy":
+        cfg = dict(cfg or {})
+        p = cls(**kw)
+        if "max_attempts" in cfg:
+            p.max_attempts = max(1, int(cfg["max_attempts"]))
+        if "max_delay_s" in cfg:
+            p.max_delay_s = float(cfg["max_delay_s"])
+        for k, v in (cfg.get("base_delay_s") or {}).items():
+            p.base_delay_s[str(k)] = float(v)
+        return p
+
+    def delay(self, kind: str, retry_index: int) -> float:
+        base = float(self.base_delay_s.get(kind, 2.0))
+        cap = min(self.max_delay_s, base * (2 ** max(0, retry_index - 1)))
+        return self.rng.uniform(0.0, cap)
+
+
+def call_with_retries(fn: Callable[[], T], classify: Callable[[BaseException], ProviderError],
+                      policy: RetryPolicy | None = None) -> tuple[T, float]:
+    """Run ``fn`` until it succeeds or a non-retryable error / the attempt bound is hit.
+
+    ``classify`` maps any exception from ``fn`` to a :class:`ProviderError` (its ``kind`` decides
+    whether to retry). Returns ``(result, waited_s)``; raises the last ``ProviderError`` (with
+    ``waited_s`` attached as an attribute) when giving up."""
+    policy = policy or RetryPolicy()
+    waited = 0.0
+    attempt = 0
+    while True:
+        attempt += 1
+        try:
+            return fn(), waited
+        except Exception as e:  # noqa: BLE001 - every failure is classified
+            err = e if isinstance(e, ProviderError) else classify(e)
+            if err is not e and err.__cause__ is None:
+                err.__cause__ = e
+            retryable = err.kind in RETRYABLE_KINDS
+            err.retryable = retryable
+            if not retryable or attempt >= policy.max_attempts:
+                err.attempts = attempt  # type: ignore[attr-defined]
+                err.waited_s = waited  # type: ignore[attr-defined]
+                raise err
+            d = policy.delay(err.kind, attempt)
+            t0 = time.monotonic()
+            policy.sleep(d)
+            waited += max(d, time.monotonic() - t0)
