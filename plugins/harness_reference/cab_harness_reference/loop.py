@@ -85,8 +85,16 @@ class ReferenceHarness:
     def _policy(self, model_cfg: dict):
         if self.policy is not None:
             return self.policy
-        cfg = model_cfg.get("context") or {}
-        return ReferenceContextPolicy.from_cfg(cfg)
+        cfg = dict(model_cfg.get("context") or {})
+        name = cfg.pop("policy", "reference")
+        from cab_core.plugins import create
+
+        try:  # context policies are plugins: a third party's policy is chosen by name
+            return create("context_policies", name, cfg)
+        except Exception:
+            if name != "reference":
+                raise
+            return ReferenceContextPolicy.from_cfg(cfg)  # the plugin is not installed (tests from source)
 
     def _images(self, episode, obs_ids: list[str], cap: int, call: ToolCall) -> tuple[list[Image], list[str]]:
         ids = list(dict.fromkeys(obs_ids))
