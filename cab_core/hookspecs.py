@@ -65,7 +65,9 @@ def cab_task_suites() -> dict[str, Callable[[], dict[str, "Task"]]]:
 def cab_harnesses() -> dict[str, Callable[[dict], Any]]:
     """Harnesses drive an agent through one attempt's tool session: ``direct`` (model-free
     agents), ``reference`` (model providers + context policy), ``mcp`` (an external MCP client).
-    ``factory(cfg)`` returns an object with ``run(session, model_cfg) -> None``."""
+    ``factory(cfg)`` returns an object with ``run(episode, model_cfg) -> None`` and, optionally,
+    ``preflight(model_cfg) -> None``, called before any simulator starts (credentials, endpoints);
+    it raises ``ConfigError`` naming what is missing."""
 
 
 @hookspec
