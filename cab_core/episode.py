@@ -46,6 +46,7 @@ class AttemptSpec:
     planner_cfg: dict = field(default_factory=dict)
     embodiment_cfg: dict = field(default_factory=dict)
     model_cfg: dict = field(default_factory=dict)
+    harness_cfg: dict = field(default_factory=dict)
 
 
 @dataclass

@@ -55,6 +55,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
         run_code_max_internal_calls=int(b.get("run_code_max_internal_calls") or 500),
         sandbox=dict(c.get("sandbox") or {}), record=dict(c.get("record") or {}),
         sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
+        harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},
     )
 
 
@@ -66,7 +67,7 @@ def run_attempt(spec: AttemptSpec) -> dict:
     if spec.task not in tasks:
         raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
                           f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
-    harness = create("harnesses", spec.harness, {"name": spec.harness})
+    harness = create("harnesses", spec.harness, {**spec.harness_cfg, "name": spec.harness})
     preflight = getattr(harness, "preflight", None)
     if preflight is not None:  # credentials and endpoints are checked before any simulator starts
         preflight(spec.model_cfg)
