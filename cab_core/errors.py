@@ -60,3 +60,7 @@ class AttemptEnded(CabError):
 
 class ObservationUnavailable(CabError):
     """A camera could not deliver an image (e.g. a physics-only build); the attempt goes on."""
+
+
+class RecordError(CabError):
+    """An attempt's records are missing, corrupt or inconsistent (analysis reports and skips it)."""

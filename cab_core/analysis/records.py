@@ -1,0 +1,136 @@
+"""Reading attempt records back: find every attempt below a directory, load and check its files.
+
+Analysis (report, viewer, replay, regrade) reads only these records, never a simulator. A sweep may
+be partial (attempts still running, or killed: ``events.jsonl`` without ``result.json``) or hold
+corrupt files; :func:`scan` sorts directories into finished attempts, in-flight ones and problems,
+and never raises for a bad record.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+from ..errors import RecordError
+
+# keys a result.json must carry for analysis, with the type each must have
+REQUIRED = {"task": str, "seed": int, "attempt": int, "sim": str, "model": str, "harness": str,
+            "verdict": dict, "termination": dict, "claim": dict, "budget": dict}
+
+
+def read_json(path: Path) -> dict:
+    """One JSON object from ``path``; a missing or unparsable file is a RecordError."""
+    try:
+        obj = json.loads(Path(path).read_text())
+    except FileNotFoundError as e:
+        raise RecordError(f"{path.name} is missing") from e
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise RecordError(f"{path.name} is not valid JSON: {e}") from e
+    if not isinstance(obj, dict):
+        raise RecordError(f"{path.name} does not hold a JSON object")
+    return obj
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    """Every line of an append-only log. A torn last line (a process killed mid-write) is
+    dropped; a bad line anywhere else is a RecordError."""
+    try:
+        lines = Path(path).read_text().splitlines()
+    except FileNotFoundError as e:
+        raise RecordError(f"{Path(path).name} is missing") from e
+    out = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            if i == len(lines) - 1:
+                break
+            raise RecordError(f"{Path(path).name} line {i + 1} is not valid JSON: {e}") from e
+    return out
+
+
+def check_result(result: dict) -> None:
+    """Raise RecordError naming the first key analysis needs that is missing or mistyped."""
+    for key, typ in REQUIRED.items():
+        if key not in result:
+            raise RecordError(f"result.json lacks {key!r}")
+        if not isinstance(result[key], typ) or (typ is int and isinstance(result[key], bool)):
+            raise RecordError(f"result.json {key!r} should be {typ.__name__}, got {type(result[key]).__name__}")
+    if not isinstance(result["verdict"].get("success"), bool):
+        raise RecordError("result.json verdict.success should be true or false")
+    if not isinstance(result["termination"].get("reason"), str):
+        raise RecordError("result.json termination.reason is missing")
+
+
+@dataclass
+class Attempt:
+    """One finished attempt's records. ``rel``: its directory relative to the scanned root."""
+    dir: Path
+    rel: str
+    result: dict
+
+    @classmethod
+    def load(cls, d: Path, root: Path | None = None) -> "Attempt":
+        d = Path(d)
+        result = read_json(d / "result.json")
+        check_result(result)
+        rel = os.path.relpath(d, root) if root is not None else d.name
+        return cls(d, rel.replace(os.sep, "/"), result)
+
+    @cached_property
+    def events(self) -> list[dict]:
+        return read_jsonl(self.dir / "events.jsonl")
+
+    @cached_property
+    def snapshots(self) -> list[dict]:
+        return read_jsonl(self.dir / "privileged" / "snapshots.jsonl")
+
+    @property
+    def config(self) -> str:
+        """The configuration this attempt belongs to, as in the paper: model, harness, simulator."""
+        r = self.result
+        return f"{r['model']} ({r['harness']}, {r['sim']})"
+
+    @property
+    def success(self) -> bool:
+        return bool(self.result["verdict"]["success"])
+
+    def start_event(self) -> dict:
+        return next((e for e in self.events if e.get("kind") == "attempt_start"), {})
+
+
+@dataclass
+class Scan:
+    """What a directory tree holds: finished attempts, unfinished ones and unreadable ones."""
+    root: Path
+    attempts: list[Attempt] = field(default_factory=list)
+    in_flight: list[str] = field(default_factory=list)  # events.jsonl but no result.json yet
+    problems: list[tuple[str, str]] = field(default_factory=list)  # (relative dir, what is wrong)
+
+
+def scan(root: Path) -> Scan:
+    """Every attempt directory below ``root`` (``root`` itself included), in sorted order. An
+    attempt directory is not searched further (a replay kept inside it is not a sweep attempt);
+    hidden directories (``.hydra``) are skipped."""
+    root = Path(root)
+    if not root.is_dir():
+        raise RecordError(f"{root} is not a directory")
+    out = Scan(root)
+    for d, dirs, files in os.walk(root):
+        dirs[:] = sorted(x for x in dirs if not x.startswith("."))
+        here = Path(d)
+        rel = os.path.relpath(here, root).replace(os.sep, "/")
+        if "result.json" in files:
+            dirs[:] = []
+            try:
+                out.attempts.append(Attempt.load(here, root))
+            except RecordError as e:
+                out.problems.append((rel, str(e)))
+        elif "events.jsonl" in files:
+            dirs[:] = []
+            out.in_flight.append(rel)
+    return out

@@ -1,0 +1,253 @@
+"""``cab-report <dir>``: the paper's measures for every configuration found below a directory.
+
+Reads only attempt records (any tree: every ``result.json`` below the directory is an attempt),
+groups attempts by configuration (model, harness, simulator), and writes
+
+    report.json   every number, machine-readable (what the tests and other tools read)
+    report.md     the tables as Markdown (the summary table is also printed)
+    report.html   one self-contained page: the tables, inline SVG figures, links to attempt pages
+
+Unfinished attempts (records without ``result.json``) and unreadable ones are listed, never fatal.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from html import escape
+from pathlib import Path
+
+from ..errors import CabError
+from . import svg
+from .failure import LABELS, STAGES, Classifier
+from .measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
+from .records import Scan, scan
+
+REPORT_VERSION = "cab-report/1"
+
+
+def measure(s: Scan) -> list[AttemptMeasures]:
+    """Per-attempt measures, failure stage included. An attempt whose event log is unreadable
+    moves from ``s.attempts`` to ``s.problems``."""
+    classify = Classifier()
+    out, keep = [], []
+    for a in s.attempts:
+        try:
+            m = AttemptMeasures.of(a)
+        except CabError as e:
+            s.problems.append((a.rel, str(e)))
+            continue
+        m.failure_stage, m.failure_detail = classify(a)
+        out.append(m)
+        keep.append(a)
+    s.attempts = keep
+    return out
+
+
+def build(root: Path) -> dict:
+    """Everything the report shows, as plain data."""
+    s = scan(Path(root))
+    ms = measure(s)
+    max_calls = max([int(a.result["budget"].get("tool_calls_limit") or 0) for a in s.attempts] + [0])
+    configs = sorted({m.config for m in ms})
+    summaries = [ConfigSummary.of(c, [m for m in ms if m.config == c], max_calls) for c in configs]
+    summaries.sort(key=lambda c: (-c.success_rate, c.config))
+    return {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
+            "problems": [{"dir": d, "problem": p} for d, p in s.problems],
+            "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
+            "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))]}
+
+
+# ---------------------------------------------------------------------------------------------
+# formatting helpers shared by the Markdown and HTML renderings
+# ---------------------------------------------------------------------------------------------
+def pct(x: float | None) -> str:
+    return "–" if x is None else f"{100 * x:.1f}%"
+
+
+def num(x: float | None, fmt: str = "{:.1f}") -> str:
+    return "–" if x is None else fmt.format(x)
+
+
+def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
+    """(title, header, rows) of every table, in page order."""
+    cs = r["configs"]
+    ns = sorted({int(k.split("/")[1]) for c in cs for k in c["consistency"]})
+    ks = [f"{k}/{n}" for n in ns for k in range(n + 1)]  # every consistency bucket, 0/n..n/n
+    out = [("Success and task coverage",
+            ["Configuration", "Success", "Rate", "Wilson 95%", "Coverage", *ks],
+            [[c["config"], f"{c['successes']}/{c['attempts']}", pct(c["success_rate"]),
+              f"{pct(c['wilson95'][0])}–{pct(c['wilson95'][1])}", f"{c['coverage']}/{c['tasks']}",
+              *[str(c["consistency"].get(k, 0)) for k in ks]] for c in cs]),
+           ("Stopping conditions and completion claims",
+            ["Configuration", "Done", "Tool", "Phys.", "Other", "Correct", "Over", "Under", "Absent"],
+            [[c["config"], *[str(c["stopping"][s]) for s in STOPPING], *[str(c["claims"][k]) for k in CLAIMS]]
+             for c in cs]),
+           ("Programs",
+            ["Configuration", "Program share", "Programs", "Program errors"],
+            [[c["config"], pct(c["program_share"]), f"{c['program_calls']}/{c['charged_calls']} calls",
+              f"{c['program_errors']}/{c['programs_returned']}"
+              + (f" ({pct(c['program_errors'] / c['programs_returned'])})" if c["programs_returned"] else "")]
+             for c in cs]),
+           ("Non-completed robot actions (direct and inside programs)",
+            ["Configuration", "Non-completion", *[a.capitalize() for a in ACTION_CAUSES]],
+            [[c["config"], f"{c['not_completed_total']}/{c['actions']}"
+              + (f" ({pct(c['not_completed_total'] / c['actions'])})" if c["actions"] else ""),
+              *[str(c["not_completed"][a]) for a in ACTION_CAUSES]] for c in cs]),
+           ("Resources",
+            ["Configuration", "Calls (mean)", "Sim. s (median)", "Wall s (median)", "Wait s (median)",
+             "Cost total", "Cost median", "Cost IQR"],
+            [[c["config"], num(c["calls_mean"]), num(c["sim_seconds_median"]), num(c["wall_seconds_median"]),
+              num(c["wait_seconds_median"]), num(c["cost_total"], "${:.2f}"), num(c["cost_median"], "${:.2f}"),
+              "–" if c["cost_iqr"] is None else f"${c['cost_iqr'][0]:.2f}–${c['cost_iqr'][1]:.2f}"] for c in cs]),
+           ("Checkpoints (task-weighted coverage) and confirmed progress",
+            ["Configuration", "Subgoal coverage", "Spatial coverage", "Success", "Failed: subgoal attained",
+             "Failed: spatial only", "Failed: none"],
+            [[c["config"], pct(c["subgoal_coverage"]), pct(c["spatial_coverage"]),
+              *[str(c["progress"][k]) for k in ("success", "subgoal", "spatial_only", "none")]] for c in cs]),
+           ("Failure stages (earliest supported stage per failed attempt)",
+            ["Configuration", "Success", *[LABELS[s] for s in STAGES]],
+            [[c["config"], str(c["successes"]), *[str(c["failure_stages"].get(s, 0)) for s in STAGES]] for c in cs])]
+    tools = list(ESTIMATION_TOOLS) + sorted({t for c in cs for t in c["tool_use"]} - set(ESTIMATION_TOOLS))
+    tools = [t for t in tools if any(t in c["tool_use"] for c in cs)]
+
+    def use(c, t):
+        u = c["tool_use"].get(t)
+        return f"{pct(u['successes'] / u['attempts'])} ({u['successes']}/{u['attempts']})" if u else "–"
+
+    out.append(("Tool use and success (success rate among attempts using each tool)",
+                ["Configuration", *tools], [[c["config"], *[use(c, t) for t in tools]] for c in cs]))
+    names = [c["config"] for c in cs]
+    out.append(("Task x configuration (successful/attempts)", ["Task", *names],
+                [[t, *["{}/{}".format(*row[n]) if n in row else "–" for n in names]] for t, row in r["matrix"].items()]))
+    return out
+
+
+def md_table(header: list[str], rows: list[list[str]]) -> str:
+    esc = lambda s: str(s).replace("|", "\\|")  # noqa: E731
+    lines = ["| " + " | ".join(map(esc, header)) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(map(esc, row)) + " |" for row in rows])
+
+
+def markdown(r: dict) -> str:
+    parts = [f"# cab report\n\n{r['attempts']} attempts, {len(r['configs'])} configurations."]
+    if r["in_flight"]:
+        parts.append(f"Unfinished attempts (no result.json): {len(r['in_flight'])}: " + ", ".join(r["in_flight"]))
+    if r["problems"]:
+        parts.append("Skipped records:\n\n" + "\n".join(f"- `{p['dir']}`: {p['problem']}" for p in r["problems"]))
+    for title, header, rows in tables(r):
+        parts.append(f"## {title}\n\n{md_table(header, rows)}")
+    return "\n\n".join(parts) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# HTML
+# ---------------------------------------------------------------------------------------------
+CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0 1.5em}
+td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td:first-child,th:first-child{text-align:left}
+th{background:#f3f3f3}.ok{background:#d9f2d9}.part{background:#fff3c4}.bad{background:#f8d7d7}
+figure{display:inline-block;margin:0 1em 1em 0;vertical-align:top}"""
+
+
+def figures(r: dict) -> list[str]:
+    cs = r["configs"]
+    figs = [svg.hbars("Success rate (Wilson 95% interval)", [(c["config"], c["success_rate"], tuple(c["wilson95"])) for c in cs]),
+            svg.stacked("Outcome and failure stage per attempt", [(c["config"], [c["successes"]] + [c["failure_stages"].get(s, 0) for s in STAGES]) for c in cs],
+                        ["Success"] + [LABELS[s] for s in STAGES]),
+            svg.stacked("Completion claims", [(c["config"], [c["claims"][k] for k in CLAIMS]) for c in cs], list(CLAIMS)),
+            svg.lines("Spatial checkpoint coverage over charged calls", [(c["config"], c["spatial_curve"]) for c in cs],
+                      "charged calls", "coverage")]
+    with_cost = [(c["config"], c["cost_total"], c["success_rate"]) for c in cs if c["cost_total"] is not None]
+    if with_cost:
+        figs.append(svg.scatter("Success rate against total cost", with_cost, "total cost (USD)", "success rate"))
+    with_wall = [(c["config"], c["wall_seconds_median"], c["success_rate"]) for c in cs if c["wall_seconds_median"] is not None]
+    if with_wall:
+        figs.append(svg.scatter("Success rate against median wall time", with_wall, "median wall time (s)", "success rate"))
+    return figs
+
+
+def html_table(header: list[str], rows: list[list[str]], cell_class=None) -> str:
+    head = "".join(f"<th>{escape(h)}</th>" for h in header)
+    body = []
+    for row in rows:
+        cells = []
+        for j, v in enumerate(row):
+            cls = cell_class(v) if cell_class and j else None
+            cells.append(f'<td{f" class={cls!r}" if cls else ""}>{escape(str(v))}</td>')
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+
+
+def _matrix_class(v: str) -> str | None:
+    if "/" not in v:
+        return None
+    k, n = (int(x) for x in v.split("/"))
+    return "ok" if k == n else ("part" if k else "bad")
+
+
+def html(r: dict, view_links: dict[str, str]) -> str:
+    ts = tables(r)
+    parts = [f"<h1>cab report</h1><p>{r['attempts']} attempts, {len(r['configs'])} configurations.</p>"]
+    if r["in_flight"]:
+        parts.append(f"<p>Unfinished attempts: {escape(', '.join(r['in_flight']))}</p>")
+    if r["problems"]:
+        parts.append("<p>Skipped records:</p><ul>" + "".join(
+            f"<li><code>{escape(p['dir'])}</code>: {escape(p['problem'])}</li>" for p in r["problems"]) + "</ul>")
+    parts.append("<h2>Figures</h2>" + "".join(f"<figure>{f}</figure>" for f in figures(r)))
+    for title, header, rows in ts:
+        cc = _matrix_class if title.startswith("Task x") else None
+        parts.append(f"<h2>{escape(title)}</h2>{html_table(header, rows, cc)}")
+    rows = []
+    for m in r["attempt_rows"]:
+        link = view_links.get(m["rel"])
+        name = f'<a href="{escape(link)}">{escape(m["rel"])}</a>' if link else escape(m["rel"])
+        rows.append(f"<tr><td>{name}</td><td>{escape(m['config'])}</td><td>{'yes' if m['success'] else 'no'}</td>"
+                    f"<td>{escape(m['termination'])}</td><td>{escape(m['claim'])}</td><td>{m['charged_calls']}</td>"
+                    f"<td>{escape(LABELS.get(m['failure_stage'], '') if m['failure_stage'] else '')}</td>"
+                    f"<td>{escape(m['failure_detail'])}</td></tr>")
+    parts.append("<h2>Attempts</h2><table><tr><th>Attempt</th><th>Configuration</th><th>Success</th><th>Termination</th>"
+                 "<th>Claim</th><th>Calls</th><th>Failure stage</th><th>Why</th></tr>" + "".join(rows) + "</table>")
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>cab report</title><style>{CSS}</style></head>"
+            f"<body>{''.join(parts)}</body></html>\n")
+
+
+def write(root: Path, out: Path | None = None, views: bool = True) -> dict:
+    """Build the report for ``root`` and write report.json, report.md and report.html into ``out``
+    (default: ``root``); with ``views``, also each attempt's view.html, linked from the page."""
+    from ..viewer import write_view
+
+    root = Path(root)
+    out = Path(out) if out is not None else root
+    r = build(root)
+    out.mkdir(parents=True, exist_ok=True)
+    links = {}
+    if views:
+        for m in r["attempt_rows"]:
+            page = write_view(root / m["rel"])
+            links[m["rel"]] = os.path.relpath(page, out).replace(os.sep, "/")
+    (out / "report.json").write_text(json.dumps(r, indent=1))
+    (out / "report.md").write_text(markdown(r))
+    (out / "report.html").write_text(html(r, links))
+    return r
+
+
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="cab-report", description="The paper's measures for every attempt below a directory.")
+    ap.add_argument("dir", help="a sweep directory (or any tree of attempt directories)")
+    ap.add_argument("--out", help="where report.md/.html/.json go (default: the directory itself)")
+    ap.add_argument("--no-views", action="store_true", help="do not write each attempt's view.html")
+    a = ap.parse_args(argv)
+    try:
+        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views)
+    except CabError as e:
+        print(f"cab-report: {e}", file=sys.stderr)
+        sys.exit(2)
+    title, header, rows = tables(r)[0]
+    print(md_table(header, rows))
+    for p in r["problems"]:
+        print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)
+    if r["in_flight"]:
+        print(f"cab-report: {len(r['in_flight'])} unfinished attempt(s) not counted", file=sys.stderr)
+    print(f"cab-report: wrote report.md, report.html, report.json to {a.out or a.dir}", file=sys.stderr)

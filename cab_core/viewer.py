@@ -1,0 +1,176 @@
+"""``cab-view <attempt dir>``: one HTML page per attempt, from its records.
+
+The page (``view.html`` in the attempt directory) shows the instruction, the verdict beside the
+agent's claim, the budget, the checkpoints, the head-camera video, and the timeline: every model
+turn, every charged call with its arguments, status, physics steps and the result the agent saw,
+every program with the calls it made, and the images the agent was shown. It is self-contained
+except for the video and the observation images, referenced by relative path inside the attempt
+directory, so the directory can be moved or archived as a whole.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from html import escape
+from pathlib import Path
+
+from .analysis.records import Attempt, read_jsonl
+from .errors import CabError
+
+CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}
+td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}th{background:#f3f3f3}
+.call{border-left:4px solid #4e79a7;margin:.6em 0;padding:.2em .8em}.internal{border-left-color:#bab0ac;margin-left:2em}
+.turn{border-left:4px solid #b07aa1;margin:.6em 0;padding:.2em .8em;background:#faf6fa}
+.bad{color:#b00}.good{color:#070}pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-height:24em}
+img.obs{max-width:320px;margin:2px;border:1px solid #ccc}summary{cursor:pointer;color:#333}"""
+
+
+def _json(obj) -> str:
+    return escape(json.dumps(obj, indent=1))
+
+
+def _fold(label: str, body: str) -> str:
+    return f"<details><summary>{escape(label)}</summary>{body}</details>"
+
+
+def _images(d: Path, obs_ids) -> str:
+    out = []
+    for o in obs_ids or []:
+        rel = f"observations/{o}.png"
+        if (d / rel).exists():
+            out.append(f'<a href="{escape(rel)}"><img class="obs" src="{escape(rel)}" alt="{escape(o)}" title="{escape(o)}"></a>')
+    return "".join(out)
+
+
+def _status(ev: dict) -> str:
+    r = ev.get("result") or {}
+    s = ev.get("status") or r.get("status")
+    if ev.get("tool") == "run_code":
+        s = "ok" if r.get("ok") else ("ABORTED" if r.get("status") == "ABORTED" else "error")
+    elif s is None:
+        s = "error" if "error" in r else "ok"
+    cls = "good" if s in ("SUCCESS", "ok") else "bad"
+    return f'<span class="{cls}">{escape(str(s))}</span>'
+
+
+def _call(d: Path, ev: dict, internal: bool) -> str:
+    r = ev.get("result") or {}
+    head = (f"<b>{'↳ ' if internal else ''}{escape(str(ev.get('tool')))}</b> {_status(ev)}"
+            f" · #{ev.get('seq')} · t={ev.get('t_wall', 0):.1f}s")
+    if ev.get("physics_steps"):
+        head += f" · {ev['physics_steps']} physics steps"
+    if ev.get("charged") is False:
+        head += " · not charged"
+    body = [f"<div>{head}</div>"]
+    args = dict(ev.get("arguments") or {})
+    code = args.pop("code", None) if ev.get("tool") == "run_code" else None
+    if code is not None:
+        body.append(f"<div>program <code>{escape(str(r.get('program', '')))}</code></div><pre>{escape(code)}</pre>")
+        for key in ("error", "stdout"):
+            if r.get(key):
+                body.append(f"<div>{key}:</div><pre>{escape(str(r[key]))}</pre>")
+    if args:
+        body.append(_fold("arguments", f"<pre>{_json(args)}</pre>"))
+    body.append(_fold("result the agent saw", f"<pre>{_json(r)}</pre>"))
+    body.append(_images(d, ev.get("obs_ids")))
+    return f'<div class="call{" internal" if internal else ""}">{"".join(body)}</div>'
+
+
+def _turn(ev: dict) -> str:
+    u = ev.get("usage") or {}
+    cost = (ev.get("cost") or {}).get("usd")
+    head = (f"<b>model turn {ev.get('turn')}</b> · {escape(str(ev.get('model', '')))} · "
+            f"{u.get('input_tokens', 0)} in / {u.get('output_tokens', 0)} out tokens"
+            + (f" · ${cost:.4f}" if isinstance(cost, (int, float)) else "")
+            + f" · latency {ev.get('latency_s', 0)}s, waited {ev.get('waited_s', 0)}s")
+    body = [f"<div>{head}</div>"]
+    if ev.get("thinking"):
+        body.append(_fold("thinking", f"<pre>{escape(ev['thinking'])}</pre>"))
+    if ev.get("text"):
+        body.append(f"<pre>{escape(ev['text'])}</pre>")
+    return f'<div class="turn">{"".join(body)}</div>'
+
+
+def timeline(d: Path, events: list[dict]) -> str:
+    """The events in order; a program's internal calls are shown just before its run_code entry
+    (they are logged as they happen, the program's own entry when it returns)."""
+    out = []
+    for ev in events:
+        kind = ev.get("kind")
+        if kind in ("call", "internal_call", "call_refused"):
+            out.append(_call(d, ev, internal=(kind == "internal_call")))
+        elif kind == "model_turn":
+            out.append(_turn(ev))
+        elif kind not in ("attempt_start",):
+            rest = {k: v for k, v in ev.items() if k not in ("seq", "kind", "t_wall")}
+            out.append(f'<div class="call"><b>{escape(str(kind))}</b> #{ev.get("seq")}'
+                       f'{_fold("details", f"<pre>{_json(rest)}</pre>") if rest else ""}</div>')
+    return "".join(out)
+
+
+def _checkpoints(ck) -> str:
+    if not isinstance(ck, dict) or "error" in ck:
+        return f"<p>checkpoints unavailable{': ' + escape(str(ck.get('error'))) if isinstance(ck, dict) else ''}</p>"
+    rows = []
+    for kind in ("subgoals", "spatial"):
+        for c in ck.get(kind, []):
+            first = c.get("first") or {}
+            rows.append(f"<tr><td>{kind[:-1] if kind == 'subgoals' else 'spatial'} {c['index']}</td>"
+                        f"<td>{escape(c.get('text') or c.get('name', ''))}</td>"
+                        f"<td class=\"{'good' if c['attained'] else 'bad'}\">{'attained' if c['attained'] else 'not attained'}</td>"
+                        f"<td>{escape(str(first.get('calls', '')) if first else '')}</td>"
+                        f"<td>{escape(str(first.get('arm', '')) if first else '')}</td></tr>")
+    return (f"<p>subgoal coverage {ck.get('subgoal_coverage', 0):.0%}, spatial coverage {ck.get('spatial_coverage', 0):.0%}</p>"
+            "<table><tr><th>checkpoint</th><th>what</th><th>outcome</th><th>first at call</th><th>arm</th></tr>"
+            + "".join(rows) + "</table>")
+
+
+def render(a: Attempt) -> str:
+    r = a.result
+    v, claim, b = r["verdict"], r["claim"], r["budget"]
+    ok = v["success"]
+    claimed = claim.get("success_claim")
+    summary = [
+        ("task", f"{r['task']} (seed {r['seed']}, attempt {r['attempt']})"),
+        ("configuration", a.config), ("instruction", r.get("instruction", "")),
+        ("verdict", "success" if ok else "failure"),
+        ("claim", "absent" if claimed is None else ("success" if claimed else "failure")),
+        ("report", claim.get("report") or ""), ("termination", f"{r['termination']['reason']}: {r['termination'].get('detail', '')}"),
+        ("tool calls", f"{b.get('tool_calls_used')}/{b.get('tool_calls_limit')}"),
+        ("simulated s", f"{b.get('sim_seconds_used')}/{b.get('sim_seconds_limit')}"),
+        ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
+    ]
+    rows = "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
+    video = (f'<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
+             else "<p>no video recorded</p>")
+    try:
+        events = read_jsonl(a.dir / "events.jsonl")
+    except CabError as e:
+        events, rows = [], rows + f"<tr><th>events</th><td class='bad'>{escape(str(e))}</td></tr>"
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(a.rel)}</title><style>{CSS}</style></head><body>"
+            f"<h1>{escape(r['task'])} · {escape(a.config)} · attempt {r['attempt']}</h1><table>{rows}</table>"
+            f"<h2>Verdict details</h2>{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
+            f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
+            f"<h2>Timeline</h2>{timeline(a.dir, events)}</body></html>\n")
+
+
+def write_view(attempt_dir: Path) -> Path:
+    """Write ``view.html`` into the attempt directory; returns its path."""
+    d = Path(attempt_dir)
+    page = d / "view.html"
+    page.write_text(render(Attempt.load(d)))
+    return page
+
+
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="cab-view", description="Write view.html for one attempt directory.")
+    ap.add_argument("dir", help="an attempt directory (holding result.json)")
+    a = ap.parse_args(argv)
+    try:
+        page = write_view(Path(a.dir))
+    except CabError as e:
+        print(f"cab-view: {e}", file=sys.stderr)
+        sys.exit(2)
+    print(page)
