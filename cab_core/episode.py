@@ -5,7 +5,7 @@ from __future__ import annotations
 import platform
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -47,6 +47,10 @@ class AttemptSpec:
     embodiment_cfg: dict = field(default_factory=dict)
     model_cfg: dict = field(default_factory=dict)
     harness_cfg: dict = field(default_factory=dict)
+
+    def as_record(self) -> dict:
+        """Everything but the output directory: what a replay needs to rebuild the attempt."""
+        return {k: v for k, v in asdict(self).items() if k != "output_dir"}
 
 
 @dataclass
@@ -185,7 +189,7 @@ class Episode:
         self.setup_seconds = time.monotonic() - t0
         self.recorder.event("attempt_start", task=spec.task, seed=spec.seed, attempt=spec.attempt,
                             instruction=self.task.info.instruction, budget=self.ledger.remaining(),
-                            setup_seconds=round(self.setup_seconds, 3))
+                            setup_seconds=round(self.setup_seconds, 3), config=spec.as_record())
 
     def _video_frame(self, step: int) -> None:
         if step % self._video_every == 0 and self.recorder.video is not None:
