@@ -1,0 +1,788 @@
+"""The PyBullet backend of :class:`cab_core.simulator.Simulator`.
+
+One DIRECT physics client per simulator (several simulators live side by side in one process; every
+call names its client). Built once from a ``SceneSpec`` plus an ``EmbodimentSpec``, the same
+description the SAPIEN backend builds from; see :meth:`PybulletSimulator.build`.
+
+Options (the ``cfg`` dict of the plugin factory; ``conf/sim/pybullet.yaml`` sets them):
+
+``render`` (bool, default true)
+    Create visual shapes and render cameras. With ``false``, camera poses, intrinsics and sizes still
+    work and :meth:`render` raises ``RendererUnavailable``.
+``renderer`` (``auto`` | ``tiny`` | ``egl``, default ``auto``)
+    See :mod:`cab_sim_pybullet.renderer`: TinyRenderer on the CPU, the EGL plugin with a GPU.
+``timestep`` (float, default: the scene's, 1/250 s)
+    Overrides ``SceneSpec.timestep``.
+``physics`` (dict)
+    Physical parameters where Bullet needs a value that PhysX does not, or models a quantity
+    differently; keys and defaults in :data:`PHYSICS_DEFAULTS`, each documented there.
+
+Conventions: poses are float64 ``[x, y, z, qw, qx, qy, qz]`` (PyBullet's quaternions are xyzw and
+its base pose is the centre-of-mass frame; both are converted here). Cameras: computed from the
+mount link and the OpenCV-axes spec, rendered with a projection built from K (1 px agreement with
+SAPIEN's pinhole model by construction).
+
+Snapshots: ``save_state`` records every multibody's base pose and velocity and joint positions and
+velocities exactly as Bullet holds them (float64), the drive targets, the step count and the last
+step's contacts. Restoring resets the physics client and rebuilds the world from the same
+description before writing the state, so no contact cache (Bullet's persistent manifolds and their
+warm-start impulses) survives from a different history: stepping after a restore depends on the
+snapshot only. ``save_state`` writes its snapshot back the same way, so "save, step" and "restore,
+step" replay alike, in this simulator or in another build. The price: a snapshot perturbs the run
+it is taken from (the dropped warm-start caches), identically on every run that takes it; and a
+restore costs a rebuild (tens of milliseconds for an aloha scene).
+"""
+from __future__ import annotations
+
+import importlib.metadata
+import io
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import pybullet
+from pybullet_utils.bullet_client import BulletClient
+
+from cab_core.embodiment import EmbodimentSpec
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
+from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
+from cab_core.scene import (Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere,
+                            as_pose)
+from cab_core.simulator import ROBOT, Contact, SimState, Simulator
+
+from . import massprops
+from . import renderer as _renderer
+
+log = logging.getLogger(__name__)
+
+BACKEND = "pybullet"
+STATE_FORMAT = 1
+_KNOWN_OPTIONS = {"render", "renderer", "timestep", "physics", "name"}
+
+PHYSICS_DEFAULTS: dict[str, float] = {
+    # Constraint-solver iterations per step (Bullet's sequential impulse solver).
+    "solver_iterations": 50.0,
+    # Squeeze of each gripper finger on a grasped object (N). Bullet's joint motor pushes with at
+    # most this force once the fingers are blocked; PhysX's drive pushes with stiffness * error.
+    "gripper_force_n": 40.0,
+    # Upper bound of an arm joint motor (N m) where the URDF declares no effort limit.
+    "arm_force_nm": 200.0,
+    # Drive response: a joint motor asks for v = v_target + (stiffness / damping) * error each
+    # step, the massless limit of the PhysX drive force stiffness * error + damping * (v_t - v).
+    # This factor scales the stiffness / damping ratio.
+    "drive_rate_scale": 1.0,
+    # Diffuse and specular coefficients of TinyRenderer's light (the ambient one comes from the scene).
+    "light_diffuse": 0.6,
+    "light_specular": 0.05,
+}
+# Friction: PhysX combines two materials' coefficients by their average, Bullet by their product.
+# Each material gets sqrt(mu) here (mu = mean of its static and dynamic coefficients), so a pair
+# combines to the geometric mean of the two, which equals PhysX's average for equal coefficients.
+
+
+def _xyzw(q) -> list[float]:
+    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
+
+
+def _pose_from_bullet(pos, orn) -> np.ndarray:
+    return np.array([pos[0], pos[1], pos[2], orn[3], orn[0], orn[1], orn[2]], dtype=float)
+
+
+def _pose_or_bad(pose) -> tuple[float, ...]:
+    try:
+        return as_pose(pose)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(str(e)) from None
+
+
+def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
+    if a.shape != (n,):
+        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
+    return a
+
+
+def _bullet_friction(m: Material) -> float:
+    return math.sqrt(max(0.0, 0.5 * (float(m.static_friction) + float(m.dynamic_friction))))
+
+
+# Capsules and cylinders: cab's axis is local x, Bullet's local z. This rotation (about y by +90
+# degrees, wxyz) takes Bullet's z axis onto x.
+_Z_TO_X = (0.0, 0.0, 0.0, math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0)
+
+
+@dataclass
+class _MultiBody:
+    """One Bullet multibody: a rigid body (no joints) or an articulation (URDF)."""
+    uid: int
+    kind: str  # static | dynamic | kinematic | articulation
+    com_local: np.ndarray  # pose of the base's centre-of-mass frame in the base link frame
+    joints: list[int] = field(default_factory=list)  # movable joints, URDF order
+    links: dict[str, int] = field(default_factory=dict)  # link name -> link index (-1: base)
+
+
+@dataclass
+class _Camera:
+    spec: CameraSpec
+    K: np.ndarray
+    mount: int | None  # robot link index of a mounted camera, None for a fixed one
+    local: np.ndarray  # cv pose: world pose (fixed) or pose in the mount link (mounted)
+    projection: list[float]
+
+
+class PybulletSimulator(Simulator):
+    """PyBullet 3 (Bullet multibodies, TinyRenderer or EGL). Not thread-safe: one owner thread."""
+
+    name = BACKEND
+
+    def __init__(self, cfg: dict | None = None):
+        cfg = dict(cfg or {})
+        unknown = sorted(k for k in cfg if k not in _KNOWN_OPTIONS and not str(k).startswith("_"))
+        if unknown:
+            raise ConfigError(f"unknown pybullet simulator option(s) {unknown}; known: {sorted(_KNOWN_OPTIONS)}")
+        self._render_enabled = bool(cfg.get("render", True))
+        self._renderer = _renderer.choose(str(cfg.get("renderer", "auto"))) if self._render_enabled else None
+        ts = cfg.get("timestep")
+        if ts is not None and (isinstance(ts, bool) or not isinstance(ts, (int, float)) or not ts > 0):
+            raise ConfigError(f"pybullet timestep must be a positive number, got {ts!r}")
+        self._timestep_override = None if ts is None else float(ts)
+        physics = dict(cfg.get("physics") or {})
+        bad = sorted(k for k in physics if k not in PHYSICS_DEFAULTS)
+        if bad:
+            raise ConfigError(f"unknown pybullet physics parameter(s) {bad}; known: {sorted(PHYSICS_DEFAULTS)}")
+        self._physics = dict(PHYSICS_DEFAULTS)
+        for k, v in physics.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+                raise ConfigError(f"pybullet physics.{k} must be a positive number, got {v!r}")
+            self._physics[k] = float(v)
+        self._c: BulletClient | None = None
+        self._closed = False
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def build(self, scene: SceneSpec, embodiment: EmbodimentSpec) -> None:
+        """Create the world: ground, bodies, articulated objects, the robot, cameras.
+
+        - Ground: a static plane at ``scene.ground_z`` named ``"ground"``.
+        - Bodies: Bullet multibodies without joints; primitives and OBJ meshes (convex hulls;
+          non-convex triangle meshes only on static and kinematic bodies). Static and kinematic
+          bodies have no mass (kinematic ones move only when code teleports them). Mass, centre of
+          mass and inertia come from the density over the exact shapes (:mod:`.massprops`);
+          ``mass`` rescales them. Friction: see :data:`PHYSICS_DEFAULTS`.
+        - Articulated objects: PyBullet's URDF loader with the URDF's inertias and joint limits;
+          ``joint_friction`` (a joint motor holding zero velocity with that force) and
+          ``joint_damping`` override the URDF's ``<dynamics>`` when non-zero.
+        - Robot: fixed base at ``base_pose``; position motors on every joint of ``joint_order()``;
+          links of one arm never collide with each other or with the robot's body, the two arms
+          collide with each other (as in the SAPIEN backend). Arms start at ``home_qpos`` with the
+          grippers open; targets equal the start.
+        - Cameras: scene cameras at their world pose, embodiment cameras on their ``mount_link``.
+        """
+        if self._c is not None or self._closed:
+            raise SimulatorError("build() is called once per simulator")
+        self._timestep = self._timestep_override or float(scene.timestep)
+        self._scene_spec, self._emb = scene, embodiment
+        self._validate_names(scene)
+        self._c = BulletClient(connection_mode=pybullet.DIRECT)
+        try:
+            self._egl_plugin = None
+            if self._renderer is not None and self._renderer.kind == "egl":
+                self._egl_plugin = _renderer.load_egl(self._c)
+            self._build_world()
+        except Exception:
+            self.close()
+            raise
+        self._steps = 0
+        self._contacts: list[Contact] | None = []
+
+    @staticmethod
+    def _validate_names(scene: SceneSpec) -> None:
+        seen: set[str] = set()
+        for name in scene.names():
+            if not name or "/" in name or name in (ROBOT, "ground") or name in seen:
+                raise BadCommand(f"invalid or duplicate object name {name!r} (names are unique, "
+                                 f"non-empty, without '/', and not 'robot' or 'ground')")
+            seen.add(name)
+
+    def _build_world(self) -> None:
+        """(Re)create everything in the client, in a fixed order (a rebuild gives the same ids)."""
+        c, scene = self._c, self._scene_spec
+        c.resetSimulation()
+        c.setGravity(*[float(g) for g in scene.gravity])
+        c.setPhysicsEngineParameter(fixedTimeStep=self._timestep, numSubSteps=0,
+                                    numSolverIterations=int(self._physics["solver_iterations"]),
+                                    deterministicOverlappingPairs=1)
+        self._names: dict[tuple[int, int], str] = {}
+        self._bodies: dict[str, _MultiBody] = {}
+        self._arts: dict[str, _MultiBody] = {}
+        self._build_ground(scene)
+        for body in scene.bodies:
+            self._build_body(body)
+        for obj in scene.articulations:
+            self._build_articulated_object(obj, scene.default_material)
+        self._object_order = scene.names()
+        self._build_robot(self._emb, scene.default_material)
+        self._build_cameras(list(scene.cameras) + list(self._emb.cameras))
+        self._shading = _renderer.Shading.from_lighting(scene.lighting, self._physics["light_diffuse"],
+                                                        self._physics["light_specular"])
+
+    def _build_ground(self, scene: SceneSpec) -> None:
+        c = self._c
+        col = c.createCollisionShape(pybullet.GEOM_PLANE)
+        vis = -1
+        if self._render_enabled:
+            vis = c.createVisualShape(pybullet.GEOM_BOX, halfExtents=[20.0, 20.0, 0.0005],
+                                      visualFramePosition=[0.0, 0.0, -0.0005],
+                                      rgbaColor=[float(x) for x in scene.ground_color])
+        uid = c.createMultiBody(0.0, col, vis, [0.0, 0.0, float(scene.ground_z)])
+        self._set_material(uid, -1, scene.default_material)
+        self._names[(uid, -1)] = "ground"
+
+    def _set_material(self, uid: int, link: int, m: Material) -> None:
+        self._c.changeDynamics(uid, link, lateralFriction=_bullet_friction(m),
+                               restitution=math.sqrt(max(0.0, float(m.restitution))))
+
+    # -- bodies -------------------------------------------------------------------------------
+    def _shape_arrays(self, body, collision: bool) -> dict | None:
+        """Arguments of createCollisionShapeArray / createVisualShapeArray for a body's shapes."""
+        shapes = [s for s in body.shapes if (s.collision if collision else s.visual)]
+        if not shapes:
+            return None
+        out: dict[str, list] = {"shapeTypes": [], "halfExtents": [], "radii": [], "lengths": [],
+                                "fileNames": [], "meshScales": [], "flags": []}
+        pos_key, orn_key = (("collisionFramePositions", "collisionFrameOrientations") if collision
+                            else ("visualFramePositions", "visualFrameOrientations"))
+        out[pos_key], out[orn_key] = [], []
+        if not collision:
+            out["rgbaColors"] = []
+        for s in shapes:
+            g = s.geometry
+            pose = _pose_or_bad(s.pose)
+            kind, half, radius, length, fname, scale, flags = pybullet.GEOM_BOX, [0.0] * 3, 0.0, 0.0, "", [1.0] * 3, 0
+            if isinstance(g, Box):
+                half = [float(h) for h in g.half_size]
+            elif isinstance(g, Sphere):
+                kind, radius = pybullet.GEOM_SPHERE, float(g.radius)
+            elif isinstance(g, (Capsule, Cylinder)):
+                kind = pybullet.GEOM_CAPSULE if isinstance(g, Capsule) else pybullet.GEOM_CYLINDER
+                radius, length = float(g.radius), 2.0 * float(g.half_length)
+                pose = tuple(pose_mul(pose, _Z_TO_X))
+            elif isinstance(g, Mesh):
+                if not os.path.isfile(g.path):
+                    raise BadCommand(f"body {body.name!r}: mesh file not found: {g.path}")
+                kind, fname, scale = pybullet.GEOM_MESH, g.path, [float(x) for x in g.scale]
+                if collision and not g.convex:
+                    if body.kind == "dynamic":
+                        raise BadCommand(f"body {body.name!r}: a non-convex mesh collides only on static or "
+                                         f"kinematic bodies; use convex=True or split the mesh")
+                    flags = pybullet.GEOM_FORCE_CONCAVE_TRIMESH
+            else:
+                raise BadCommand(f"body {body.name!r}: unsupported geometry {type(g).__name__}")
+            for key, value in (("shapeTypes", kind), ("halfExtents", half), ("radii", radius),
+                               ("lengths", length), ("fileNames", fname), ("meshScales", scale),
+                               ("flags", flags), (pos_key, list(pose[:3])), (orn_key, _xyzw(pose[3:]))):
+                out[key].append(value)
+            if not collision:
+                out["rgbaColors"].append([float(x) for x in s.material.color])
+        if not collision:
+            del out["flags"]
+        return out
+
+    def _mass_props(self, body) -> massprops.MassProps:
+        parts = []
+        for s in body.shapes:
+            if s.collision:
+                try:
+                    parts.append(massprops.transformed(massprops.shape_props(s.geometry, float(body.density)),
+                                                       _pose_or_bad(s.pose)))
+                except ValueError as e:
+                    raise BadCommand(f"body {body.name!r}: {e}") from None
+        props = massprops.combine(parts)
+        if body.mass is not None:
+            if not body.mass > 0:
+                raise BadCommand(f"body {body.name!r}: mass must be positive, got {body.mass}")
+            k = float(body.mass) / props.mass
+            props = massprops.MassProps(float(body.mass), props.com, props.inertia * k)
+        return props
+
+    def _build_body(self, body) -> None:
+        if body.kind not in ("static", "dynamic", "kinematic"):
+            raise BadCommand(f"body {body.name!r}: unknown kind {body.kind!r}")
+        c = self._c
+        col_args = self._shape_arrays(body, collision=True)
+        vis_args = self._shape_arrays(body, collision=False) if self._render_enabled else None
+        col = c.createCollisionShapeArray(**col_args) if col_args else -1
+        vis = c.createVisualShapeArray(**vis_args) if vis_args else -1
+        if col_args and col < 0:
+            raise SimulatorError(f"body {body.name!r}: a collision shape failed to build (bad mesh?)")
+        pose = _pose_or_bad(body.pose)
+        com_local = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+        mass, moments = 0.0, None
+        if body.kind == "dynamic":
+            if not col_args:
+                raise BadCommand(f"body {body.name!r}: a dynamic body needs a collision shape")
+            props = self._mass_props(body)
+            moments, axes = massprops.principal(props)
+            com_local = np.concatenate([props.com, mat_to_quat(axes)])
+            mass = props.mass
+        uid = c.createMultiBody(mass, col, vis, list(pose[:3]), _xyzw(pose[3:]),
+                                baseInertialFramePosition=list(com_local[:3]),
+                                baseInertialFrameOrientation=_xyzw(com_local[3:]))
+        if uid < 0:
+            raise SimulatorError(f"body {body.name!r}: PyBullet refused the body")
+        first = next((s.material for s in body.shapes if s.collision), self._scene_spec.default_material)
+        self._set_material(uid, -1, first)
+        if body.kind == "dynamic":
+            c.changeDynamics(uid, -1, localInertiaDiagonal=[float(x) for x in moments],
+                             linearDamping=float(body.linear_damping), angularDamping=float(body.angular_damping))
+        self._bodies[body.name] = _MultiBody(uid, body.kind, com_local)
+        self._names[(uid, -1)] = body.name
+
+    # -- articulations ------------------------------------------------------------------------
+    def _load_urdf(self, urdf: str, fix_root: bool, pose, flags: int = 0) -> _MultiBody:
+        if not os.path.isfile(urdf):
+            raise BadCommand(f"URDF not found: {urdf}")
+        c = self._c
+        p = _pose_or_bad(pose)
+        try:
+            uid = c.loadURDF(urdf, list(p[:3]), _xyzw(p[3:]), useFixedBase=bool(fix_root),
+                             flags=flags | pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_MAINTAIN_LINK_ORDER)
+        except pybullet.error as e:
+            raise BadCommand(f"cannot load URDF {urdf}: {e}") from e
+        info = c.getDynamicsInfo(uid, -1)
+        mb = _MultiBody(uid, "articulation", _pose_from_bullet(info[3], info[4]))
+        mb.links[c.getBodyInfo(uid)[0].decode()] = -1
+        for j in range(c.getNumJoints(uid)):
+            ji = c.getJointInfo(uid, j)
+            mb.links[ji[12].decode()] = j
+            if ji[2] in (pybullet.JOINT_REVOLUTE, pybullet.JOINT_PRISMATIC):
+                mb.joints.append(j)
+            c.changeDynamics(uid, j, linearDamping=0.0, angularDamping=0.0)
+        c.changeDynamics(uid, -1, linearDamping=0.0, angularDamping=0.0)
+        return mb
+
+    def _build_articulated_object(self, obj, default: Material) -> None:
+        c = self._c
+        mb = self._load_urdf(obj.urdf, obj.fix_root, obj.pose)
+        for link in mb.links.values():
+            self._set_material(mb.uid, link, default)
+        for j in mb.joints:
+            friction = float(obj.joint_friction) or float(c.getJointInfo(mb.uid, j)[7])
+            c.setJointMotorControl2(mb.uid, j, pybullet.VELOCITY_CONTROL, targetVelocity=0.0, force=friction)
+            if obj.joint_damping > 0:
+                c.changeDynamics(mb.uid, j, jointDamping=float(obj.joint_damping))
+        if obj.qpos is not None:
+            q = _vector_or_bad(obj.qpos, len(mb.joints), f"initial qpos of {obj.name!r}")
+            for j, v in zip(mb.joints, q.tolist()):
+                c.resetJointState(mb.uid, j, v, 0.0)
+        for link, index in mb.links.items():
+            self._names[(mb.uid, index)] = f"{obj.name}/{link}"
+        self._arts[obj.name] = mb
+
+    def _build_robot(self, emb: EmbodimentSpec, default: Material) -> None:
+        c = self._c
+        mb = self._load_urdf(emb.urdf, True, emb.base_pose, pybullet.URDF_USE_SELF_COLLISION)
+        self._robot = mb
+        for link, index in mb.links.items():
+            self._set_material(mb.uid, index, default)
+            self._names[(mb.uid, index)] = f"{ROBOT}/{link}"
+        self._filter_self_collisions(emb)
+        by_name = {c.getJointInfo(mb.uid, j)[1].decode(): j for j in mb.joints}
+        order = emb.joint_order()
+        missing = [n for n in order if n not in by_name]
+        if missing:
+            raise BadCommand(f"embodiment {emb.name!r}: joints {missing} are not movable joints of {emb.urdf}")
+        self._joint_names = list(order)
+        self._drive_idx = [by_name[n] for n in order]
+        gripper = {j for arm in emb.arms.values() for j in arm.gripper.joints}
+        rate = self._physics["drive_rate_scale"] * self._timestep
+        self._kp = [rate * (emb.gripper_stiffness / emb.gripper_damping if n in gripper
+                            else emb.drive_stiffness / emb.drive_damping) for n in order]
+        self._force = []
+        for n, j in zip(order, self._drive_idx):
+            effort = float(c.getJointInfo(mb.uid, j)[10])
+            self._force.append(self._physics["gripper_force_n"] if n in gripper
+                               else (effort if effort > 0 else self._physics["arm_force_nm"]))
+        start = self._home(emb, order)
+        for j, v in zip(self._drive_idx, start.tolist()):
+            c.resetJointState(mb.uid, j, v, 0.0)
+        # movable joints outside joint_order (none in a well-formed embodiment) hold their start
+        for j in mb.joints:
+            if j not in self._drive_idx:
+                name = c.getJointInfo(mb.uid, j)[1].decode()
+                log.warning("robot joint %r is not in the embodiment's joint order; holding it", name)
+                c.setJointMotorControl2(mb.uid, j, pybullet.POSITION_CONTROL,
+                                        targetPosition=c.getJointState(mb.uid, j)[0],
+                                        force=self._physics["arm_force_nm"])
+        self._targets = np.zeros(len(order))
+        self._vtargets = np.zeros(len(order))
+        self._apply_targets(start)
+
+    @staticmethod
+    def _home(emb: EmbodimentSpec, order: list[str]) -> np.ndarray:
+        start = np.zeros(len(order))
+        pos = {n: i for i, n in enumerate(order)}
+        for arm in emb.arms.values():
+            home = tuple(arm.home_qpos)
+            if len(home) == len(arm.joints):
+                values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
+            elif len(home) == len(arm.joints) + len(arm.gripper.joints):
+                values = list(home)
+            else:
+                raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for "
+                                 f"{len(arm.joints)} joints")
+            for n, v in zip(list(arm.joints) + list(arm.gripper.joints), values):
+                start[pos[n]] = v
+        return start
+
+    def _filter_self_collisions(self, emb: EmbodimentSpec) -> None:
+        """Links of one arm never collide with each other nor with the robot's body; the two arms
+        collide. Bullet pairs two colliders when each one's group meets the other's mask: every arm
+        gets its own group bit, the body another, and each mask leaves out its own and the body's
+        bit (arms) or every robot bit (body). Static objects stay out of the body's mask, as
+        Bullet's default filter for a fixed base has it."""
+        arm_bits = {name: 1 << (4 + i) for i, name in enumerate(sorted(emb.arms))}
+        body_bit = 1 << (4 + len(arm_bits))
+        robot_bits = body_bit
+        for b in arm_bits.values():
+            robot_bits |= b
+        owner = {l: arm_bits[name] for name, arm in emb.arms.items() for l in arm.links}
+        everything = -1
+        static_group = 2  # Bullet's StaticFilter
+        for link, index in self._robot.links.items():
+            bit = owner.get(link)
+            if bit is None:
+                self._c.setCollisionFilterGroupMask(self._robot.uid, index, body_bit,
+                                                    everything & ~robot_bits & ~static_group)
+            else:
+                self._c.setCollisionFilterGroupMask(self._robot.uid, index, bit, everything & ~(bit | body_bit))
+
+    # -- cameras ------------------------------------------------------------------------------
+    def _build_cameras(self, specs: list[CameraSpec]) -> None:
+        self._cameras: dict[str, _Camera] = {}
+        for spec in specs:
+            if spec.name in self._cameras:
+                raise BadCommand(f"duplicate camera name {spec.name!r}")
+            if spec.width <= 0 or spec.height <= 0 or not 0 < spec.fovy_deg < 180:
+                raise BadCommand(f"camera {spec.name!r}: bad size or field of view")
+            mount = None
+            if spec.mount_link is not None:
+                mount = self._robot.links.get(spec.mount_link)
+                if mount is None:
+                    raise BadCommand(f"camera {spec.name!r}: mount link {spec.mount_link!r} is not a robot link")
+            K = intrinsics(int(spec.width), int(spec.height), float(spec.fovy_deg))
+            proj = _renderer.projection_matrix(K, int(spec.width), int(spec.height), float(spec.near), float(spec.far))
+            self._cameras[spec.name] = _Camera(spec, K, mount, np.asarray(_pose_or_bad(spec.pose)), proj)
+
+    def close(self) -> None:
+        """Disconnect the physics client. Idempotent."""
+        self._closed = True
+        c, self._c = self._c, None
+        if c is None:
+            return
+        try:
+            c.disconnect()
+        except pybullet.error:  # already gone
+            log.debug("disconnect failed during close", exc_info=True)
+
+    def _live(self) -> BulletClient:
+        if self._c is None:
+            raise SimulatorError("the simulator is closed" if self._closed else "build() was not called")
+        return self._c
+
+    @property
+    def timestep(self) -> float:
+        self._live()
+        return self._timestep
+
+    def step(self, n: int = 1) -> None:
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+        c = self._live()
+        if n == 0:
+            return
+        for _ in range(int(n)):
+            c.stepSimulation()
+        self._steps += int(n)
+        self._contacts = None
+
+    # -- poses --------------------------------------------------------------------------------
+    def _link_pose(self, mb: _MultiBody, index: int) -> np.ndarray:
+        c = self._c
+        if index == -1:
+            pos, orn = c.getBasePositionAndOrientation(mb.uid)
+            return pose_mul(_pose_from_bullet(pos, orn), pose_inv(mb.com_local))
+        s = c.getLinkState(mb.uid, index, computeForwardKinematics=1)
+        return _pose_from_bullet(s[4], s[5])
+
+    # -- robot --------------------------------------------------------------------------------
+    @property
+    def joint_names(self) -> list[str]:
+        self._live()
+        return list(self._joint_names)
+
+    def _joint_states(self) -> list:
+        return self._c.getJointStates(self._robot.uid, self._drive_idx)
+
+    def get_qpos(self) -> np.ndarray:
+        self._live()
+        return np.array([s[0] for s in self._joint_states()], dtype=float)
+
+    def get_qvel(self) -> np.ndarray:
+        self._live()
+        return np.array([s[1] for s in self._joint_states()], dtype=float)
+
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        c = self._live()
+        q = _vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        for j, v in zip(self._drive_idx, q.tolist()):
+            c.resetJointState(self._robot.uid, j, v, 0.0)
+        self._apply_targets(q)
+
+    def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
+        self._live()
+        t = _vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else _vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
+        self._apply_targets(t, v)
+
+    def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
+        v = np.zeros(len(t)) if v is None else v
+        self._c.setJointMotorControlArray(self._robot.uid, self._drive_idx, pybullet.POSITION_CONTROL,
+                                          targetPositions=t.tolist(), targetVelocities=v.tolist(),
+                                          positionGains=self._kp, velocityGains=[1.0] * len(t),
+                                          forces=self._force)
+        self._targets = np.array(t, dtype=float)
+        self._vtargets = np.array(v, dtype=float)
+
+    def get_drive_targets(self) -> np.ndarray:
+        self._live()
+        return self._targets.copy()
+
+    def get_link_pose(self, link: str) -> np.ndarray:
+        self._live()
+        links = self._robot.links
+        index = links.get(link) if isinstance(link, str) else None
+        if index is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
+            index = links.get(link[len(ROBOT) + 1:])
+        if index is None:
+            raise BadCommand(f"unknown robot link {link!r}")
+        return self._link_pose(self._robot, index)
+
+    # -- objects ------------------------------------------------------------------------------
+    def object_names(self) -> list[str]:
+        self._live()
+        return list(self._object_order)
+
+    def _object(self, name: str) -> _MultiBody:
+        self._live()
+        mb = (self._bodies.get(name) or self._arts.get(name)) if isinstance(name, str) else None
+        if mb is None:
+            raise BadCommand(f"unknown object {name!r}")
+        return mb
+
+    def get_object_pose(self, name: str) -> np.ndarray:
+        return self._link_pose(self._object(name), -1)
+
+    def set_object_pose(self, name: str, pose) -> None:
+        """Teleport a body (or an articulated object's root) and zero its velocity."""
+        mb = self._object(name)
+        p = pose_mul(_pose_or_bad(pose), mb.com_local)
+        c = self._c
+        c.resetBasePositionAndOrientation(mb.uid, p[:3].tolist(), _xyzw(p[3:]))
+        c.resetBaseVelocity(mb.uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+        for j in mb.joints:
+            c.resetJointState(mb.uid, j, c.getJointState(mb.uid, j)[0], 0.0)
+
+    def get_object_velocity(self, name: str) -> np.ndarray:
+        mb = self._object(name)
+        if mb.kind in ("static", "kinematic"):
+            return np.zeros(6)
+        lin, ang = self._c.getBaseVelocity(mb.uid)
+        return np.array(list(lin) + list(ang), dtype=float)
+
+    def get_object_qpos(self, name: str) -> np.ndarray:
+        mb = self._object(name)
+        return np.array([s[0] for s in self._c.getJointStates(mb.uid, mb.joints)] if mb.joints else [], dtype=float)
+
+    def set_object_qpos(self, name: str, qpos) -> None:
+        """Set an articulated object's joints (and zero their velocities)."""
+        mb = self._object(name)
+        if mb.kind != "articulation":
+            raise BadCommand(f"{name!r} is a rigid body; it has no joints")
+        q = _vector_or_bad(qpos, len(mb.joints), f"qpos of {name!r}")
+        for j, v in zip(mb.joints, q.tolist()):
+            self._c.resetJointState(mb.uid, j, v, 0.0)
+
+    def get_object_link_names(self, name: str) -> list[str]:
+        self._live()
+        mb = self._arts.get(name)
+        return list(mb.links) if mb is not None else []
+
+    def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
+        mb = self._object(name)
+        index = mb.links.get(link) if isinstance(link, str) else None
+        if index is None:
+            raise BadCommand(f"unknown link {link!r} of object {name!r}")
+        return self._link_pose(mb, index)
+
+    # -- contacts -----------------------------------------------------------------------------
+    def get_contacts(self) -> list[Contact]:
+        """One entry per body pair in contact during the last step, names sorted within the pair,
+        pairs sorted; impulse = sum over the pair's points of |normal + friction force| * timestep
+        (N*s); point = mean position of the points that carried force."""
+        self._live()
+        if self._contacts is None:
+            self._contacts = self._compute_contacts()
+        return list(self._contacts)
+
+    def _compute_contacts(self) -> list[Contact]:
+        names = self._names
+        acc: dict[tuple[str, str], list] = {}
+        dt = self._timestep
+        for pt in self._c.getContactPoints():
+            f = math.sqrt(pt[9] * pt[9] + pt[10] * pt[10] + pt[12] * pt[12])
+            if not f > 0.0:
+                continue
+            n0, n1 = names.get((pt[1], pt[3])), names.get((pt[2], pt[4]))
+            if n0 is None or n1 is None or n0 == n1:
+                continue
+            key = (n0, n1) if n0 <= n1 else (n1, n0)
+            a, b = pt[5], pt[6]
+            e = acc.setdefault(key, [0.0, 0.0, 0.0, 0.0, 0])
+            e[0] += f * dt
+            e[1] += 0.5 * (a[0] + b[0])
+            e[2] += 0.5 * (a[1] + b[1])
+            e[3] += 0.5 * (a[2] + b[2])
+            e[4] += 1
+        return [Contact(a, b, e[0], (e[1] / e[4], e[2] / e[4], e[3] / e[4]))
+                for (a, b), e in sorted(acc.items())]
+
+    # -- cameras ------------------------------------------------------------------------------
+    def _camera(self, name: str) -> _Camera:
+        self._live()
+        cam = self._cameras.get(name) if isinstance(name, str) else None
+        if cam is None:
+            raise BadCommand(f"unknown camera {name!r}")
+        return cam
+
+    def camera_names(self) -> list[str]:
+        self._live()
+        return list(self._cameras)
+
+    def camera_pose(self, name: str) -> np.ndarray:
+        cam = self._camera(name)
+        if cam.mount is None:
+            return cam.local.copy()
+        return pose_mul(self._link_pose(self._robot, cam.mount), cam.local)
+
+    def camera_intrinsics(self, name: str) -> np.ndarray:
+        return self._camera(name).K.copy()
+
+    def camera_size(self, name: str) -> tuple[int, int]:
+        spec = self._camera(name).spec
+        return int(spec.height), int(spec.width)
+
+    def render(self, name: str) -> np.ndarray:
+        cam = self._camera(name)
+        if self._renderer is None:
+            raise RendererUnavailable("this PyBullet simulator was built with render: false (physics only); "
+                                      "build it with render: true to capture images")
+        w, h = int(cam.spec.width), int(cam.spec.height)
+        kind = pybullet.ER_BULLET_HARDWARE_OPENGL if self._renderer.kind == "egl" else pybullet.ER_TINY_RENDERER
+        out = self._c.getCameraImage(w, h, _renderer.view_matrix(self.camera_pose(name)), cam.projection,
+                                     renderer=kind, flags=pybullet.ER_NO_SEGMENTATION_MASK,
+                                     **self._shading.kwargs())
+        rgba = np.asarray(out[2], dtype=np.uint8).reshape(h, w, 4)
+        return np.ascontiguousarray(rgba[..., :3])
+
+    # -- state --------------------------------------------------------------------------------
+    def _multibodies(self) -> list[_MultiBody]:
+        return list(self._bodies.values()) + list(self._arts.values()) + [self._robot]
+
+    def _layout(self) -> str:
+        return json.dumps({"format": STATE_FORMAT, "bodies": [(n, b.kind) for n, b in self._bodies.items()],
+                           "articulations": [(n, len(a.joints)) for n, a in self._arts.items()],
+                           "robot": len(self._robot.joints), "joints": self._joint_names})
+
+    def save_state(self) -> SimState:
+        """Snapshot (``.npz``, no pickle) of base poses and velocities, joint positions and
+        velocities (float64, as Bullet holds them), drive targets, step count and the last step's
+        contacts. Written back at once (see the module docstring)."""
+        c = self._live()
+        mbs = self._multibodies()
+        base = np.zeros((len(mbs), 13))
+        q, qd = [], []
+        for i, mb in enumerate(mbs):
+            pos, orn = c.getBasePositionAndOrientation(mb.uid)
+            lin, ang = c.getBaseVelocity(mb.uid)
+            base[i] = list(pos) + list(orn) + list(lin) + list(ang)
+            for s in (c.getJointStates(mb.uid, mb.joints) if mb.joints else []):
+                q.append(s[0])
+                qd.append(s[1])
+        contacts = json.dumps([[x.a, x.b, x.impulse, x.point] for x in self.get_contacts()])
+        d = dict(layout=np.array(self._layout()), base=base, qpos=np.array(q, float), qvel=np.array(qd, float),
+                 targets=self._targets.copy(), vtargets=self._vtargets.copy(),
+                 steps=np.array(self._steps, np.int64), contacts=np.array(contacts))
+        self._rebuild_with(d)
+        buf = io.BytesIO()
+        np.savez(buf, **d)
+        return SimState(backend=BACKEND, data=buf.getvalue())
+
+    def restore_state(self, state: SimState) -> None:
+        """Restore a snapshot of this world (or of another build of the same scene and robot)."""
+        self._live()
+        if not isinstance(state, SimState) or state.backend != BACKEND:
+            raise BadCommand(f"not a {BACKEND} state: {getattr(state, 'backend', type(state).__name__)!r}")
+        try:
+            with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+            layout = str(d["layout"])
+        except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
+            raise BadCommand(f"corrupt {BACKEND} state: {e}") from None
+        if layout != self._layout():
+            raise BadCommand("the state was saved from a different scene or robot")
+        self._rebuild_with(d)
+
+    def _rebuild_with(self, d: dict) -> None:
+        """Rebuild the world from its description (fresh contact caches), then write ``d``."""
+        self._build_world()
+        c = self._c
+        k = 0
+        for i, mb in enumerate(self._multibodies()):
+            row = d["base"][i].tolist()
+            c.resetBasePositionAndOrientation(mb.uid, row[:3], row[3:7])
+            c.resetBaseVelocity(mb.uid, row[7:10], row[10:13])
+            for j in mb.joints:
+                c.resetJointState(mb.uid, j, float(d["qpos"][k]), float(d["qvel"][k]))
+                k += 1
+        self._apply_targets(np.asarray(d["targets"], float), np.asarray(d["vtargets"], float))
+        self._steps = int(d["steps"])
+        self._contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
+                          for a, b, imp, pt in json.loads(str(d["contacts"]))]
+
+    # -- provenance ---------------------------------------------------------------------------
+    def versions(self) -> dict[str, str]:
+        c = self._live()
+        out = {"simulator": BACKEND, "pybullet": importlib.metadata.version("pybullet"),
+               "bullet_api": str(c.getAPIVersion()), "timestep": repr(self._timestep),
+               "solver_iterations": str(int(self._physics["solver_iterations"])),
+               "render": "on" if self._renderer is not None else "off"}
+        if self._renderer is not None:
+            out["renderer"] = ("TinyRenderer (CPU)" if self._renderer.kind == "tiny"
+                               else "EGL plugin (hardware OpenGL)")
+            out["renderer_choice"] = self._renderer.reason
+        return out
+
+    # -- extras (not part of the contract) ----------------------------------------------------
+    @property
+    def steps(self) -> int:
+        """Physics steps taken since build (restored with a snapshot)."""
+        self._live()
+        return self._steps

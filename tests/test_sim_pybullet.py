@@ -1,0 +1,249 @@
+"""The PyBullet backend: the shared simulator conformance suite, plus PyBullet-specific checks
+(camera projection against PyBullet's own renderer, renderer choice, physics-only mode, options,
+mass properties, the snapshot guarantees this backend gives beyond the suite)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pybullet")
+
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError  # noqa: E402
+from cab_core.geometry import pose_inv, transform_point  # noqa: E402
+from cab_core.scene import Body, Box, CameraSpec, Capsule, Cylinder, Mesh, SceneSpec, Shape, Sphere  # noqa: E402
+from cab_core.testing import sim_conformance as sc  # noqa: E402
+from cab_sim_pybullet import massprops, renderer  # noqa: E402
+from cab_sim_pybullet.simulator import PybulletSimulator  # noqa: E402
+
+pytestmark = pytest.mark.sim
+
+
+@pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
+def test_conformance(check):
+    check(lambda: PybulletSimulator({"render": True, "renderer": "tiny"}))
+
+
+def test_conformance_physics_only():
+    """Everything but images also holds without visual shapes."""
+    for check in sc.CHECKS:
+        if check not in sc.NEEDS_RENDERER:
+            check(lambda: PybulletSimulator({"render": False}))
+
+
+def test_registered_through_entry_point():
+    from cab_core.plugins import build_plugin_manager, registry
+
+    factory = registry("simulators", build_plugin_manager(autoload=True))["pybullet"]
+    sim = factory({"render": False, "name": "pybullet"})
+    assert isinstance(sim, PybulletSimulator)
+
+
+def test_bad_options_are_config_errors():
+    for cfg in ({"rendr": True}, {"timestep": -1}, {"timestep": True}, {"renderer": "vulkan"},
+                {"physics": {"no_such_parameter": 1.0}}, {"physics": {"gripper_force_n": 0}}):
+        with pytest.raises(ConfigError):
+            PybulletSimulator(cfg)
+
+
+def test_timestep_option_overrides_the_scene():
+    sim = PybulletSimulator({"render": False, "timestep": 0.002})
+    sim.build(sc.make_scene(), sc.make_embodiment())
+    try:
+        assert sim.timestep == 0.002
+        assert sim.versions()["timestep"] == "0.002"
+    finally:
+        sim.close()
+
+
+def test_projected_point_lands_on_its_pixel():
+    """A small red sphere at a known world point renders centred on the pixel K predicts."""
+    target = np.array([0.05, 0.10, sc.TABLE_TOP + 0.15])
+    scene = SceneSpec(bodies=[Body("dot", [Shape(Sphere(0.006))], pose=tuple(target) + (1, 0, 0, 0),
+                                   kind="static")],
+                      cameras=[CameraSpec("cam", 320, 240, 45.0, pose=tuple(sc.make_scene().cameras[0].pose))])
+    scene.bodies[0].shapes[0] = Shape(Sphere(0.006), material=scene.bodies[0].shapes[0].material.__class__(
+        color=(1.0, 0.0, 0.0, 1.0)))
+    sim = PybulletSimulator({"render": True, "renderer": "tiny"})
+    sim.build(scene, sc.make_embodiment())
+    try:
+        img = sim.render("cam").astype(int)
+        red = (img[..., 0] > 150) & (img[..., 1] < 80) & (img[..., 2] < 80)
+        assert red.sum() > 4, "the marker is not visible"
+        v, u = np.nonzero(red)
+        p = transform_point(pose_inv(sim.camera_pose("cam")), target)
+        uv = (sim.camera_intrinsics("cam") @ p)[:2] / p[2]
+        centroid = np.array([u.mean() + 0.5, v.mean() + 0.5])  # pixel i covers [i, i + 1)
+        assert np.all(np.abs(centroid - uv) < 1.0), (centroid, uv)
+    finally:
+        sim.close()
+
+
+def test_renderer_choice(monkeypatch):
+    monkeypatch.setattr(renderer, "gpu_device_nodes", lambda: [])
+    assert renderer.choose("auto").kind == "tiny"
+    monkeypatch.setattr(renderer, "gpu_device_nodes", lambda: ["/dev/nvidia0"])
+    assert renderer.choose("auto").kind == "egl"
+    assert renderer.choose("tiny").kind == "tiny"
+    with pytest.raises(ConfigError):
+        renderer.choose("opengl")
+
+
+def test_egl_that_cannot_start_fails_fast(monkeypatch):
+    """A requested EGL renderer that does not load is a RendererUnavailable with a diagnosis."""
+    monkeypatch.setattr(renderer.importlib.util, "find_spec", lambda name: None)
+    sim = PybulletSimulator({"render": True, "renderer": "egl"})
+    with pytest.raises(RendererUnavailable, match="renderer: tiny"):
+        sim.build(sc.make_scene(), sc.make_embodiment())
+
+
+def test_versions_name_the_renderer():
+    sim = sc.build(lambda: PybulletSimulator({"render": True, "renderer": "tiny"}))
+    try:
+        v = sim.versions()
+        assert v["pybullet"] == "3.2.7" and v["render"] == "on"
+        assert v["renderer"] == "TinyRenderer (CPU)" and v["renderer_choice"] == "requested"
+    finally:
+        sim.close()
+
+
+def test_physics_only_build_keeps_camera_geometry():
+    sim = sc.build(lambda: PybulletSimulator({"render": False}))
+    try:
+        assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
+        assert sim.camera_size(sc.WRIST_CAMERA) == (120, 160)
+        with pytest.raises(RendererUnavailable, match="render: false"):
+            sim.render(sc.HEAD_CAMERA)
+        assert sim.versions()["render"] == "off"
+    finally:
+        sim.close()
+
+
+def test_dynamic_nonconvex_mesh_is_rejected():
+    obj = sc.assets_dir() / "cube.obj"
+    scene = SceneSpec(bodies=[Body("m", [Shape(Mesh(str(obj), convex=False))], pose=(0, 0, 1, 1, 0, 0, 0))])
+    with pytest.raises(BadCommand, match="non-convex"):
+        PybulletSimulator({"render": False}).build(scene, sc.make_embodiment())
+    scene.bodies[0].kind = "static"
+    sim = PybulletSimulator({"render": False})
+    sim.build(scene, sc.make_embodiment())
+    sim.close()
+
+
+@pytest.mark.parametrize("geometry, mass, inertia", [
+    (Box((0.1, 0.2, 0.3)), 1000 * 0.048, [0.048 * 1000 * (0.04 + 0.09) / 3, 0.048 * 1000 * (0.01 + 0.09) / 3,
+                                          0.048 * 1000 * (0.01 + 0.04) / 3]),
+    (Sphere(0.1), 1000 * 4 / 3 * np.pi * 1e-3, [0.4 * 1000 * 4 / 3 * np.pi * 1e-3 * 0.01] * 3),
+    (Cylinder(0.1, 0.2), 1000 * np.pi * 0.01 * 0.4,
+     [0.5 * 4 * np.pi * 0.01, 4 * np.pi * (0.03 + 0.16) / 12, 4 * np.pi * (0.03 + 0.16) / 12]),
+])
+def test_primitive_mass_properties(geometry, mass, inertia):
+    p = massprops.shape_props(geometry, 1000.0)
+    assert p.mass == pytest.approx(mass, rel=1e-9)
+    np.testing.assert_allclose(np.diag(p.inertia), inertia, rtol=1e-9)
+
+
+def test_convex_mesh_mass_properties_match_the_box():
+    """The hull integration of the conformance cube (scaled) gives the box's exact values."""
+    mesh = massprops.shape_props(Mesh(str(sc.assets_dir() / "cube.obj"), scale=(1.0, 2.0, 1.5)), 500.0)
+    box = massprops.shape_props(Box((0.02, 0.04, 0.03)), 500.0)
+    assert mesh.mass == pytest.approx(box.mass, rel=1e-9)
+    np.testing.assert_allclose(mesh.com, 0.0, atol=1e-12)
+    np.testing.assert_allclose(mesh.inertia, box.inertia, rtol=1e-9, atol=1e-15)
+
+
+def test_capsule_tends_to_a_sphere_and_a_cylinder():
+    r = 0.05
+    sphere = massprops.shape_props(Sphere(r), 1.0)
+    np.testing.assert_allclose(massprops.shape_props(Capsule(r, 1e-9), 1.0).inertia, sphere.inertia, rtol=1e-6)
+    long = massprops.shape_props(Capsule(0.001, 1.0), 1.0)
+    cyl = massprops.shape_props(Cylinder(0.001, 1.0), 1.0)
+    assert long.inertia[1, 1] == pytest.approx(cyl.inertia[1, 1], rel=1e-2)
+
+
+def test_body_mass_and_centre_of_mass_reach_bullet():
+    """An L-shaped body: the dynamics see the declared mass and the off-centre centre of mass,
+    and the reported pose stays the body frame."""
+    shapes = [Shape(Box((0.05, 0.01, 0.01))), Shape(Box((0.01, 0.05, 0.01)), pose=(0.04, 0.04, 0, 1, 0, 0, 0))]
+    scene = SceneSpec(bodies=[Body("ell", shapes, pose=(0.3, 0.2, 1.0, 1, 0, 0, 0), mass=0.25)])
+    sim = PybulletSimulator({"render": False})
+    sim.build(scene, sc.make_embodiment())
+    try:
+        np.testing.assert_allclose(sim.get_object_pose("ell"), (0.3, 0.2, 1.0, 1, 0, 0, 0), atol=1e-12)
+        mb = sim._bodies["ell"]
+        assert sim._c.getDynamicsInfo(mb.uid, -1)[0] == pytest.approx(0.25)
+        assert mb.com_local[0] > 0.005 and mb.com_local[1] > 0.005
+    finally:
+        sim.close()
+
+
+def test_snapshot_then_restore_replays_the_original_run():
+    """Stronger than the suite: save, run, restore, run again == the run right after the save,
+    bit for bit, in this instance and in a second build."""
+    def run(sim):
+        sc._motion_script(sim, 200, phase=60)
+        return sc.world_state(sim)
+
+    sim = sc.build(lambda: PybulletSimulator({"render": False}))
+    other = sc.build(lambda: PybulletSimulator({"render": False}))
+    try:
+        sc._motion_script(sim, 60)
+        snap = sim.save_state()
+        original = run(sim)
+        sim.restore_state(snap)
+        sc._assert_bit_equal(original, run(sim), "replay in the same instance")
+        other.restore_state(snap)
+        sc._assert_bit_equal(original, run(other), "replay in another build")
+        assert other.steps == sim.steps == 60 + 200
+    finally:
+        sim.close()
+        other.close()
+
+
+def test_closed_simulator_refuses_calls():
+    sim = sc.build(lambda: PybulletSimulator({"render": False}))
+    sim.close()
+    with pytest.raises(SimulatorError):
+        sim.step(1)
+    with pytest.raises(SimulatorError):
+        sim.get_qpos()
+
+
+def test_contacts_survive_a_restore():
+    """get_contacts() after a restore gives the snapshot's last-step contacts, not stale ones."""
+    sim = sc.build(lambda: PybulletSimulator({"render": False}))
+    try:
+        sim.step(100)
+        snap = sim.save_state()
+        before = sim.get_contacts()
+        sim.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
+        sim.step(5)
+        assert not any("cube" in (c.a, c.b) for c in sim.get_contacts())
+        sim.restore_state(snap)
+        assert sim.get_contacts() == before
+    finally:
+        sim.close()
+
+
+def test_two_simulators_in_one_process_are_independent():
+    a = sc.build(lambda: PybulletSimulator({"render": False}))
+    b = sc.build(lambda: PybulletSimulator({"render": False}))
+    try:
+        a.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
+        a.step(10)
+        b.step(10)
+        assert b.get_object_pose("cube")[2] < 0.8 < a.get_object_pose("cube")[2]
+    finally:
+        a.close()
+        b.close()
+
+
+def test_physics_only_steps_like_a_rendering_build():
+    a = sc.build(lambda: PybulletSimulator({"render": True, "renderer": "tiny"}))
+    b = sc.build(lambda: PybulletSimulator({"render": False}))
+    try:
+        sc._motion_script(a, 200)
+        sc._motion_script(b, 200)
+        sc._assert_bit_equal(sc.world_state(a), sc.world_state(b), "render on vs off")
+    finally:
+        a.close()
+        b.close()
