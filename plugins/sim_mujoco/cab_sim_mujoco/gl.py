@@ -1,0 +1,141 @@
+"""The OpenGL context MuJoCo renders through, chosen at launch, and what it turned out to be.
+
+MuJoCo renders with OpenGL; without a display that means EGL (a GPU driver, or Mesa's llvmpipe on
+the CPU) or OSMesa (Mesa's off-screen software renderer). The choice:
+
+1. ``MUJOCO_GL`` when the operator set it (``egl``, ``osmesa`` or ``glfw``): that backend or a
+   ``RendererUnavailable`` saying why it cannot start; never a silent switch to another one.
+2. Otherwise EGL when ``libEGL`` loads, else OSMesa when ``libOSMesa`` loads.
+
+PyOpenGL binds its platform (``PYOPENGL_PLATFORM``) once per process, so one backend serves the
+whole process: the first context decides, later ones reuse it. The renderer string
+(``GL_RENDERER``) is read from the started context; ``llvmpipe`` / ``softpipe`` there means the
+frames are drawn on the CPU, and :func:`describe` records it.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+from dataclasses import dataclass
+
+from cab_core.errors import RendererUnavailable
+
+VALID = ("egl", "osmesa", "glfw")
+_LIBS = {"egl": ("EGL", "libEGL.so.1"), "osmesa": ("OSMesa", "libOSMesa.so.8")}
+_PACKAGES = {"egl": "libegl1 libegl-mesa0 libgl1-mesa-dri", "osmesa": "libosmesa6",
+             "glfw": "libglfw3 and a display"}
+_SOFTWARE = ("llvmpipe", "softpipe", "swrast", "lavapipe")
+
+
+@dataclass
+class GLInfo:
+    backend: str  # egl | osmesa | glfw
+    chosen_by: str  # "MUJOCO_GL" or "auto"
+    renderer: str  # GL_RENDERER
+    version: str  # GL_VERSION
+    vendor: str  # GL_VENDOR
+
+
+_STARTED: dict[str, object] = {}  # "context", "info": the process's context, once started
+
+
+def _loads(backend: str) -> bool:
+    if backend == "glfw":
+        return True
+    name, soname = _LIBS[backend]
+    for candidate in (soname, ctypes.util.find_library(name)):
+        if not candidate:
+            continue
+        try:
+            ctypes.CDLL(candidate)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+def choose_backend(environ=os.environ) -> tuple[str, str]:
+    """(backend, how it was chosen). Raises RendererUnavailable when none can load."""
+    forced = (environ.get("MUJOCO_GL") or "").strip().lower()
+    if forced:
+        if forced not in VALID:
+            raise RendererUnavailable(f"MUJOCO_GL={forced!r} is not a backend MuJoCo can render with "
+                                      f"headless here; use one of {', '.join(VALID)} (or unset it)")
+        if not _loads(forced):
+            raise RendererUnavailable(f"MUJOCO_GL={forced} was set, but its library does not load; "
+                                      f"install {_PACKAGES[forced]}, or unset MUJOCO_GL to let cab choose")
+        return forced, "MUJOCO_GL"
+    for backend in ("egl", "osmesa"):
+        if _loads(backend):
+            return backend, "auto"
+    raise RendererUnavailable("MuJoCo found neither libEGL nor libOSMesa; install "
+                              f"{_PACKAGES['egl']} (EGL) or {_PACKAGES['osmesa']} (OSMesa), "
+                              "or build the simulator with render: false for physics-only use")
+
+
+def _context_class(backend: str):
+    """The GLContext class of ``backend``; setting PYOPENGL_PLATFORM first is what binds it."""
+    platform = os.environ.get("PYOPENGL_PLATFORM")
+    if backend in ("egl", "osmesa") and platform and platform.lower() != backend:
+        raise RendererUnavailable(f"PYOPENGL_PLATFORM={platform} conflicts with the {backend} backend; "
+                                  f"unset it or set MUJOCO_GL={platform.lower()}")
+    if backend == "egl":
+        from mujoco.egl import GLContext
+    elif backend == "osmesa":
+        from mujoco.osmesa import GLContext
+    else:
+        from mujoco.glfw import GLContext
+    return GLContext
+
+
+def context(width: int, height: int):
+    """The process's GL context (started on first use) and its :class:`GLInfo`.
+
+    The context is made current on the calling thread. ``width``/``height`` bound only GLFW's
+    window; EGL and OSMesa render into MuJoCo's own off-screen framebuffer."""
+    if "context" in _STARTED:
+        ctx = _STARTED["context"]
+        ctx.make_current()
+        return ctx, _STARTED["info"]
+    backend, how = choose_backend()
+    try:
+        cls = _context_class(backend)
+        ctx = cls(max(1, int(width)), max(1, int(height)))
+        ctx.make_current()
+        from OpenGL import GL
+
+        def read(name):
+            v = GL.glGetString(name)
+            return v.decode(errors="replace") if isinstance(v, bytes) else str(v or "")
+
+        info = GLInfo(backend, how, read(GL.GL_RENDERER), read(GL.GL_VERSION), read(GL.GL_VENDOR))
+    except RendererUnavailable:
+        raise
+    except Exception as e:  # noqa: BLE001 (any start-up failure becomes one diagnosis)
+        other = "osmesa" if backend == "egl" else "egl"
+        raise RendererUnavailable(
+            f"MuJoCo could not start an OpenGL context with {backend} (chosen {'by MUJOCO_GL' if how != 'auto' else 'automatically'}): "
+            f"{type(e).__name__}: {e}. Check that {_PACKAGES[backend]} is installed; or set "
+            f"MUJOCO_GL={other} (needs {_PACKAGES[other]}); or build the simulator with render: false") from e
+    _STARTED.update(context=ctx, info=info)
+    return ctx, info
+
+
+def is_software(renderer: str) -> bool:
+    """Whether a GL_RENDERER string names a CPU rasteriser (Mesa llvmpipe and friends)."""
+    r = renderer.lower()
+    return any(s in r for s in _SOFTWARE)
+
+
+def describe(info: GLInfo) -> dict[str, str]:
+    """Provenance fields for ``versions()``."""
+    out = {"gl_backend": info.backend, "gl_backend_chosen_by": info.chosen_by,
+           "render_device": info.renderer, "gl_version": info.version, "gl_vendor": info.vendor}
+    if is_software(info.renderer):
+        out["render_driver"] = "llvmpipe (Mesa, CPU)" if "llvmpipe" in info.renderer.lower() else "software (CPU)"
+        out["llvmpipe"] = "yes" if "llvmpipe" in info.renderer.lower() else "no"
+    else:
+        out["render_driver"] = "gpu"
+        out["llvmpipe"] = "no"
+    return out

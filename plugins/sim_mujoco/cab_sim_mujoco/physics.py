@@ -1,0 +1,77 @@
+"""The physical parameters in which MuJoCo differs from the other backends, declared in one place.
+
+The scene description and the embodiment carry the physics every backend shares (masses, friction
+coefficients, drive stiffness and damping). What is left is how MuJoCo's soft-contact solver is set
+up to behave like the rigid contacts of PhysX, on which the suite's figures were first measured.
+Each default below says what it means and why it has its value; ``conf/sim/mujoco.yaml`` (key
+``physics``) overrides any of them by name. Nothing here depends on a task.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+from cab_core.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class PhysicsParams:
+    # integration: implicit in the velocity terms, so the drives' damping (200 N s/m on a 50 g
+    # finger) stays stable at the suite's 4 ms step
+    integrator: str = "implicitfast"
+    # friction cones: elliptic cones with a high impratio make friction nearly as hard as the
+    # normal force, so a squeezed object does not creep out of a grasp (PhysX friction is hard)
+    cone: str = "elliptic"
+    impratio: float = 10.0
+    solver_iterations: int = 100
+    solver_tolerance: float = 1e-10
+    noslip_iterations: int = 0
+    # contacts: 3 = sliding friction only; 4 adds torsional friction, which stops a held object
+    # from spinning about the grip axis (PhysX's patch friction does that on its own)
+    condim: int = 4
+    torsional_friction: float = 0.01  # metres (MuJoCo's torsional coefficient)
+    rolling_friction: float = 0.0
+    # soft-contact stiffness: time constant (s) and damping ratio; solimp (d0, dwidth, width m)
+    contact_solref: tuple[float, float] = (0.01, 1.0)
+    contact_solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
+    contact_margin: float = 0.0
+    # articulated joints: armature (kg m^2 or kg) added to every joint, for numerical robustness
+    joint_armature: float = 0.001
+    # PhysX joint friction is a coefficient; MuJoCo's frictionloss is a torque (N m): the scale
+    # that turns a scene's joint_friction into a frictionloss
+    joint_friction_scale: float = 1.0
+
+    @classmethod
+    def from_cfg(cls, overrides: dict | None) -> "PhysicsParams":
+        """The defaults with ``overrides`` applied; unknown names and bad values are ConfigErrors."""
+        overrides = dict(overrides or {})
+        known = {f.name: f for f in fields(cls)}
+        bad = sorted(set(overrides) - set(known))
+        if bad:
+            raise ConfigError(f"unknown mujoco physics parameter(s) {bad}; known: {sorted(known)}")
+        base = cls()
+        clean = {}
+        for k, v in overrides.items():
+            default = getattr(base, k)
+            try:
+                if isinstance(default, tuple):
+                    v = tuple(float(x) for x in v)
+                    if len(v) != len(default):
+                        raise ValueError(f"expected {len(default)} numbers")
+                elif isinstance(default, str):
+                    v = str(v)
+                else:
+                    v = type(default)(v)
+            except (TypeError, ValueError) as e:
+                raise ConfigError(f"mujoco physics parameter {k}={v!r}: {e}") from None
+            clean[k] = v
+        p = replace(base, **clean)
+        if p.integrator not in ("Euler", "implicit", "implicitfast", "RK4"):
+            raise ConfigError(f"mujoco integrator {p.integrator!r} is not one of Euler, implicit, implicitfast, RK4")
+        if p.cone not in ("pyramidal", "elliptic"):
+            raise ConfigError(f"mujoco cone {p.cone!r} is not pyramidal or elliptic")
+        if p.condim not in (1, 3, 4, 6):
+            raise ConfigError(f"mujoco condim {p.condim} is not 1, 3, 4 or 6")
+        return p
+
+    def as_dict(self) -> dict:
+        return asdict(self)

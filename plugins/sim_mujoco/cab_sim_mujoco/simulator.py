@@ -1,0 +1,558 @@
+"""The MuJoCo backend of :class:`cab_core.simulator.Simulator`.
+
+One ``MjModel`` / ``MjData`` pair per attempt, compiled from the MJCF that :mod:`.mjcf` writes from
+the ``SceneSpec`` and the ``EmbodimentSpec``, and, unless ``render: false``, an OpenGL context
+(:mod:`.gl`: EGL or OSMesa, chosen at launch, ``MUJOCO_GL`` respected) with one ``MjrContext``.
+
+Options (the ``cfg`` dict of the plugin factory):
+
+``render`` (bool, default true)
+    Start OpenGL and render cameras. With ``false`` the world is physics only: camera poses,
+    intrinsics and sizes still work, :meth:`render` raises ``RendererUnavailable``.
+``timestep`` (float, default: the scene's, 1/250 s)
+    Overrides ``SceneSpec.timestep``.
+``physics`` (dict, default empty)
+    Overrides of the declared physical parameters (:class:`.physics.PhysicsParams`, by name).
+
+Conventions: poses are float64 ``[x, y, z, qw, qx, qy, qz]`` (MuJoCo quaternions are wxyz too).
+Physics state is float64 and exact: ``save_state`` is ``mj_getState(mjSTATE_INTEGRATION)`` (time,
+qpos, qvel, actuator and mocap state, controls, the solver's warm start) plus the drive targets and
+the last step's contacts; restoring it makes the next steps bit-identical to the ones that followed
+the save, in this build or in another build of the same scene and robot, and taking a snapshot
+does not perturb the run.
+
+Poses after a step: ``mj_step`` leaves link poses at the start of the step; they are brought up to
+date (``mj_kinematics``, which touches nothing the next step reads) when first read after a step.
+Contacts are those the last step solved, read lazily from ``MjData`` when first asked for.
+"""
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cab_core.embodiment import EmbodimentSpec
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
+from cab_core.geometry import intrinsics, pose_mul, quat_to_mat
+from cab_core.scene import SceneSpec, as_pose
+from cab_core.simulator import ROBOT, Contact, SimState, Simulator
+
+from . import gl
+from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
+from .physics import PhysicsParams
+
+log = logging.getLogger(__name__)
+
+BACKEND = "mujoco"
+STATE_FORMAT = 1
+_KNOWN_OPTIONS = {"render", "timestep", "physics", "name"}
+_STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+def _pose_or_bad(pose) -> tuple[float, ...]:
+    try:
+        return as_pose(pose)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(str(e)) from None
+
+
+def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
+    if a.shape != (n,):
+        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
+    return a
+
+
+@dataclass
+class _Thing:
+    """Where one object of the scene lives in the model."""
+    kind: str  # static | dynamic | kinematic | articulation
+    body: int  # body id (an articulation's root link)
+    qadr: int = -1  # free joint: qpos address (7 values)
+    dadr: int = -1  # free joint: dof address (6 values)
+    mocap: int = -1  # mocap id (static, kinematic, fixed-root articulation)
+    jq: np.ndarray | None = None  # articulation joints: qpos addresses
+    jd: np.ndarray | None = None  # articulation joints: dof addresses
+    links: dict[str, int] | None = None  # articulation: link -> body id
+
+
+class _Renderer:
+    """MuJoCo's OpenGL renderer for one model: scene, context and the options that hide collision
+    geoms. Drawn into MuJoCo's off-screen framebuffer, read back, flipped to image rows."""
+
+    def __init__(self, model, width: int, height: int):
+        self.gl, self.info = gl.context(width, height)
+        self.scene = mujoco.MjvScene(model, maxgeom=20000)
+        self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
+        self.option = mujoco.MjvOption()
+        self.option.geomgroup[:] = 0
+        self.option.geomgroup[VISUAL_GROUP] = 1
+        self.camera = mujoco.MjvCamera()
+        self.camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self.perturb = mujoco.MjvPerturb()
+
+    def render(self, model, data, camera_id: int, width: int, height: int) -> np.ndarray:
+        self.gl.make_current()
+        self.camera.fixedcamid = camera_id
+        mujoco.mjv_updateScene(model, data, self.option, self.perturb, self.camera,
+                               mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        rect = mujoco.MjrRect(0, 0, width, height)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
+        mujoco.mjr_render(rect, self.scene, self.context)
+        rgb = np.empty((height, width, 3), dtype=np.uint8)
+        mujoco.mjr_readPixels(rgb, None, rect, self.context)
+        return np.ascontiguousarray(rgb[::-1])
+
+    def free(self) -> None:
+        self.gl.make_current()
+        self.context.free()
+
+
+class MujocoSimulator(Simulator):
+    """MuJoCo (CPU physics; OpenGL rendering through EGL or OSMesa). Not thread-safe: one owner."""
+
+    name = BACKEND
+
+    def __init__(self, cfg: dict | None = None):
+        cfg = dict(cfg or {})
+        unknown = sorted(k for k in cfg if k not in _KNOWN_OPTIONS and not str(k).startswith("_"))
+        if unknown:
+            raise ConfigError(f"unknown mujoco simulator option(s) {unknown}; known: {sorted(_KNOWN_OPTIONS)}")
+        self._render_enabled = bool(cfg.get("render", True))
+        ts = cfg.get("timestep")
+        if ts is not None and (isinstance(ts, bool) or not isinstance(ts, (int, float)) or not ts > 0):
+            raise ConfigError(f"mujoco timestep must be a positive number, got {ts!r}")
+        self._timestep_override = None if ts is None else float(ts)
+        physics = cfg.get("physics") or {}
+        if not hasattr(physics, "items"):
+            raise ConfigError(f"mujoco physics must be a mapping of parameter overrides, got {physics!r}")
+        self._phys = PhysicsParams.from_cfg(dict(physics))
+        self._model = None
+        self._closed = False
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def build(self, scene: SceneSpec, embodiment: EmbodimentSpec) -> None:
+        """Compile the world (see :mod:`.mjcf` for what is created), impose the bodies' masses,
+        put the robot at home with its grippers open and its targets there, and start the
+        renderer. Robot links carry no weight (gravity compensation), as on SAPIEN."""
+        if self._model is not None or self._closed:
+            raise SimulatorError("build() is called once per simulator")
+        self._timestep = self._timestep_override or float(scene.timestep)
+        plan = MjcfWriter(self._phys).write(scene, embodiment, self._timestep)
+        try:
+            model = mujoco.MjModel.from_xml_string(plan.xml)
+        except ValueError as e:
+            raise SimulatorError(f"MuJoCo could not compile the scene: {e}") from e
+        self._model, self._data = model, mujoco.MjData(model)
+        try:
+            self._index(plan, scene, embodiment)
+            self._renderer = None
+            if self._render_enabled:
+                w = max(c.spec.width for c in plan.cameras.values()) if plan.cameras else 64
+                h = max(c.spec.height for c in plan.cameras.values()) if plan.cameras else 64
+                self._renderer = _Renderer(model, w, h)
+        except Exception:
+            self.close()
+            raise
+
+    def _index(self, plan: Plan, scene: SceneSpec, emb: EmbodimentSpec) -> None:
+        m, d = self._model, self._data
+        body = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
+        joint = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)  # noqa: E731
+        for name, mass in plan.masses.items():
+            b = body(name)
+            if m.body_mass[b] > 0:
+                m.body_inertia[b] *= mass / m.body_mass[b]
+            m.body_mass[b] = mass
+        mujoco.mj_setConst(m, d)  # derived masses; it puts qpos back to qpos0, so it comes first
+        self._things: dict[str, _Thing] = {}
+        for name, kind in plan.bodies.items():
+            b = body(name)
+            t = _Thing(kind, b)
+            if kind == "dynamic":
+                j = joint(name)
+                t.qadr, t.dadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+            else:
+                t.mocap = int(m.body_mocapid[b])
+            self._things[name] = t
+        for name, art in plan.articulations.items():
+            root = body(art.root)
+            t = _Thing("articulation", root, links={l: body(n) for l, n in art.links.items()})
+            if art.fixed:
+                t.mocap = int(m.body_mocapid[root])
+            else:
+                j = joint(f"{name}/root")
+                t.qadr, t.dadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+            ids = [joint(n) for n in art.joints]
+            t.jq = np.array([m.jnt_qposadr[j] for j in ids], dtype=np.int64)
+            t.jd = np.array([m.jnt_dofadr[j] for j in ids], dtype=np.int64)
+            self._things[name] = t
+        obj_by_name = {o.name: o for o in scene.articulations}
+        for name, t in self._things.items():
+            if t.kind == "articulation" and obj_by_name[name].qpos is not None:
+                d.qpos[t.jq] = _vector_or_bad(obj_by_name[name].qpos, len(t.jq), f"initial qpos of {name!r}")
+        self._object_order = scene.names()
+        # robot
+        robot = plan.robot
+        self._robot_links = {l: body(n) for l, n in robot.links.items()}
+        self._joint_names = emb.joint_order()
+        jids = [joint(f"{ROBOT}/{n}") for n in plan.actuators]
+        self._rq_all = np.array([m.jnt_qposadr[j] for j in jids], dtype=np.int64)
+        self._rd_all = np.array([m.jnt_dofadr[j] for j in jids], dtype=np.int64)
+        n = len(self._joint_names)
+        self._rq, self._rd = self._rq_all[:n], self._rd_all[:n]
+        self._kp = np.array([m.actuator_gainprm[i, 0] for i in range(len(plan.actuators))])
+        self._kd = np.array([-m.actuator_biasprm[i, 2] for i in range(len(plan.actuators))])
+        start = d.qpos[self._rq].copy()
+        pos = {nm: i for i, nm in enumerate(self._joint_names)}
+        for arm in emb.arms.values():
+            home = tuple(arm.home_qpos)
+            if len(home) == len(arm.joints):
+                values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
+            elif len(home) == len(arm.joints) + len(arm.gripper.joints):
+                values = list(home)
+            else:
+                raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for {len(arm.joints)} joints")
+            for nm, v in zip(list(arm.joints) + list(arm.gripper.joints), values):
+                start[pos[nm]] = v
+        d.qpos[self._rq] = start
+        for extra in plan.actuators[n:]:
+            log.warning("robot joint %r is not in the embodiment's joint order; holding it at its start", extra)
+        self._targets = np.zeros(n)
+        self._vtargets = np.zeros(n)
+        self._apply_targets(start)
+        d.ctrl[n:] = d.qpos[self._rq_all[n:]]
+        # contact attribution: body id -> reported name (the world's only geom is the ground)
+        self._body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(m.nbody)]
+        self._body_names[0] = "ground"
+        self._cameras = plan.cameras
+        self._camera_ids = {c: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, c) for c in plan.cameras}
+        self._steps = 0
+        self._contacts: list[Contact] | None = []
+        mujoco.mj_forward(m, d)
+        self._kinematics_current = True
+
+    def close(self) -> None:
+        """Release the renderer and the model. Idempotent."""
+        self._closed = True
+        if self._model is None:
+            return
+        r = getattr(self, "_renderer", None)
+        if r is not None:
+            try:
+                r.free()
+            except Exception:  # noqa: BLE001 (best effort at teardown)
+                log.debug("freeing the MuJoCo render context failed", exc_info=True)
+        self._renderer = None
+        self._model = self._data = None
+
+    def _live(self):
+        if self._model is None:
+            raise SimulatorError("the simulator is closed" if self._closed else "build() was not called")
+        return self._model
+
+    @property
+    def timestep(self) -> float:
+        self._live()
+        return self._timestep
+
+    def step(self, n: int = 1) -> None:
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+        self._live()
+        if n == 0:
+            return
+        mujoco.mj_step(self._model, self._data, int(n))
+        self._steps += int(n)
+        self._contacts = None
+        self._kinematics_current = False
+
+    def _kinematics(self):
+        """MjData with link poses of the current qpos (recomputed once after steps or teleports)."""
+        self._live()
+        if not self._kinematics_current:
+            mujoco.mj_kinematics(self._model, self._data)
+            self._kinematics_current = True
+        return self._data
+
+    def _touched(self) -> None:
+        """State changed without a step; contacts keep the last step's."""
+        self._kinematics_current = False
+
+    # -- robot --------------------------------------------------------------------------------
+    @property
+    def joint_names(self) -> list[str]:
+        self._live()
+        return list(self._joint_names)
+
+    def get_qpos(self) -> np.ndarray:
+        self._live()
+        return self._data.qpos[self._rq].copy()
+
+    def get_qvel(self) -> np.ndarray:
+        self._live()
+        return self._data.qvel[self._rd].copy()
+
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        self._live()
+        q = _vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        self._data.qpos[self._rq] = q
+        self._data.qvel[self._rd_all] = 0.0
+        self._apply_targets(q)
+        self._touched()
+
+    def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
+        self._live()
+        t = _vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else _vector_or_bad(velocities, len(self._joint_names),
+                                                            "drive velocity targets")
+        self._apply_targets(t, v)
+
+    def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
+        """The servo force is kp (ctrl - q) - kd qdot; ctrl = q* + (kd / kp) v* makes it
+        kp (q* - q) + kd (v* - qdot), PhysX's drive with a velocity target."""
+        v = np.zeros(len(t)) if v is None else v
+        n = len(t)
+        self._data.ctrl[:n] = t + self._kd[:n] / self._kp[:n] * v
+        self._targets[:] = t
+        self._vtargets[:] = v
+
+    def get_drive_targets(self) -> np.ndarray:
+        self._live()
+        return self._targets.copy()
+
+    def _body_pose(self, b: int) -> np.ndarray:
+        d = self._kinematics()
+        return np.concatenate([d.xpos[b], d.xquat[b]])
+
+    def get_link_pose(self, link: str) -> np.ndarray:
+        self._live()
+        b = self._robot_links.get(link) if isinstance(link, str) else None
+        if b is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
+            b = self._robot_links.get(link[len(ROBOT) + 1:])
+        if b is None:
+            raise BadCommand(f"unknown robot link {link!r}")
+        return self._body_pose(b)
+
+    # -- objects ------------------------------------------------------------------------------
+    def object_names(self) -> list[str]:
+        self._live()
+        return list(self._object_order)
+
+    def _thing(self, name: str) -> _Thing:
+        self._live()
+        t = self._things.get(name) if isinstance(name, str) else None
+        if t is None:
+            raise BadCommand(f"unknown object {name!r}")
+        return t
+
+    def get_object_pose(self, name: str) -> np.ndarray:
+        t = self._thing(name)
+        d = self._data
+        if t.qadr >= 0:
+            return d.qpos[t.qadr:t.qadr + 7].copy()
+        return np.concatenate([d.mocap_pos[t.mocap], d.mocap_quat[t.mocap]])
+
+    def set_object_pose(self, name: str, pose) -> None:
+        """Teleport a body (or an articulated object's root) and zero its velocity (and, for an
+        articulated object, its joints' velocities)."""
+        t = self._thing(name)
+        p = np.asarray(_pose_or_bad(pose))
+        d = self._data
+        if t.qadr >= 0:
+            d.qpos[t.qadr:t.qadr + 7] = p
+            d.qvel[t.dadr:t.dadr + 6] = 0.0
+        else:
+            d.mocap_pos[t.mocap] = p[:3]
+            d.mocap_quat[t.mocap] = p[3:]
+        if t.jd is not None:
+            d.qvel[t.jd] = 0.0
+        self._touched()
+
+    def get_object_velocity(self, name: str) -> np.ndarray:
+        """[v, w] in the world frame: the velocity of the body's origin and its angular velocity
+        (MuJoCo's free joint holds the angular part in the body frame)."""
+        t = self._thing(name)
+        if t.dadr < 0:
+            return np.zeros(6)
+        d = self._data
+        v = d.qvel[t.dadr:t.dadr + 6]
+        w = quat_to_mat(d.qpos[t.qadr + 3:t.qadr + 7]) @ v[3:]
+        return np.concatenate([v[:3], w])
+
+    def get_object_qpos(self, name: str) -> np.ndarray:
+        t = self._thing(name)
+        return np.zeros(0) if t.jq is None else self._data.qpos[t.jq].copy()
+
+    def set_object_qpos(self, name: str, qpos) -> None:
+        """Set an articulated object's joints (and zero their velocities)."""
+        t = self._thing(name)
+        if t.jq is None:
+            raise BadCommand(f"{name!r} is a rigid body; it has no joints")
+        q = _vector_or_bad(qpos, len(t.jq), f"qpos of {name!r}")
+        self._data.qpos[t.jq] = q
+        self._data.qvel[t.jd] = 0.0
+        self._touched()
+
+    def get_object_link_names(self, name: str) -> list[str]:
+        self._live()
+        t = self._things.get(name)
+        return list(t.links) if t is not None and t.links else []
+
+    def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
+        t = self._thing(name)
+        b = (t.links or {}).get(link) if isinstance(link, str) else None
+        if b is None:
+            raise BadCommand(f"unknown link {link!r} of object {name!r}")
+        return self._body_pose(b)
+
+    # -- contacts -----------------------------------------------------------------------------
+    def get_contacts(self) -> list[Contact]:
+        """One entry per body pair in contact during the last step, names sorted within the pair,
+        pairs sorted; impulse = sum over the pair's contact points of |force| x timestep (N*s),
+        force = normal plus friction; point = mean position of the points that carried force."""
+        self._live()
+        if self._contacts is None:
+            self._contacts = self._compute_contacts()
+        return list(self._contacts)
+
+    def _compute_contacts(self) -> list[Contact]:
+        m, d = self._model, self._data
+        acc: dict[tuple[str, str], list] = {}
+        if d.ncon == 0:
+            return []
+        geom_body = m.geom_bodyid
+        names = self._body_names
+        force = np.zeros(6)
+        con = d.contact
+        for i in range(d.ncon):
+            if con.efc_address[i] < 0:
+                continue
+            mujoco.mj_contactForce(m, d, i, force)
+            f = math.sqrt(force[0] * force[0] + force[1] * force[1] + force[2] * force[2])
+            if f <= 0.0:
+                continue
+            n0 = names[geom_body[con.geom1[i]]]
+            n1 = names[geom_body[con.geom2[i]]]
+            if n0 == n1:
+                continue
+            key = (n0, n1) if n0 <= n1 else (n1, n0)
+            x, y, z = con.pos[i]
+            e = acc.get(key)
+            if e is None:
+                acc[key] = [f, x, y, z, 1]
+            else:
+                e[0] += f
+                e[1] += x
+                e[2] += y
+                e[3] += z
+                e[4] += 1
+        dt = self._timestep
+        return [Contact(a, b, float(e[0] * dt), (float(e[1] / e[4]), float(e[2] / e[4]), float(e[3] / e[4])))
+                for (a, b), e in sorted(acc.items())]
+
+    # -- cameras ------------------------------------------------------------------------------
+    def _camera(self, name: str):
+        self._live()
+        cam = self._cameras.get(name) if isinstance(name, str) else None
+        if cam is None:
+            raise BadCommand(f"unknown camera {name!r}")
+        return cam
+
+    def camera_names(self) -> list[str]:
+        self._live()
+        return list(self._cameras)
+
+    def camera_pose(self, name: str) -> np.ndarray:
+        cam = self._camera(name)
+        if cam.body is None:
+            return np.asarray(cam.local, dtype=float)
+        b = mujoco.mj_name2id(self._model, mujoco.mjtObj.mjOBJ_BODY, cam.body)
+        return pose_mul(self._body_pose(b), cam.local)
+
+    def camera_intrinsics(self, name: str) -> np.ndarray:
+        s = self._camera(name).spec
+        return intrinsics(int(s.width), int(s.height), float(s.fovy_deg))
+
+    def camera_size(self, name: str) -> tuple[int, int]:
+        s = self._camera(name).spec
+        return int(s.height), int(s.width)
+
+    def render(self, name: str) -> np.ndarray:
+        cam = self._camera(name)
+        if self._renderer is None:
+            raise RendererUnavailable("this MuJoCo simulator was built with render: false (physics only); "
+                                      "build it with render: true to capture images")
+        d = self._kinematics()
+        mujoco.mj_camlight(self._model, d)
+        return self._renderer.render(self._model, d, self._camera_ids[name], cam.spec.width, cam.spec.height)
+
+    # -- state --------------------------------------------------------------------------------
+    def _layout(self) -> str:
+        m = self._model
+        return json.dumps({"format": STATE_FORMAT, "nq": m.nq, "nv": m.nv, "nu": m.nu, "nmocap": m.nmocap,
+                           "objects": [(n, t.kind) for n, t in self._things.items()],
+                           "joints": self._joint_names})
+
+    def save_state(self) -> SimState:
+        """Snapshot: ``mj_getState(mjSTATE_INTEGRATION)`` (float64), drive targets, step count and
+        the last step's contacts, as an ``.npz`` archive (no pickle)."""
+        m = self._live()
+        state = np.empty(mujoco.mj_stateSize(m, _STATE_SPEC))
+        mujoco.mj_getState(m, self._data, state, _STATE_SPEC)
+        contacts = json.dumps([[c.a, c.b, c.impulse, c.point] for c in self.get_contacts()])
+        buf = io.BytesIO()
+        np.savez(buf, layout=np.array(self._layout()), state=state, targets=self._targets.copy(),
+                 vtargets=self._vtargets.copy(), steps=np.array(self._steps, np.int64),
+                 contacts=np.array(contacts))
+        return SimState(backend=BACKEND, data=buf.getvalue())
+
+    def restore_state(self, state: SimState) -> None:
+        """Restore a snapshot of this world (or of another build of the same scene and robot)."""
+        m = self._live()
+        if not isinstance(state, SimState) or state.backend != BACKEND:
+            raise BadCommand(f"not a {BACKEND} state: {getattr(state, 'backend', type(state).__name__)!r}")
+        try:
+            with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+            layout = str(d["layout"])
+            contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
+                        for a, b, imp, pt in json.loads(str(d["contacts"]))]
+        except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
+            raise BadCommand(f"corrupt {BACKEND} state: {e}") from None
+        if layout != self._layout() or d["state"].shape != (mujoco.mj_stateSize(m, _STATE_SPEC),):
+            raise BadCommand("the state was saved from a different scene or robot")
+        mujoco.mj_setState(m, self._data, d["state"], _STATE_SPEC)
+        self._targets[:] = d["targets"]
+        self._vtargets[:] = d["vtargets"]
+        self._steps = int(d["steps"])
+        self._contacts = contacts
+        self._touched()
+
+    # -- provenance ---------------------------------------------------------------------------
+    def versions(self) -> dict[str, str]:
+        self._live()
+        out = {"simulator": BACKEND, "mujoco": mujoco.__version__, "mujoco_lib": mujoco.mj_versionString(),
+               "timestep": repr(self._timestep), "render": "on" if self._renderer is not None else "off",
+               "physics": json.dumps(self._phys.as_dict(), sort_keys=True)}
+        if self._renderer is not None:
+            out.update(gl.describe(self._renderer.info))
+        return out
+
+    # -- extras (not part of the contract) ----------------------------------------------------
+    @property
+    def steps(self) -> int:
+        """Physics steps taken since build (restored with a snapshot)."""
+        self._live()
+        return self._steps

@@ -1,0 +1,237 @@
+"""The MuJoCo backend: the shared simulator conformance suite, plus MuJoCo-specific checks (GL
+backend choice and diagnosis, physics-only mode, options, snapshot guarantees beyond the suite)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError  # noqa: E402
+from cab_core.scene import Body, Mesh, SceneSpec, Shape  # noqa: E402
+from cab_core.testing import sim_conformance as sc  # noqa: E402
+from cab_sim_mujoco import gl  # noqa: E402
+from cab_sim_mujoco.simulator import MujocoSimulator  # noqa: E402
+
+pytestmark = pytest.mark.sim
+
+
+@pytest.fixture(scope="module")
+def render_available() -> str | None:
+    """None if this machine can render with MuJoCo, else the diagnosis."""
+    sim = MujocoSimulator({"render": True})
+    try:
+        sim.build(SceneSpec(), sc.make_embodiment())
+    except RendererUnavailable as e:
+        return str(e)
+    finally:
+        sim.close()
+    return None
+
+
+@pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
+def test_conformance(check, render_available):
+    if render_available is not None:
+        if check in sc.NEEDS_RENDERER:
+            pytest.skip(f"needs a renderer: {render_available}")
+        check(lambda: MujocoSimulator({"render": False}))
+    else:
+        check(lambda: MujocoSimulator({"render": True}))
+
+
+def test_conformance_physics_only():
+    """Everything but images also holds without a GL context."""
+    for check in sc.CHECKS:
+        if check not in sc.NEEDS_RENDERER:
+            check(lambda: MujocoSimulator({"render": False}))
+
+
+def test_registered_through_entry_point():
+    from cab_core.plugins import build_plugin_manager, registry
+
+    factory = registry("simulators", build_plugin_manager(autoload=True))["mujoco"]
+    assert isinstance(factory({"render": False, "name": "mujoco"}), MujocoSimulator)
+
+
+def test_hydra_config_builds_the_backend():
+    """conf/sim/mujoco.yaml is a valid option set of this backend."""
+    from pathlib import Path
+
+    import yaml
+
+    import cab_core
+
+    cfg = yaml.safe_load((Path(cab_core.__file__).parent / "conf" / "sim" / "mujoco.yaml").read_text())
+    assert cfg["name"] == "mujoco"
+    sim = MujocoSimulator(dict(cfg, render=False))
+    sim.build(sc.make_scene(), sc.make_embodiment())
+    sim.close()
+
+
+def test_bad_options_are_config_errors():
+    with pytest.raises(ConfigError):
+        MujocoSimulator({"rendr": True})
+    with pytest.raises(ConfigError):
+        MujocoSimulator({"timestep": -1})
+    with pytest.raises(ConfigError, match="impratoi"):
+        MujocoSimulator({"physics": {"impratoi": 3}})
+    with pytest.raises(ConfigError, match="cone"):
+        MujocoSimulator({"physics": {"cone": "round"}})
+    with pytest.raises(ConfigError, match="contact_solref"):
+        MujocoSimulator({"physics": {"contact_solref": [0.01]}})
+
+
+def test_options_reach_the_model():
+    sim = MujocoSimulator({"render": False, "timestep": 0.002, "physics": {"impratio": 3, "condim": 6}})
+    sim.build(sc.make_scene(), sc.make_embodiment())
+    try:
+        assert sim.timestep == 0.002 and sim.versions()["timestep"] == "0.002"
+        assert sim._model.opt.impratio == 3
+        assert set(sim._model.geom_condim[sim._model.geom_contype > 0]) == {6}
+        assert '"impratio": 3.0' in sim.versions()["physics"]
+    finally:
+        sim.close()
+
+
+def test_mass_is_imposed():
+    """A body's declared mass replaces the density-derived one (inertia scaled alike)."""
+    import mujoco
+
+    sim = sc.build(lambda: MujocoSimulator({"render": False}))
+    try:
+        m = sim._model
+        cube = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cube")
+        assert m.body_mass[cube] == pytest.approx(sc.CUBE_MASS)
+        i = 0.1 * (0.05 ** 2 + 0.05 ** 2) / 12
+        np.testing.assert_allclose(m.body_inertia[cube], [i, i, i], rtol=1e-6)
+    finally:
+        sim.close()
+
+
+def test_gl_backend_respects_mujoco_gl():
+    assert gl.choose_backend({"MUJOCO_GL": "egl"}) == ("egl", "MUJOCO_GL")
+    with pytest.raises(RendererUnavailable, match="not a backend"):
+        gl.choose_backend({"MUJOCO_GL": "vulkan"})
+    backend, how = gl.choose_backend({})
+    assert how == "auto" and backend in ("egl", "osmesa")
+
+
+def test_missing_gl_library_is_diagnosed(monkeypatch):
+    monkeypatch.setattr(gl, "_loads", lambda backend: False)
+    with pytest.raises(RendererUnavailable, match="libosmesa6"):
+        gl.choose_backend({})
+    with pytest.raises(RendererUnavailable, match="MUJOCO_GL=osmesa was set"):
+        gl.choose_backend({"MUJOCO_GL": "osmesa"})
+
+
+def test_software_renderer_is_recorded():
+    info = gl.GLInfo("egl", "auto", "llvmpipe (LLVM 15.0.6, 256 bits)", "4.5 Mesa 25.0.7", "Mesa")
+    d = gl.describe(info)
+    assert d["llvmpipe"] == "yes" and d["render_driver"].startswith("llvmpipe") and d["gl_backend"] == "egl"
+    gpu = gl.describe(gl.GLInfo("egl", "MUJOCO_GL", "NVIDIA H100/PCIe/SSE2", "4.6", "NVIDIA"))
+    assert gpu["llvmpipe"] == "no" and gpu["render_driver"] == "gpu"
+
+
+def test_versions_name_the_gl_renderer(render_available):
+    if render_available is not None:
+        pytest.skip(render_available)
+    sim = MujocoSimulator({"render": True})
+    sim.build(SceneSpec(), sc.make_embodiment())
+    try:
+        v = sim.versions()
+        assert v["render"] == "on" and v["render_device"] and v["gl_backend"] in ("egl", "osmesa", "glfw")
+        assert v["llvmpipe"] == ("yes" if "llvmpipe" in v["render_device"] else "no")
+    finally:
+        sim.close()
+
+
+def test_physics_only_build_keeps_camera_geometry():
+    sim = sc.build(lambda: MujocoSimulator({"render": False}))
+    try:
+        assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
+        assert sim.camera_size(sc.WRIST_CAMERA) == (120, 160)
+        with pytest.raises(RendererUnavailable, match="render: false"):
+            sim.render(sc.HEAD_CAMERA)
+        assert sim.versions()["render"] == "off"
+    finally:
+        sim.close()
+
+
+def test_nonconvex_collision_mesh_is_rejected():
+    obj = sc.assets_dir() / "cube.obj"
+    for kind in ("dynamic", "static"):
+        scene = SceneSpec(bodies=[Body("m", [Shape(Mesh(str(obj), convex=False))], pose=(0, 0, 1, 1, 0, 0, 0),
+                                       kind=kind)])
+        with pytest.raises(BadCommand, match="convex hull"):
+            MujocoSimulator({"render": False}).build(scene, sc.make_embodiment())
+    # as a visual only, it is fine
+    scene = SceneSpec(bodies=[Body("m", [Shape(Mesh(str(obj), convex=False), collision=False),
+                                         Shape(Mesh(str(obj)), visual=False)], pose=(0, 0, 1, 1, 0, 0, 0))])
+    sim = MujocoSimulator({"render": False})
+    sim.build(scene, sc.make_embodiment())
+    sim.close()
+
+
+def test_snapshot_then_restore_replays_the_original_run():
+    """Stronger than the suite: save, run, restore, run again == the run right after the save,
+    bit for bit, in this instance and in a second build; taking the snapshot changes nothing."""
+    def run(sim):
+        sc._motion_script(sim, 200, phase=60)
+        return sc.world_state(sim)
+
+    sim = sc.build(lambda: MujocoSimulator({"render": False}))
+    other = sc.build(lambda: MujocoSimulator({"render": False}))
+    plain = sc.build(lambda: MujocoSimulator({"render": False}))
+    try:
+        sc._motion_script(sim, 60)
+        sc._motion_script(plain, 60)
+        snap = sim.save_state()
+        original = run(sim)
+        sc._assert_bit_equal(original, run(plain), "a run without the snapshot")
+        sim.restore_state(snap)
+        sc._assert_bit_equal(original, run(sim), "replay in the same instance")
+        other.restore_state(snap)
+        sc._assert_bit_equal(original, run(other), "replay in another build")
+        assert other.steps == sim.steps == 60 + 200
+    finally:
+        for s in (sim, other, plain):
+            s.close()
+
+
+def test_contacts_survive_a_restore():
+    sim = sc.build(lambda: MujocoSimulator({"render": False}))
+    try:
+        sim.step(100)
+        snap = sim.save_state()
+        before = sim.get_contacts()
+        sim.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
+        sim.step(5)
+        assert not any("cube" in (c.a, c.b) for c in sim.get_contacts())
+        sim.restore_state(snap)
+        assert sim.get_contacts() == before
+    finally:
+        sim.close()
+
+
+def test_physics_only_steps_like_a_rendering_build(render_available):
+    if render_available is not None:
+        pytest.skip(render_available)
+    a = sc.build(lambda: MujocoSimulator({"render": True}))
+    b = sc.build(lambda: MujocoSimulator({"render": False}))
+    try:
+        sc._motion_script(a, 200)
+        a.render(sc.HEAD_CAMERA)
+        sc._motion_script(b, 200)
+        sc._assert_bit_equal(sc.world_state(a), sc.world_state(b), "render on vs off")
+    finally:
+        a.close()
+        b.close()
+
+
+def test_closed_simulator_refuses_calls():
+    sim = sc.build(lambda: MujocoSimulator({"render": False}))
+    sim.close()
+    with pytest.raises(SimulatorError):
+        sim.step(1)
+    with pytest.raises(SimulatorError):
+        sim.get_qpos()
