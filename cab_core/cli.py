@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
+from hydra.experimental.callback import Callback
+
 GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment")
 
 
@@ -34,11 +36,16 @@ def _hydra_entry() -> None:
     @hydra.main(version_base=None, config_path="conf", config_name="config")
     def _app(cfg) -> None:
         from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
 
         from .errors import CabError, ConfigError, MissingDependency, RendererUnavailable
         from .runner import attempt_spec, run_attempt
 
-        out = HydraConfig.get().runtime.output_dir
+        hc = HydraConfig.get()
+        out = hc.runtime.output_dir
+        if hc.mode == RunMode.MULTIRUN:
+            _sweep_job(cfg, hc)
+            return
         try:
             spec = attempt_spec(cfg, out)
             result = run_attempt(spec)
@@ -59,6 +66,35 @@ def _hydra_entry() -> None:
               f"wall_s={result['timing']['wall_seconds']:.1f} -> {out}/result.json")
 
     _app()
+
+
+def _sweep_job(cfg, hc) -> None:
+    """One job of ``cab -m``: errors propagate to Hydra, which records the job as failed (a worker
+    must not exit); the progress line goes to stderr."""
+    from pathlib import Path
+
+    from .sweep import run_job
+
+    _, line = run_job(cfg, Path(hc.runtime.output_dir), Path(hc.sweep.dir), f"{hc.job.name}.log")
+    print(line, file=sys.stderr, flush=True)
+
+
+class SweepManifestCallback(Callback):
+    """Hydra callback (``hydra.callbacks.sweep_manifest``): before a sweep launches, write its
+    manifest or check it against the one already in the sweep directory. Hydra turns callback
+    exceptions into warnings, so a refusal ends the process here, with the reason on stderr."""
+
+    def on_multirun_start(self, config, **kwargs) -> None:
+        from .sweep import SweepConfigChanged, SweepManifest
+
+        try:
+            SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
+        except SweepConfigChanged as e:
+            print(f"cab: refused: {e}", file=sys.stderr)
+            sys.exit(2)
+        except Exception as e:  # a sweep without its manifest cannot be resumed safely: stop
+            print(f"cab: cannot write the sweep manifest: {type(e).__name__}: {e}", file=sys.stderr)
+            sys.exit(1)
 
 
 def plugins_main() -> None:

@@ -14,7 +14,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
-python -m pip install -q -e ".[test]" -e plugins/embodiment_aloha -e plugins/planner_mplib \
+python -m pip install -q -e ".[test,ray,slurm]" -e plugins/embodiment_aloha -e plugins/planner_mplib \
   -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all]" 2>&1 | grep -v '^WARNING: Location' || true
 python -c "import cab_core, sapien, mplib" || { echo "install check failed" >&2; exit 1; }
 echo "cab installed in $(pwd)/.venv"
