@@ -71,6 +71,11 @@ def build_sweep(root: Path) -> Path:
     return root
 
 
+def shared_sweep(tmp_path_factory) -> Path:
+    """The session's sweep (built by the first test module that asks for it)."""
+    return build_sweep(tmp_path_factory.getbasetemp() / "cab-sweep")
+
+
 def results(root: Path) -> list[dict]:
     """Every result.json of the sweep, read directly (the tests' independent source of truth)."""
     return [json.loads(p.read_text()) for p in sorted(Path(root).glob("*/*/seed-*/attempt-*/result.json"))]

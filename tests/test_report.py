@@ -1,0 +1,209 @@
+"""cab-report on a real sweep (oracle, idle, scripted over two tasks): every number the report shows
+is recomputed here from result.json and events.jsonl directly, never through cab_core.analysis."""
+import json
+import shutil
+from collections import defaultdict
+from statistics import median
+
+import pytest
+from attempt_records import PLAN, TASKS, attempt_dir, events, results, shared_sweep
+
+from cab_core.analysis import report as rep
+from cab_core.analysis.measures import wilson
+
+pytestmark = pytest.mark.sim
+
+CONFIG = "{} (direct, sapien)"
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    return shared_sweep(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def built(sweep, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    r = rep.write(sweep, out)
+    return r, out
+
+
+def by_model(sweep) -> dict[str, list[dict]]:
+    out = defaultdict(list)
+    for r in results(sweep):
+        out[r["model"]].append(r)
+    return out
+
+
+def cfg(r: dict, model: str) -> dict:
+    return next(c for c in r["configs"] if c["config"] == CONFIG.format(model))
+
+
+def test_wilson_matches_reference_values():
+    # Wilson score intervals at 95% (z = 1.96), as tabulated by R's binom.confint(method="wilson")
+    for (k, n), (lo, hi) in {(4, 4): (0.5101, 1.0), (0, 4): (0.0, 0.4899), (0, 2): (0.0, 0.6576),
+                             (1, 3): (0.0615, 0.7923), (0, 0): (0.0, 0.0)}.items():
+        got = wilson(k, n)
+        assert got == pytest.approx((lo, hi), abs=1e-4), (k, n)
+
+
+def test_every_attempt_is_counted_once(built, sweep):
+    r, _ = built
+    n = sum(len(a) for _, a in PLAN) * len(TASKS)
+    assert len(results(sweep)) == n
+    assert r["attempts"] == n and r["in_flight"] == [] and r["problems"] == []
+    assert sum(c["attempts"] for c in r["configs"]) == n
+
+
+def test_success_coverage_and_consistency(built, sweep):
+    r, _ = built
+    for model, rs in by_model(sweep).items():
+        c = cfg(r, model)
+        k = sum(x["verdict"]["success"] for x in rs)
+        assert (c["attempts"], c["successes"]) == (len(rs), k)
+        assert c["success_rate"] == pytest.approx(k / len(rs))
+        per_task = defaultdict(list)
+        for x in rs:
+            per_task[x["task"]].append(x["verdict"]["success"])
+        assert c["tasks"] == len(per_task)
+        assert c["coverage"] == sum(any(v) for v in per_task.values())
+        expected = defaultdict(int)
+        for v in per_task.values():
+            expected[f"{sum(v)}/{len(v)}"] += 1
+        assert c["consistency"] == dict(expected)
+    # the acceptance figures: oracle 100% with coverage 2/2, idle 0% with 0/2
+    assert (cfg(r, "oracle")["success_rate"], cfg(r, "oracle")["coverage"], cfg(r, "oracle")["tasks"]) == (1.0, 2, 2)
+    assert (cfg(r, "idle")["success_rate"], cfg(r, "idle")["coverage"]) == (0.0, 0)
+    assert cfg(r, "oracle")["wilson95"] == pytest.approx((0.5101, 1.0), abs=1e-4)
+
+
+def test_stopping_and_claims(built, sweep):
+    r, _ = built
+    for model, rs in by_model(sweep).items():
+        c = cfg(r, model)
+        stop = defaultdict(int)
+        claims = defaultdict(int)
+        for x in rs:
+            reason = x["termination"]["reason"]
+            stop[{"done": "done", "tool_budget": "tool", "sim_budget": "phys"}.get(reason, "other")] += 1
+            claim, ok = x["claim"]["success_claim"], x["verdict"]["success"]
+            claims["absent" if claim is None else "correct" if claim == ok else "over" if claim else "under"] += 1
+        assert c["stopping"] == {k: stop[k] for k in ("done", "tool", "phys", "other")}
+        assert c["claims"] == {k: claims[k] for k in ("correct", "over", "under", "absent")}
+    # the scripted agent over-claims once and once stops without done
+    assert cfg(r, "scripted")["claims"]["over"] == 1 and cfg(r, "scripted")["claims"]["absent"] == 1
+
+
+def test_programs_actions_and_resources(built, sweep):
+    r, _ = built
+    for model, rs in by_model(sweep).items():
+        c = cfg(r, model)
+        evs = [events(attempt_dir(sweep, x["task"], x["model"], x["attempt"])) for x in rs]
+        charged = sum(x["budget"]["tool_calls_used"] for x in rs)
+        programs = [e for ev in evs for e in ev if e["kind"] == "call" and e["tool"] == "run_code"]
+        actions = [e for ev in evs for e in ev if e["kind"] in ("call", "internal_call") and "action_id" in (e.get("result") or {})]
+        failed = [e for e in actions if e["result"]["status"] == "FAILED"]
+        assert c["charged_calls"] == charged and c["program_calls"] == len(programs)
+        assert c["program_errors"] == sum(not e["result"]["ok"] for e in programs)
+        assert c["actions"] == len(actions) and c["not_completed"]["planner"] == len(failed)
+        assert c["calls_mean"] == pytest.approx(charged / len(rs))
+        assert c["sim_seconds_median"] == pytest.approx(median(x["budget"]["sim_seconds_used"] for x in rs))
+        assert c["wall_seconds_median"] == pytest.approx(median(x["timing"]["wall_seconds"] for x in rs))
+        assert c["cost_total"] is None and c["wait_seconds_median"] is None  # model-free agents record no usage
+    s = cfg(r, "scripted")
+    # per task: two programs, one raising; one unreachable reach_tcp refused by the planner
+    assert (s["program_calls"], s["program_errors"], s["not_completed"]["planner"]) == (4, 2, 2)
+    assert s["program_share"] == pytest.approx(4 / 8)
+
+
+def test_checkpoint_coverage_and_curve(built, sweep):
+    r, _ = built
+    for model, rs in by_model(sweep).items():
+        c = cfg(r, model)
+        per_task = defaultdict(list)
+        for x in rs:
+            per_task[x["task"]].append(x["checkpoints"]["spatial_coverage"])
+        want = sum(sum(v) / len(v) for v in per_task.values()) / len(per_task)
+        assert c["spatial_coverage"] == pytest.approx(want)
+        curve = c["spatial_curve"]
+        assert curve[0] == 0.0 and curve[-1] == pytest.approx(want)
+        assert all(a <= b for a, b in zip(curve, curve[1:]))
+    # the oracle's first spatial match on beat_block_hammer comes at its 4th charged call
+    first = min(s["first"]["calls"] for x in by_model(sweep)["oracle"] if x["task"] == "beat_block_hammer"
+                for s in x["checkpoints"]["spatial"])
+    curve = cfg(r, "oracle")["spatial_curve"]
+    assert curve[first - 1] == 0.0 < curve[first]
+
+
+def test_failure_stages_and_matrix(built, sweep):
+    r, _ = built
+    assert cfg(r, "idle")["failure_stages"] == {"arrival": 4}  # never near any region
+    assert cfg(r, "oracle")["failure_stages"] == {}
+    for task in TASKS:
+        assert r["matrix"][task][CONFIG.format("oracle")] == [2, 2]
+        assert r["matrix"][task][CONFIG.format("idle")] == [0, 2]
+    rows = {m["rel"]: m for m in r["attempt_rows"]}
+    assert all(m["failure_stage"] is None for m in rows.values() if m["success"])
+    assert all(m["failure_stage"] and m["failure_detail"] for m in rows.values() if not m["success"])
+
+
+def test_markdown_and_html(built, sweep):
+    r, out = built
+    md = (out / "report.md").read_text()
+    assert "| oracle (direct, sapien) | 4/4 | 100.0% | 51.0%–100.0% | 2/2 |" in md
+    assert "| idle (direct, sapien) | 0/4 | 0.0% | 0.0%–49.0% | 0/2 |" in md
+    assert json.loads((out / "report.json").read_text()) == json.loads(json.dumps(r))
+    page = (out / "report.html").read_text()
+    assert page.count("<svg") >= 4
+    assert "http://" not in page.replace('xmlns="http://www.w3.org/2000/svg"', "") and "https://" not in page
+    for m in r["attempt_rows"]:  # every attempt's page exists
+        assert (sweep / m["rel"] / "view.html").is_file()
+    links = [l.split('"')[0] for l in page.split('<a href="')[1:]]
+    assert len(links) == r["attempts"] and all((out / l).resolve().is_file() for l in links)
+
+
+def test_cli_prints_the_summary_table(sweep, tmp_path, capsys):
+    rep.main([str(sweep), "--out", str(tmp_path), "--no-views"])
+    printed = capsys.readouterr().out
+    assert printed.splitlines()[0].startswith("| Configuration | Success | Rate | Wilson 95% | Coverage |")
+    assert "| oracle (direct, sapien) | 4/4 | 100.0%" in printed
+    assert (tmp_path / "report.html").is_file()
+
+
+def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
+    d = tmp_path / "sweep"
+    shutil.copytree(sweep, d, ignore=shutil.ignore_patterns("*.mp4", "observations", "view.html", "replay*"))
+    (attempt_dir(d, TASKS[0], "oracle", 1) / "result.json").unlink()  # killed mid-attempt
+    (attempt_dir(d, TASKS[0], "oracle", 2) / "result.json").write_text('{"task": "beat_bl')  # torn write
+    bad = attempt_dir(d, TASKS[1], "idle", 1) / "result.json"
+    bad.write_text(json.dumps({k: v for k, v in json.loads(bad.read_text()).items() if k != "verdict"}))
+    log = attempt_dir(d, TASKS[1], "scripted", 1) / "events.jsonl"
+    lines = log.read_text().splitlines()
+    log.write_text("\n".join(lines[:2] + ["{not json"] + lines[2:]) + "\n")
+    r = rep.write(d, views=False)
+    assert r["in_flight"] == [f"{TASKS[0]}/oracle/seed-0/attempt-1"]
+    problems = {p["dir"]: p["problem"] for p in r["problems"]}
+    assert problems[f"{TASKS[0]}/oracle/seed-0/attempt-2"].startswith("result.json is not valid JSON")
+    assert problems[f"{TASKS[1]}/idle/seed-0/attempt-1"] == "result.json lacks 'verdict'"
+    assert problems[f"{TASKS[1]}/scripted/seed-0/attempt-1"].startswith("events.jsonl line 3 is not valid JSON")
+    assert r["attempts"] == len(results(sweep)) - 4
+    assert cfg(r, "oracle")["attempts"] == 2 and cfg(r, "oracle")["tasks"] == 1
+    md = (d / "report.md").read_text()
+    assert "Unfinished attempts (no result.json): 1" in md and "result.json lacks 'verdict'" in md
+
+
+def test_provider_usage_gives_cost_and_wait(sweep, tmp_path):
+    """Usage events as the reference harness writes them (one model_turn per response) give the
+    cost total, median and IQR and the provider wait."""
+    for i, usd in enumerate((1.0, 2.0, 4.0)):
+        src = attempt_dir(sweep, TASKS[0], "idle", 1)
+        d = tmp_path / f"a{i}"
+        shutil.copytree(src, d, ignore=shutil.ignore_patterns("*.mp4", "view.html"))
+        with open(d / "events.jsonl", "a") as f:
+            for turn in (1, 2):
+                f.write(json.dumps({"seq": 100 + turn, "kind": "model_turn", "turn": turn, "usage": {},
+                                    "cost": {"usd": usd / 2}, "latency_s": 1.5 * (i + 1), "waited_s": 0.5}) + "\n")
+    c = rep.build(tmp_path)["configs"][0]
+    assert c["cost_total"] == pytest.approx(7.0) and c["cost_median"] == pytest.approx(2.0)
+    assert c["cost_iqr"] == pytest.approx((1.5, 3.0))
+    assert c["wait_seconds_median"] == pytest.approx(2 * (3.0 + 0.5))
