@@ -25,8 +25,21 @@ def normalise_overrides(argv: list[str]) -> list[str]:
     return out
 
 
+def wants_stdio_protocol(argv: list[str]) -> bool:
+    """Whether these overrides serve the attempt over MCP on stdio (``harness=mcp`` without
+    ``harness.transport=http``): then stdout is reserved for protocol frames before Hydra starts,
+    so that nothing it or anything after it prints can corrupt the stream (cab_core.stdio)."""
+    sel = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness=")]
+    transport = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness.transport=")]
+    return bool(sel) and sel[-1] == "mcp" and (not transport or transport[-1] == "stdio")
+
+
 def main() -> None:
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
+    if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:
+        from . import stdio
+
+        stdio.claim()
     _hydra_entry()
 
 

@@ -15,6 +15,7 @@ fi
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
 python -m pip install -q -e ".[test,ray,slurm]" -e plugins/embodiment_aloha -e plugins/planner_mplib \
-  -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all]" 2>&1 | grep -v '^WARNING: Location' || true
+  -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all]" \
+  -e plugins/harness_mcp 2>&1 | grep -v '^WARNING: Location' || true
 python -c "import cab_core, sapien, mplib" || { echo "install check failed" >&2; exit 1; }
 echo "cab installed in $(pwd)/.venv"

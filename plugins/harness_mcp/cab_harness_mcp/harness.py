@@ -1,0 +1,226 @@
+"""``harness=mcp``: serve one attempt to an MCP client.
+
+The thread that built the attempt stays its only owner: it executes the calls the server queues
+(:mod:`.bridge`), one at a time, and watches for the ways an attempt ends besides ``done`` and the
+budgets, which the episode itself enforces:
+
+- the client closes stdio (``client_disconnected``);
+- no request for ``idle_timeout_s`` (``client_idle``; HTTP, where a client can vanish silently);
+- the wall-clock budget runs out while the client is thinking (``wall_budget``);
+- the operator interrupts cab (``interrupted``).
+
+Whatever the ending, ``result.json`` is written at once; the server then keeps answering for
+``linger_s`` (every call gets "the attempt has ended") so the client can read the last result, and
+stops. The attempt's records are the same as under the reference harness, plus ``mcp_*`` events.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from cab_core import stdio
+from cab_core.errors import AttemptEnded, ConfigError
+
+from .bridge import CallBridge, Job
+from .server import build_server, instructions_text, tool_list, tool_result
+from .transport import HttpServerThread, ServerThread, StdioServerThread
+
+log = logging.getLogger(__name__)
+
+ENDPOINT_FILE = "mcp_endpoint.json"
+
+
+@dataclass
+class McpSettings:
+    """The ``harness`` config group of ``harness=mcp`` (conf/harness/mcp.yaml)."""
+    transport: str = "stdio"            # stdio | http
+    host: str = "127.0.0.1"
+    port: int = 0                       # 0: any free port (written to mcp_endpoint.json)
+    auth: bool = True                   # http: require the bearer token of mcp_endpoint.json
+    idle_timeout_s: float | None = 900.0
+    linger_s: float = 5.0
+    max_images_per_result: int = 6
+    startup_timeout_s: float = 30.0
+
+    @classmethod
+    def from_cfg(cls, cfg: dict | None, **overrides) -> "McpSettings":
+        cfg = {k: v for k, v in dict(cfg or {}).items() if k != "name"}
+        cfg.update(overrides)
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(cfg) - known)
+        if unknown:
+            raise ConfigError(f"harness: unknown option(s) {unknown}; known: {sorted(known)}")
+        s = cls(**cfg)
+        if s.transport not in ("stdio", "http"):
+            raise ConfigError(f"harness.transport must be stdio or http, got {s.transport!r}")
+        if not isinstance(s.port, int) or not 0 <= s.port <= 65535:
+            raise ConfigError(f"harness.port must be an integer in 0..65535, got {s.port!r}")
+        for k in ("linger_s", "startup_timeout_s"):
+            if not isinstance(getattr(s, k), (int, float)) or getattr(s, k) < 0:
+                raise ConfigError(f"harness.{k} must be a non-negative number, got {getattr(s, k)!r}")
+        if s.idle_timeout_s is not None and (not isinstance(s.idle_timeout_s, (int, float)) or s.idle_timeout_s <= 0):
+            raise ConfigError(f"harness.idle_timeout_s must be positive or null, got {s.idle_timeout_s!r}")
+        return s
+
+
+def _png(image) -> bytes:
+    from cab_harness_reference.loop import png_bytes
+
+    return png_bytes(image)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("cab-harness-mcp")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "0"
+
+
+class McpHarness:
+    """Serves one attempt over MCP; ``run`` returns when the attempt has ended and the server
+    has stopped."""
+
+    def __init__(self, cfg: dict | None = None, **overrides):
+        self.settings = McpSettings.from_cfg(cfg, **overrides)
+        self._stdio = None
+        self.transport: ServerThread | None = None
+
+    # -- before the simulator starts ----------------------------------------------------------
+    def preflight(self, model_cfg: dict) -> None:
+        """Claim stdout for the protocol before anything (a simulator, a renderer) can print."""
+        if self.settings.transport == "stdio" and self._stdio is None:
+            self._stdio = stdio.claim()
+
+    # -- hooks for the vendor launchers ---------------------------------------------------------
+    def on_serving(self, episode, transport: ServerThread) -> None:
+        """Called once the server accepts connections."""
+
+    def agent_gone(self) -> str | None:
+        """A reason to end the attempt because the agent itself has finished, if it has."""
+        return None
+
+    def ready_to_finish(self, ended_for_s: float) -> bool:
+        """Whether to score and write the record now, ``ended_for_s`` after the attempt ended."""
+        return True
+
+    def before_finish(self, episode) -> None:
+        """Last records of the harness (the records close when the attempt is finished)."""
+
+    def on_stop(self) -> None:
+        """Called when the server has stopped, whatever happened."""
+
+    # -- the attempt --------------------------------------------------------------------------
+    def run(self, episode, model_cfg: dict) -> None:
+        s = self.settings
+        self.preflight(model_cfg)
+        from cab_harness_reference.prompt import first_user_message, system_prompt
+
+        rc = dict(episode.spec.sandbox or {})
+        rc["max_internal_calls"] = episode.spec.run_code_max_internal_calls
+        system = system_prompt(episode.ledger.remaining(), run_code=rc)
+        self.task_prompt = instructions_text(system, first_user_message(episode.instruction))
+        tools = tool_list(episode)
+        bridge = CallBridge()
+        server = build_server(tools, bridge, self.task_prompt, _version(), self.task_prompt)
+        if s.transport == "stdio":
+            transport: ServerThread = StdioServerThread(server, self._stdio)
+        else:
+            transport = HttpServerThread(server, s.host, s.port, s.auth, s.idle_timeout_s)
+        self.transport = transport
+        transport.start(s.startup_timeout_s)
+        self._announce(episode, transport, tools)
+        try:
+            self.on_serving(episode, transport)
+            self._serve(episode, bridge, transport)
+        except KeyboardInterrupt:
+            episode.end("interrupted", "the operator interrupted cab")
+        finally:
+            transport.stop()
+            self.on_stop()
+
+    def _announce(self, episode, transport: ServerThread, tools) -> None:
+        info = {"transport": self.settings.transport, "tools": len(tools), "server": "cab", "version": _version()}
+        if isinstance(transport, HttpServerThread):
+            info["url"] = transport.url
+            endpoint = {"url": transport.url, "transport": "streamable-http",
+                        "headers": ({"Authorization": f"Bearer {transport.token}"} if transport.token else {})}
+            path = Path(episode.out) / ENDPOINT_FILE
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w") as f:
+                json.dump(endpoint, f, indent=2)
+            print(f"cab: attempt {episode.spec.task} served over MCP at {transport.url} "
+                  f"(endpoint and token: {path})", file=sys.stderr, flush=True)
+        episode.recorder.event("mcp_server_start", **info)
+
+    def _serve(self, episode, bridge: CallBridge, transport: ServerThread) -> None:
+        s = self.settings
+        ended_at: float | None = None
+        finished_at = 0.0
+        while True:
+            job = bridge.next(timeout=0.05)
+            if job is not None:
+                self._execute(episode, job)
+            if not episode.ended:
+                reason = self._ending(episode, bridge, transport)
+                if reason is not None:
+                    episode.end(*reason)
+            if episode.ended:
+                now = time.monotonic()
+                if ended_at is None:
+                    ended_at = now
+                    episode.recorder.event("mcp_attempt_ended", reason=episode.termination["reason"],
+                                           client_connected=not transport.finished, queued_calls=bridge.pending())
+                if episode.result is None and self.ready_to_finish(now - ended_at):
+                    self.before_finish(episode)
+                    episode.finish()  # result.json now, not when the client finally lets go; closes the records
+                    finished_at = now
+                if episode.result is not None and (transport.finished or (
+                        now - finished_at >= s.linger_s and bridge.pending() == 0)):
+                    break
+
+    def _ending(self, episode, bridge: CallBridge, transport: ServerThread) -> tuple[str, str] | None:
+        s = self.settings
+        if transport.finished:
+            if transport.error is not None:
+                return "error", f"the MCP transport failed: {transport.error!r}"
+            return "client_disconnected", "the MCP client closed the connection before done"
+        gone = self.agent_gone()
+        if gone is not None:
+            return "no_done", gone
+        if episode.ledger.exhausted_reason() == "wall_budget":
+            return "wall_budget", "wall-clock budget spent while waiting for the client"
+        if s.idle_timeout_s is not None and bridge.idle_seconds() > s.idle_timeout_s:
+            return "client_idle", f"no request from the MCP client for {s.idle_timeout_s:g} s"
+        return None
+
+    def _execute(self, episode, job: Job) -> None:
+        try:
+            r = episode.call(job.name, job.arguments)
+        except AttemptEnded as e:
+            job.future.set_result(tool_result({"error": str(e), "attempt_ended": True}))
+            return
+        except BaseException as e:  # never leave the client hanging on a future
+            job.future.set_result(tool_result({"error": f"internal error: {e!r}", "attempt_ended": episode.ended}))
+            raise
+        payload = dict(r.payload)
+        cap = self.settings.max_images_per_result
+        ids = list(dict.fromkeys(r.obs_ids))
+        keep = min(len(ids), max(0, cap))
+        shown, withheld = ids[len(ids) - keep:], ids[:len(ids) - keep]
+        images = []
+        for oid in shown:
+            try:
+                images.append((oid, _png(episode.image(oid))))
+            except Exception as e:  # an unreadable observation is reported, not fatal
+                log.warning("observation %s unavailable: %r", oid, e)
+                withheld.append(oid)
+        if withheld:
+            payload.setdefault("images_not_attached", withheld)
+        job.future.set_result(tool_result(payload, images))

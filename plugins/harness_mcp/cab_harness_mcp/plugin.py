@@ -1,0 +1,42 @@
+"""Entry point of the MCP harness (group ``cab``): harnesses ``mcp``, ``claude_code``, ``codex``.
+
+The MCP SDK is imported only when a harness is created, so listing plugins stays cheap and a
+missing SDK fails with the install command."""
+from __future__ import annotations
+
+import cab_core
+from cab_core.errors import MissingDependency
+
+
+def _require_sdk() -> None:
+    try:
+        import mcp  # noqa: F401
+        import uvicorn  # noqa: F401
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise MissingDependency("the MCP Python SDK", "pip install 'mcp>=2.3,<3' uvicorn") from e
+
+
+def create_mcp(cfg: dict | None = None):
+    _require_sdk()
+    from .harness import McpHarness
+
+    return McpHarness(cfg)
+
+
+def create_claude_code(cfg: dict | None = None):
+    _require_sdk()
+    from .launchers import ClaudeCodeLauncher
+
+    return ClaudeCodeLauncher(cfg)
+
+
+def create_codex(cfg: dict | None = None):
+    _require_sdk()
+    from .launchers import CodexLauncher
+
+    return CodexLauncher(cfg)
+
+
+@cab_core.hookimpl
+def cab_harnesses():
+    return {"mcp": create_mcp, "claude_code": create_claude_code, "codex": create_codex}
