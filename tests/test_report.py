@@ -1,7 +1,9 @@
 """cab-report on a real sweep (oracle, idle, scripted over two tasks): every number the report shows
 is recomputed here from result.json and events.jsonl directly, never through cab_core.analysis."""
 import json
+import re
 import shutil
+import xml.etree.ElementTree as ET
 from collections import defaultdict
 from statistics import median
 
@@ -154,7 +156,11 @@ def test_markdown_and_html(built, sweep):
     assert "| idle (direct, sapien) | 0/4 | 0.0% | 0.0%–49.0% | 0/2 |" in md
     assert json.loads((out / "report.json").read_text()) == json.loads(json.dumps(r))
     page = (out / "report.html").read_text()
-    assert page.count("<svg") >= 4
+    svgs = re.findall(r"<svg.*?</svg>", page, re.S)
+    assert len(svgs) >= 4
+    for fig in svgs:  # each figure is well-formed SVG with marks drawn
+        root = ET.fromstring(fig)
+        assert root.tag.endswith("svg") and len(root) > 3
     assert "http://" not in page.replace('xmlns="http://www.w3.org/2000/svg"', "") and "https://" not in page
     for m in r["attempt_rows"]:  # every attempt's page exists
         assert (sweep / m["rel"] / "view.html").is_file()

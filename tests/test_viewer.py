@@ -1,0 +1,62 @@
+"""cab-view: one page per attempt, from its records."""
+import html
+import re
+import shutil
+
+import pytest
+from attempt_records import RAISING_PROGRAM, TASKS, attempt_dir, events, shared_sweep
+
+from cab_core.analysis.records import Attempt
+from cab_core.errors import RecordError
+from cab_core.viewer import main, render, write_view
+
+pytestmark = pytest.mark.sim
+
+
+@pytest.fixture(scope="module")
+def scripted(tmp_path_factory):
+    """A copy of the scripted attempt that over-claims (so the shared sweep stays untouched)."""
+    src = attempt_dir(shared_sweep(tmp_path_factory), TASKS[0], "scripted", 1)
+    d = tmp_path_factory.mktemp("view") / "attempt"
+    shutil.copytree(src, d, ignore=shutil.ignore_patterns("view.html", "replay*"))
+    return d
+
+
+def test_page_shows_timeline_programs_images_verdict_claim_and_checkpoints(scripted):
+    page = write_view(scripted).read_text()
+    text = html.unescape(page)
+    evs = events(scripted)
+    calls = [e["tool"] for e in evs if e["kind"] in ("call", "internal_call")]
+    # every call, in the order logged
+    shown = re.findall(r"<b>(?:↳ )?([a-z_]+)</b>", page)
+    assert shown == calls + ["attempt_end"]
+    assert RAISING_PROGRAM in text and "ValueError: no block found" in text and "prog_001.py" in text
+    obs = [o for e in evs for o in e.get("obs_ids") or []]
+    assert obs and all(f'src="observations/{o}.png"' in page for o in obs)
+    assert all((scripted / "observations" / f"{o}.png").is_file() for o in obs)
+    assert '<video src="video.mp4"' in page
+    assert "<th>verdict</th><td>failure</td>" in page and "<th>claim</th><td>success</td>" in page
+    assert "Approach hammer" in text and "not attained" in text
+    assert "https://" not in page and "http://" not in page  # nothing fetched from elsewhere
+
+
+def test_page_shows_model_turns_when_recorded(scripted, tmp_path):
+    d = tmp_path / "a"
+    shutil.copytree(scripted, d)
+    with open(d / "events.jsonl", "a") as f:
+        f.write('{"seq": 99, "kind": "model_turn", "turn": 1, "model": "m", "usage": {"input_tokens": 1200, '
+                '"output_tokens": 80}, "cost": {"usd": 0.0123}, "latency_s": 2.5, "waited_s": 0, '
+                '"text": "I will look first <b>", "thinking": "plan"}\n')
+    page = render(Attempt.load(d))
+    assert "model turn 1" in page and "1200 in / 80 out tokens" in page and "$0.0123" in page
+    assert "I will look first &lt;b&gt;" in page  # model text is escaped
+
+
+def test_cli_and_bad_input(scripted, tmp_path, capsys):
+    main([str(scripted)])
+    assert capsys.readouterr().out.strip() == str(scripted / "view.html")
+    with pytest.raises(RecordError, match="result.json is missing"):
+        write_view(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path)])
+    assert e.value.code == 2 and "result.json is missing" in capsys.readouterr().err
