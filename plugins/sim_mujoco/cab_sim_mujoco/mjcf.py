@@ -307,7 +307,8 @@ class MjcfWriter:
                     attrs.update(limited="true", range=_fmt(joint.limit))
                 damping = joint.damping if joint_damping is None else joint_damping
                 friction = joint.friction if joint_friction is None else joint_friction
-                attrs.update(damping=repr(float(damping)), armature=repr(float(self.phys.joint_armature)))
+                armature = self.phys.drive_armature if gravcomp else self.phys.joint_armature
+                attrs.update(damping=repr(float(damping)), armature=repr(float(armature)))
                 if friction > 0:
                     attrs["frictionloss"] = repr(float(friction) * self.phys.joint_friction_scale)
                 ET.SubElement(el, "joint", **attrs)

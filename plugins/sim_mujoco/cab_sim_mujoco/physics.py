@@ -34,8 +34,14 @@ class PhysicsParams:
     contact_solref: tuple[float, float] = (0.01, 1.0)
     contact_solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
     contact_margin: float = 0.0
-    # articulated joints: armature (kg m^2 or kg) added to every joint, for numerical robustness
+    # joints of articulated objects: armature (kg m^2, or kg on a slider), for numerical robustness
     joint_armature: float = 0.001
+    # robot joints: the servos' damping (200) is integrated implicitly, but MuJoCo's contact solver
+    # computes contact forces with the bare link inertia; on light links (a 50 g finger, the wrist)
+    # the contacts then come out many times too soft (a squeezed object sinks into the pads and
+    # slips out). Armature of the order of timestep x damping (0.8) restores them; tracking barely
+    # changes, the servos being overdamped (time constant damping / stiffness = 0.2 s) either way.
+    drive_armature: float = 1.0
     # PhysX joint friction is a coefficient; MuJoCo's frictionloss is a torque (N m): the scale
     # that turns a scene's joint_friction into a frictionloss
     joint_friction_scale: float = 1.0
