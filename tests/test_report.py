@@ -12,6 +12,7 @@ from attempt_records import PLAN, TASKS, attempt_dir, events, results, shared_sw
 
 from cab_core.analysis import report as rep
 from cab_core.analysis.measures import wilson
+from cab_core.sweep_records import annotate_result, set_aside, write_infrastructure_result
 
 pytestmark = pytest.mark.sim
 
@@ -112,6 +113,7 @@ def test_programs_actions_and_resources(built, sweep):
         assert c["sim_seconds_median"] == pytest.approx(median(x["budget"]["sim_seconds_used"] for x in rs))
         assert c["wall_seconds_median"] == pytest.approx(median(x["timing"]["wall_seconds"] for x in rs))
         assert c["cost_total"] is None and c["wait_seconds_median"] is None  # model-free agents record no usage
+        assert c["infra_retries"] == sum(len(x.get("infrastructure", {}).get("failures", [])) for x in rs)
     s = cfg(r, "scripted")
     # per task: two programs, one raising; one unreachable reach_tcp refused by the planner
     assert (s["program_calls"], s["program_errors"], s["not_completed"]["planner"]) == (4, 2, 2)
@@ -186,16 +188,27 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     log = attempt_dir(d, TASKS[1], "scripted", 1) / "events.jsonl"
     lines = log.read_text().splitlines()
     log.write_text("\n".join(lines[:2] + ["{not json"] + lines[2:]) + "\n")
+    # the sweep gave up on one attempt (infrastructure failures), after setting its records aside
+    gave_up = attempt_dir(d, TASKS[1], "oracle", 2)
+    identity = {k: json.loads((gave_up / "result.json").read_text())[k] for k in ("task", "seed", "attempt", "sim", "model")}
+    set_aside(gave_up, "simulator-crash")
+    write_infrastructure_result(gave_up, identity, [{"kind": "crash", "detail": "simulator died"}])
+    # and redid another after two infrastructure failures: recorded, not counted against the model
+    annotate_result(attempt_dir(d, TASKS[1], "oracle", 1), [{"kind": "hang"}, {"kind": "provider outage"}])
     r = rep.write(d, views=False)
+    assert cfg(r, "oracle")["infra_retries"] == 2 and cfg(r, "oracle")["successes"] == 1
     assert r["in_flight"] == [f"{TASKS[0]}/oracle/seed-0/attempt-1"]
+    assert [e["dir"] for e in r["excluded"]] == [f"{TASKS[1]}/oracle/seed-0/attempt-2"]
+    assert "simulator died" in r["excluded"][0]["why"]
     problems = {p["dir"]: p["problem"] for p in r["problems"]}
     assert problems[f"{TASKS[0]}/oracle/seed-0/attempt-2"].startswith("result.json is not valid JSON")
     assert problems[f"{TASKS[1]}/idle/seed-0/attempt-1"] == "result.json lacks 'verdict'"
     assert problems[f"{TASKS[1]}/scripted/seed-0/attempt-1"].startswith("events.jsonl line 3 is not valid JSON")
-    assert r["attempts"] == len(results(sweep)) - 4
-    assert cfg(r, "oracle")["attempts"] == 2 and cfg(r, "oracle")["tasks"] == 1
+    assert r["attempts"] == len(results(sweep)) - 5
+    assert cfg(r, "oracle")["attempts"] == 1 and cfg(r, "oracle")["tasks"] == 1
     md = (d / "report.md").read_text()
     assert "Unfinished attempts (no result.json): 1" in md and "result.json lacks 'verdict'" in md
+    assert "Excluded as infrastructure failures (not the model's): 1" in md
 
 
 def test_provider_usage_gives_cost_and_wait(sweep, tmp_path):

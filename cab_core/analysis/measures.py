@@ -13,6 +13,7 @@ motion outcomes, termination, checkpoints and failure analysis):
 * non-completed robot actions (direct and inside programs), by planner refusal, stall, trajectory
   deviation and motion allowance (leg budget, probe travel);
 * calls (mean), simulated, wall and provider-wait time (medians); cost (total, median, IQR);
+  infrastructure retries (tries a sweep redid for simulator or provider faults, not counted as failures);
 * subgoal and spatial checkpoint coverage: per attempt the attained fraction, averaged over a
   task's attempts, then over tasks with equal weight; the same for spatial coverage at each
   charged-call count k (matches within the first k calls count; an ended attempt keeps its value).
@@ -119,6 +120,7 @@ class AttemptMeasures:
     spatial_coverage: float | None
     spatial_match_calls: list  # charged-call index of each spatial checkpoint's first match (None: never)
     tools: list
+    infra_retries: int = 0  # tries before this one that failed for reasons not the model's
     failure_stage: str | None = None
     failure_detail: str = ""
 
@@ -150,6 +152,7 @@ class AttemptMeasures:
             spatial_coverage=ck.get("spatial_coverage") if ok_ck and spatial else None,
             spatial_match_calls=[(s.get("first") or {}).get("calls") if s.get("attained") else None for s in spatial],
             tools=sorted({e.get("tool") for e in ev if e.get("kind") in ("call", "internal_call")} - {None, "done"}),
+            infra_retries=len((r.get("infrastructure") or {}).get("failures") or []),
         )
 
     def spatial_at(self, k: int) -> float | None:
@@ -212,6 +215,7 @@ class ConfigSummary:
     spatial_curve: list
     progress: dict
     failure_stages: dict
+    infra_retries: int = 0
     tool_use: dict = field(default_factory=dict)
 
     @classmethod
@@ -255,6 +259,7 @@ class ConfigSummary:
             subgoal_coverage=_task_weighted(sub), spatial_coverage=_task_weighted(spa), spatial_curve=curve,
             progress=progress,
             failure_stages=dict(Counter(m.failure_stage for m in failed if m.failure_stage)),
+            infra_retries=sum(m.infra_retries for m in ms),
             tool_use={t: {"attempts": sum(t in m.tools for m in ms), "successes": sum(t in m.tools and m.success for m in ms)}
                       for t in tools},
         )

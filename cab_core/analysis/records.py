@@ -14,6 +14,7 @@ from functools import cached_property
 from pathlib import Path
 
 from ..errors import RecordError
+from ..sweep_records import SET_ASIDE
 
 # keys a result.json must carry for analysis, with the type each must have
 REQUIRED = {"task": str, "seed": int, "attempt": int, "sim": str, "model": str, "harness": str,
@@ -53,8 +54,17 @@ def read_jsonl(path: Path) -> list[dict]:
     return out
 
 
+class InfrastructureResult(RecordError):
+    """The result of an attempt whose every try failed for reasons that are not the model's."""
+
+
 def check_result(result: dict) -> None:
-    """Raise RecordError naming the first key analysis needs that is missing or mistyped."""
+    """Raise RecordError naming the first key analysis needs that is missing or mistyped
+    (InfrastructureResult for an attempt excluded as an infrastructure failure)."""
+    verdict = result.get("verdict")
+    if isinstance(verdict, dict) and verdict.get("excluded"):
+        detail = (result.get("termination") or {}).get("detail", "")
+        raise InfrastructureResult(f"excluded ({verdict['excluded']}): {detail}".rstrip(": "))
     for key, typ in REQUIRED.items():
         if key not in result:
             raise RecordError(f"result.json lacks {key!r}")
@@ -110,24 +120,29 @@ class Scan:
     attempts: list[Attempt] = field(default_factory=list)
     in_flight: list[str] = field(default_factory=list)  # events.jsonl but no result.json yet
     problems: list[tuple[str, str]] = field(default_factory=list)  # (relative dir, what is wrong)
+    excluded: list[tuple[str, str]] = field(default_factory=list)  # infrastructure failures: no verdict
 
 
 def scan(root: Path) -> Scan:
     """Every attempt directory below ``root`` (``root`` itself included), in sorted order. An
     attempt directory is not searched further (a replay kept inside it is not a sweep attempt);
-    hidden directories (``.hydra``) are skipped."""
+    hidden directories (``.hydra``) and the records a sweep set aside (interrupted tries) are
+    skipped. An attempt the sweep gave up on for infrastructure failures (no verdict) is listed
+    apart: it is no failure of the model."""
     root = Path(root)
     if not root.is_dir():
         raise RecordError(f"{root} is not a directory")
     out = Scan(root)
     for d, dirs, files in os.walk(root):
-        dirs[:] = sorted(x for x in dirs if not x.startswith("."))
+        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != SET_ASIDE)
         here = Path(d)
         rel = os.path.relpath(here, root).replace(os.sep, "/")
         if "result.json" in files:
             dirs[:] = []
             try:
                 out.attempts.append(Attempt.load(here, root))
+            except InfrastructureResult as e:
+                out.excluded.append((rel, str(e)))
             except RecordError as e:
                 out.problems.append((rel, str(e)))
         elif "events.jsonl" in files:

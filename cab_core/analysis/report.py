@@ -21,7 +21,7 @@ from ..errors import CabError
 from . import svg
 from .failure import LABELS, STAGES, Classifier
 from .measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
-from .records import Scan, scan
+from .records import Scan, read_json, scan
 
 REPORT_VERSION = "cab-report/1"
 
@@ -54,8 +54,18 @@ def build(root: Path) -> dict:
     summaries.sort(key=lambda c: (-c.success_rate, c.config))
     return {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
             "problems": [{"dir": d, "problem": p} for d, p in s.problems],
+            "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep_manifest(Path(root)),
             "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
             "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))]}
+
+
+def sweep_manifest(root: Path) -> dict | None:
+    """The sweep's fingerprint and size from its manifest (``sweep.json``), when there is one."""
+    try:
+        m = read_json(root / "sweep.json")
+    except CabError:
+        return None
+    return {"fingerprint": m.get("fingerprint"), "jobs": m.get("n_jobs")}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -96,10 +106,11 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
               *[str(c["not_completed"][a]) for a in ACTION_CAUSES]] for c in cs]),
            ("Resources",
             ["Configuration", "Calls (mean)", "Sim. s (median)", "Wall s (median)", "Wait s (median)",
-             "Cost total", "Cost median", "Cost IQR"],
+             "Cost total", "Cost median", "Cost IQR", "Infra. retries"],
             [[c["config"], num(c["calls_mean"]), num(c["sim_seconds_median"]), num(c["wall_seconds_median"]),
               num(c["wait_seconds_median"]), num(c["cost_total"], "${:.2f}"), num(c["cost_median"], "${:.2f}"),
-              "–" if c["cost_iqr"] is None else f"${c['cost_iqr'][0]:.2f}–${c['cost_iqr'][1]:.2f}"] for c in cs]),
+              "–" if c["cost_iqr"] is None else f"${c['cost_iqr'][0]:.2f}–${c['cost_iqr'][1]:.2f}",
+              str(c["infra_retries"])] for c in cs]),
            ("Checkpoints (task-weighted coverage) and confirmed progress",
             ["Configuration", "Subgoal coverage", "Spatial coverage", "Success", "Failed: subgoal attained",
              "Failed: spatial only", "Failed: none"],
@@ -129,12 +140,22 @@ def md_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(map(esc, row)) + " |" for row in rows])
 
 
-def markdown(r: dict) -> str:
-    parts = [f"# cab report\n\n{r['attempts']} attempts, {len(r['configs'])} configurations."]
+def notes(r: dict) -> list[str]:
+    """Plain-text lines on what the report does not count, and on the sweep."""
+    out = [f"{r['attempts']} attempts, {len(r['configs'])} configurations."]
+    if r["sweep"]:
+        out.append(f"Sweep manifest: {r['sweep']['jobs']} jobs, configuration fingerprint {r['sweep']['fingerprint']}.")
     if r["in_flight"]:
-        parts.append(f"Unfinished attempts (no result.json): {len(r['in_flight'])}: " + ", ".join(r["in_flight"]))
-    if r["problems"]:
-        parts.append("Skipped records:\n\n" + "\n".join(f"- `{p['dir']}`: {p['problem']}" for p in r["problems"]))
+        out.append(f"Unfinished attempts (no result.json): {len(r['in_flight'])}: " + ", ".join(r["in_flight"]))
+    if r["excluded"]:
+        out.append(f"Excluded as infrastructure failures (not the model's): {len(r['excluded'])}: "
+                   + "; ".join(f"{e['dir']} {e['why']}" for e in r["excluded"]))
+    out += [f"Skipped record {p['dir']}: {p['problem']}" for p in r["problems"]]
+    return out
+
+
+def markdown(r: dict) -> str:
+    parts = ["# cab report", "\n\n".join(notes(r))]
     for title, header, rows in tables(r):
         parts.append(f"## {title}\n\n{md_table(header, rows)}")
     return "\n\n".join(parts) + "\n"
@@ -187,12 +208,7 @@ def _matrix_class(v: str) -> str | None:
 
 def html(r: dict, view_links: dict[str, str]) -> str:
     ts = tables(r)
-    parts = [f"<h1>cab report</h1><p>{r['attempts']} attempts, {len(r['configs'])} configurations.</p>"]
-    if r["in_flight"]:
-        parts.append(f"<p>Unfinished attempts: {escape(', '.join(r['in_flight']))}</p>")
-    if r["problems"]:
-        parts.append("<p>Skipped records:</p><ul>" + "".join(
-            f"<li><code>{escape(p['dir'])}</code>: {escape(p['problem'])}</li>" for p in r["problems"]) + "</ul>")
+    parts = ["<h1>cab report</h1>"] + [f"<p>{escape(line)}</p>" for line in notes(r)]
     parts.append("<h2>Figures</h2>" + "".join(f"<figure>{f}</figure>" for f in figures(r)))
     for title, header, rows in ts:
         cc = _matrix_class if title.startswith("Task x") else None

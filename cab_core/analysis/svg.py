@@ -44,7 +44,8 @@ def stacked(title: str, rows: list[tuple[str, list[float]]], parts: list[str]) -
     """Horizontal stacked bars of counts (each row its own total), with a legend of ``parts``."""
     left, width, bar = 220, 360, 18
     total = max([sum(v) for _, v in rows] + [1])
-    h = 30 + bar * 1.5 * len(rows) + 20 * ((len(parts) + 3) // 4) + 10
+    cols = 3
+    h = 30 + bar * 1.5 * len(rows) + 20 * ((len(parts) + cols - 1) // cols) + 10
     body = [_text(left, 14, title, extra='font-weight="bold"')]
     for i, (label, vals) in enumerate(rows):
         y = 26 + i * bar * 1.5
@@ -60,10 +61,10 @@ def stacked(title: str, rows: list[tuple[str, list[float]]], parts: list[str]) -
             x += w
     ly = 26 + len(rows) * bar * 1.5 + 8
     for j, p in enumerate(parts):
-        lx, lyy = left + (j % 4) * 130, ly + (j // 4) * 20
+        lx, lyy = left + (j % cols) * 190, ly + (j // cols) * 20
         body.append(f'<rect x="{lx}" y="{lyy:.1f}" width="10" height="10" fill="{PALETTE[j % len(PALETTE)]}"/>')
         body.append(_text(lx + 14, lyy + 9, p))
-    return _frame(left + width + 40, int(h), body, title)
+    return _frame(left + max(width, cols * 190) + 40, int(h), body, title)
 
 
 def lines(title: str, series: list[tuple[str, list[float | None]]], xlabel: str, ylabel: str) -> str:
