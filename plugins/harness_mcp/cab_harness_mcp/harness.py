@@ -90,6 +90,7 @@ class McpHarness:
     def __init__(self, cfg: dict | None = None, **overrides):
         self.settings = McpSettings.from_cfg(cfg, **overrides)
         self._stdio = None
+        self._clients: set[str | None] = set()
         self.transport: ServerThread | None = None
 
     # -- before the simulator starts ----------------------------------------------------------
@@ -120,6 +121,8 @@ class McpHarness:
     def run(self, episode, model_cfg: dict) -> None:
         s = self.settings
         self.preflight(model_cfg)
+        if model_cfg.get("agent"):  # an in-process agent's config (the default, oracle) plays no part here
+            episode.spec.model = "mcp_client"
         from cab_harness_reference.prompt import first_user_message, system_prompt
 
         rc = dict(episode.spec.sandbox or {})
@@ -165,8 +168,7 @@ class McpHarness:
         finished_at = 0.0
         while True:
             job = bridge.next(timeout=0.05)
-            if job is not None:
-                self._execute(episode, job)
+            answer = self._execute(episode, job) if job is not None else None
             if not episode.ended:
                 reason = self._ending(episode, bridge, transport)
                 if reason is not None:
@@ -181,9 +183,11 @@ class McpHarness:
                     self.before_finish(episode)
                     episode.finish()  # result.json now, not when the client finally lets go; closes the records
                     finished_at = now
-                if episode.result is not None and (transport.finished or (
-                        now - finished_at >= s.linger_s and bridge.pending() == 0)):
-                    break
+            if job is not None:  # answered after the record is written, when the call ended the attempt
+                job.future.set_result(answer)
+            if episode.result is not None and (transport.finished or (
+                    time.monotonic() - finished_at >= s.linger_s and bridge.pending() == 0)):
+                break
 
     def _ending(self, episode, bridge: CallBridge, transport: ServerThread) -> tuple[str, str] | None:
         s = self.settings
@@ -200,19 +204,21 @@ class McpHarness:
             return "client_idle", f"no request from the MCP client for {s.idle_timeout_s:g} s"
         return None
 
-    def _execute(self, episode, job: Job) -> None:
+    def _execute(self, episode, job: Job):
+        """Run one queued call; returns its MCP result (the caller delivers it)."""
+        if job.client not in self._clients and not episode.ended:
+            self._clients.add(job.client)
+            episode.recorder.event("mcp_client", client=job.client)
         try:
             r = episode.call(job.name, job.arguments)
         except AttemptEnded as e:
-            job.future.set_result(tool_result({"error": str(e), "attempt_ended": True}))
-            return
+            return tool_result({"error": str(e), "attempt_ended": True})
         except BaseException as e:  # never leave the client hanging on a future
             job.future.set_result(tool_result({"error": f"internal error: {e!r}", "attempt_ended": episode.ended}))
             raise
         payload = dict(r.payload)
-        cap = self.settings.max_images_per_result
         ids = list(dict.fromkeys(r.obs_ids))
-        keep = min(len(ids), max(0, cap))
+        keep = min(len(ids), max(0, self.settings.max_images_per_result))
         shown, withheld = ids[len(ids) - keep:], ids[:len(ids) - keep]
         images = []
         for oid in shown:
@@ -223,4 +229,4 @@ class McpHarness:
                 withheld.append(oid)
         if withheld:
             payload.setdefault("images_not_attached", withheld)
-        job.future.set_result(tool_result(payload, images))
+        return tool_result(payload, images)

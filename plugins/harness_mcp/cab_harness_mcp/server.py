@@ -53,6 +53,15 @@ def tool_result(payload: dict, images: list[tuple[str, bytes]] = ()) -> types.Ca
     return types.CallToolResult(content=content, is_error=bool(payload.get("error")))
 
 
+def client_identity(ctx) -> str | None:
+    """``name/version`` of the client, from its initialisation, when it gave one."""
+    try:
+        info = ctx.session.client_params.client_info
+        return f"{info.name}/{info.version}"
+    except AttributeError:
+        return None
+
+
 def instructions_text(system: str, instruction: str) -> str:
     """What a client is told at initialisation: the reference harness's system prompt, then the task."""
     return f"{system}\n\n# Task\n{instruction}\n"
@@ -72,7 +81,7 @@ def build_server(tools: list[types.Tool], bridge: CallBridge, instructions: str,
         # An unknown name is still dispatched: the episode charges and records it like any invalid
         # call, as the reference harness does, and answers with a typed error payload.
         args = params.arguments if isinstance(params.arguments, dict) else {}
-        return await bridge.call(params.name, dict(args))
+        return await bridge.call(params.name, dict(args), client_identity(ctx))
 
     async def list_prompts(ctx, params) -> types.ListPromptsResult:
         bridge.touch()
