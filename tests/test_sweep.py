@@ -1,0 +1,250 @@
+"""Sweeps as a user runs them: ``cab -m`` killed with SIGKILL midway and resumed, a changed
+configuration refused, the Ray launcher on a local Ray instance, and the supervisor's handling of
+infrastructure failures (a crashed and a hung simulator process, a provider outage)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_module
+
+from cab_core.cli import normalise_overrides
+from cab_core.sweep import MANIFEST, config_diff, fingerprint
+from cab_core.sweep_records import check_attempt, infrastructure_failures, is_infrastructure_failure
+from cab_core.sweep_supervisor import AttemptSupervisor, SupervisorConfig
+
+CAB = os.path.join(os.path.dirname(sys.executable), "cab")
+ATTEMPTS = (1, 2, 3, 4)
+
+
+def sweep_cmd(sweep_dir: Path, *extra: str, attempts=ATTEMPTS, workers: int = 2) -> list[str]:
+    return [CAB, "-m", "task=beat_block_hammer", "model=idle", f"attempt={','.join(map(str, attempts))}",
+            "record.video=false", f"hydra.sweep.dir={sweep_dir}", f"hydra.launcher.n_jobs={workers}", *extra]
+
+
+def attempt_dirs(sweep_dir: Path) -> dict[int, Path]:
+    return {a: sweep_dir / "beat_block_hammer" / "idle" / "seed-None" / f"attempt-{a}" for a in ATTEMPTS}
+
+
+def fingerprints(d: Path) -> dict:
+    """What must not change when an attempt is skipped: identity and content of its records."""
+    out = {}
+    for name in ("result.json", "events.jsonl", "privileged/snapshots.jsonl"):
+        st = os.stat(d / name)
+        out[name] = (st.st_ino, st.st_mtime_ns, (d / name).read_bytes())
+    return out
+
+
+@pytest.fixture(scope="module")
+def killed_and_resumed(tmp_path_factory):
+    """Run a 4-attempt sweep on 2 workers, SIGKILL the whole process group as soon as one attempt
+    has finished while another is half-written, then run the same command again."""
+    root = tmp_path_factory.mktemp("sweep")
+    sweep = root / "sw"
+    dirs = attempt_dirs(sweep)
+    proc = subprocess.Popen(sweep_cmd(sweep), cwd=root, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 600
+    try:
+        while time.monotonic() < deadline:
+            done = {a for a, d in dirs.items() if (d / "result.json").exists()}
+            half = {a for a, d in dirs.items() if (d / "events.jsonl").exists() and a not in done}
+            if done and half:
+                break
+            assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read()}"
+            time.sleep(0.1)
+        else:
+            pytest.fail("no moment with one finished and one half-written attempt within 600 s")
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    time.sleep(1.0)  # let the kernel reap the attempt processes (they die with their worker)
+    done = {a for a, d in dirs.items() if (d / "result.json").exists()}
+    half = {a for a, d in dirs.items() if (d / "events.jsonl").exists() and a not in done}
+    before = {a: fingerprints(dirs[a]) for a in done}
+    half_events = {a: (dirs[a] / "events.jsonl").read_bytes() for a in half}
+    r = subprocess.run(sweep_cmd(sweep), cwd=root, capture_output=True, text=True, timeout=900)
+    return {"root": root, "sweep": sweep, "dirs": dirs, "done": done, "half": half, "before": before,
+            "half_events": half_events, "rerun": r}
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_resumed_sweep_redoes_no_finished_attempt(killed_and_resumed):
+    k = killed_and_resumed
+    assert k["rerun"].returncode == 0, k["rerun"].stderr[-3000:]
+    assert k["done"] and k["half"]
+    for a, fp in k["before"].items():
+        assert fingerprints(k["dirs"][a]) == fp, f"attempt {a} was redone"
+        assert not (k["dirs"][a] / "set_aside").exists()
+    for a, d in k["dirs"].items():
+        check = check_attempt(d, {"task": "beat_block_hammer", "attempt": a, "model": "idle"}, "cli.log")
+        assert check.state == "complete", (a, check.problems)
+        if a not in k["done"]:  # (the kill may fall between a result and the supervisor's note on it)
+            assert check.result["infrastructure"] == {"failed": False, "failures": []}
+    skipped = [l for l in k["rerun"].stderr.splitlines() if "complete already, skipped" in l]
+    assert len(skipped) == len(k["done"])
+    assert sum("cab sweep [" in l for l in k["rerun"].stderr.splitlines()) == len(ATTEMPTS)
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_half_written_attempt_is_set_aside_and_rerun(killed_and_resumed):
+    k = killed_and_resumed
+    for a in k["half"]:
+        aside = k["dirs"][a] / "set_aside" / "01-interrupted"
+        assert (aside / "events.jsonl").read_bytes() == k["half_events"][a]
+        assert not (aside / "result.json").exists()
+        assert (k["dirs"][a] / "result.json").exists()
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_manifest_pins_the_configuration(killed_and_resumed):
+    k = killed_and_resumed
+    m = json.loads((k["sweep"] / MANIFEST).read_text())
+    assert m["n_jobs"] == 4 and len(m["sessions"]) == 2
+    assert m["jobs"] == [[f"attempt={a}"] for a in ATTEMPTS]
+    assert m["config"]["record"]["video"] is False and "hydra" not in m["config"] and "sweep" not in m["config"]
+    assert m["fingerprint"] == fingerprint(m["config"], m["jobs"])
+    assert m["sessions"][1]["complete_at_start"] == len(k["done"])
+    r = subprocess.run(sweep_cmd(k["sweep"], "budget.tool_calls=5"), cwd=k["root"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2
+    assert "refused" in r.stderr and "budget.tool_calls: None -> 5" in r.stderr
+    r = subprocess.run(sweep_cmd(k["sweep"], attempts=(*ATTEMPTS, 5)), cwd=k["root"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and "1 job(s) added, e.g. [attempt=5]" in r.stderr
+    assert json.loads((k["sweep"] / MANIFEST).read_text())["sessions"] == m["sessions"]  # refusals change nothing
+    # the worker count and the infrastructure settings are not part of the fingerprint
+    r = subprocess.run(sweep_cmd(k["sweep"], "sweep.hang_timeout_s=1200", workers=1), cwd=k["root"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert sum("complete already, skipped" in l for l in r.stderr.splitlines()) == len(ATTEMPTS)
+    assert len(json.loads((k["sweep"] / MANIFEST).read_text())["sessions"]) == 3
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_record_checks_catch_incomplete_records(killed_and_resumed, tmp_path):
+    src = killed_and_resumed["dirs"][1]
+    d = tmp_path / "a"
+    shutil.copytree(src, d)
+    assert check_attempt(d, {"attempt": 1}).state == "complete"
+    assert check_attempt(d, {"attempt": 2}).problems == ["attempt is 1, expected 2"]
+    lines = (d / "events.jsonl").read_text().splitlines(keepends=True)
+    (d / "events.jsonl").write_text("".join(lines[:-1]))
+    assert check_attempt(d).problems == ["events.jsonl does not end with attempt_end"]
+    (d / "result.json").write_text('{"record_version": "cab-record/1", "task"')
+    assert check_attempt(d).state == "partial"
+    assert check_attempt(tmp_path / "empty").state == "absent"
+
+
+def test_config_diff_names_each_changed_key():
+    old = {"model": {"name": "oracle", "t": 0.0}, "record": {"video": True}}
+    new = {"model": {"name": "oracle", "t": 0.7}, "record": {}, "seed": 3}
+    assert config_diff(old, new) == ["model.t: 0.0 -> 0.7", "record.video removed (was True)", "seed added (3)"]
+    assert fingerprint(old, [["attempt=1"]]) == fingerprint(json.loads(json.dumps(old)), [["attempt=1"]])
+    assert fingerprint(old, [["attempt=1"]]) != fingerprint(new, [["attempt=1"]])
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_ray_launcher_on_a_local_instance(tmp_path):
+    pytest.importorskip("hydra_plugins.hydra_ray_launcher")
+    sweep = tmp_path / "sw"
+    r = subprocess.run([CAB, "-m", "hydra/launcher=ray", "+hydra.launcher.ray.init.num_cpus=2",
+                        "+hydra.launcher.ray.init.include_dashboard=false", "task=beat_block_hammer", "model=idle",
+                        "attempt=1,2", "record.video=false", f"hydra.sweep.dir={sweep}"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    for a, d in list(attempt_dirs(sweep).items())[:2]:
+        assert check_attempt(d, {"attempt": a, "model": "idle"}, "cli.log").state == "complete"
+    m = json.loads((sweep / MANIFEST).read_text())
+    assert m["sessions"][0]["launcher"] == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
+    assert sum("cab sweep [" in l for l in (r.stdout + r.stderr).splitlines()) == 2
+
+
+# -- infrastructure failures ----------------------------------------------------------------------
+
+def composed(*overrides: str) -> dict:
+    from omegaconf import OmegaConf
+
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        cfg = compose(config_name="config", overrides=normalise_overrides(list(overrides)))
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+IDENTITY = {"task": "beat_block_hammer", "seed": 0, "attempt": 1, "sim": "sapien", "model": "idle"}
+
+
+class Saboteur:
+    """Breaks the first tries' processes for real once they have started recording: SIGKILL (a
+    simulator crash) or SIGSTOP (a hang the watchdog must catch)."""
+
+    def __init__(self, attempt_dir: Path, plan: dict[int, signal.Signals]):
+        self.dir, self.plan, self.threads = attempt_dir, plan, []
+
+    def __call__(self, proc: subprocess.Popen, try_no: int) -> None:
+        if try_no in self.plan:
+            t = threading.Thread(target=self._strike, args=(proc, self.plan[try_no]), daemon=True)
+            t.start()
+            self.threads.append(t)
+
+    def _strike(self, proc: subprocess.Popen, sig: signal.Signals) -> None:
+        while proc.poll() is None and not (self.dir / "events.jsonl").exists():
+            time.sleep(0.05)
+        if proc.poll() is None:
+            os.kill(proc.pid, sig)
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_crash_and_hang_are_retried_and_recorded(tmp_path):
+    d = tmp_path / "a"
+    sab = Saboteur(d, {1: signal.SIGKILL, 2: signal.SIGSTOP})
+    settings = SupervisorConfig(max_retries=2, hang_timeout_s=30.0, retry_backoff_s=0.0)  # > set-up time
+    res = AttemptSupervisor(composed("model=idle", "record.video=false"), d, IDENTITY, settings, on_child=sab).run()
+    assert not is_infrastructure_failure(res)
+    assert res["verdict"]["success"] is False and res["termination"]["reason"] == "done"
+    fails = infrastructure_failures(d)
+    assert [f["kind"] for f in fails] == ["crash", "hang"]
+    assert fails[0]["detail"] == "attempt process killed by signal 9"
+    assert [f["records"] for f in fails] == ["set_aside/01-crash", "set_aside/02-hang"]
+    assert res["infrastructure"] == {"failed": False, "failures": fails}
+    for f in fails:
+        assert (d / f["records"] / "events.jsonl").exists() and not (d / f["records"] / "result.json").exists()
+    assert check_attempt(d, IDENTITY).state == "complete"
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_provider_outage_is_an_infrastructure_failure_not_the_models(tmp_path):
+    d = tmp_path / "a"
+    cfg = composed("model=qwen_local", f"model.base_url=http://127.0.0.1:{_closed_port()}/v1",
+                   "model.retry.max_attempts=1", "record.video=false")
+    ident = {**IDENTITY, "model": "qwen_local"}
+    res = AttemptSupervisor(cfg, d, ident, SupervisorConfig(max_retries=1, retry_backoff_s=0.0)).run()
+    assert is_infrastructure_failure(res)
+    assert res["verdict"] == {"success": None, "excluded": "infrastructure_failure"}
+    fails = res["infrastructure"]["failures"]
+    assert [f["kind"] for f in fails] == ["provider_failure", "provider_failure"]
+    for f in fails:  # each try's full record is kept, with the harness's own account of the outage
+        kept = json.loads((d / f["records"] / "result.json").read_text())
+        assert kept["termination"]["reason"] == "provider_failure"
+    assert check_attempt(d, ident).state == "partial"
