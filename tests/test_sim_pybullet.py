@@ -10,7 +10,8 @@ pytest.importorskip("pybullet")
 
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError  # noqa: E402
 from cab_core.geometry import pose_inv, transform_point  # noqa: E402
-from cab_core.scene import Body, Box, CameraSpec, Capsule, Cylinder, Mesh, SceneSpec, Shape, Sphere  # noqa: E402
+from cab_core.scene import (Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Shape,  # noqa: E402
+                            Sphere)
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_pybullet import massprops, renderer  # noqa: E402
 from cab_sim_pybullet.simulator import PybulletSimulator  # noqa: E402
@@ -58,11 +59,10 @@ def test_timestep_option_overrides_the_scene():
 def test_projected_point_lands_on_its_pixel():
     """A small red sphere at a known world point renders centred on the pixel K predicts."""
     target = np.array([0.05, 0.10, sc.TABLE_TOP + 0.15])
-    scene = SceneSpec(bodies=[Body("dot", [Shape(Sphere(0.006))], pose=tuple(target) + (1, 0, 0, 0),
+    red = Material(color=(1.0, 0.0, 0.0, 1.0))
+    scene = SceneSpec(bodies=[Body("dot", [Shape(Sphere(0.006), material=red)], pose=tuple(target) + (1, 0, 0, 0),
                                    kind="static")],
                       cameras=[CameraSpec("cam", 320, 240, 45.0, pose=tuple(sc.make_scene().cameras[0].pose))])
-    scene.bodies[0].shapes[0] = Shape(Sphere(0.006), material=scene.bodies[0].shapes[0].material.__class__(
-        color=(1.0, 0.0, 0.0, 1.0)))
     sim = PybulletSimulator({"render": True, "renderer": "tiny"})
     sim.build(scene, sc.make_embodiment())
     try:
@@ -247,3 +247,64 @@ def test_physics_only_steps_like_a_rendering_build():
     finally:
         a.close()
         b.close()
+
+
+def test_agrees_with_sapien_on_the_conformance_world():
+    """Same description, same calls: robot link and camera poses, intrinsics, resting contacts and
+    drive tracking agree with the SAPIEN backend (the reference for conventions)."""
+    sapien_sim = pytest.importorskip("cab_sim_sapien.simulator")
+    a = sc.build(lambda: PybulletSimulator({"render": False}))
+    b = sc.build(lambda: sapien_sim.SapienSimulator({"render": False}))
+    try:
+        for sim in (a, b):
+            sim.set_qpos([0.4, 0.3, 0.02, 0.03])
+        for link in sc.ROBOT_LINKS:
+            np.testing.assert_allclose(a.get_link_pose(link)[:3], b.get_link_pose(link)[:3], atol=1e-5)
+            assert abs(abs(np.dot(a.get_link_pose(link)[3:], b.get_link_pose(link)[3:])) - 1) < 1e-6, link
+        for cam in a.camera_names():
+            np.testing.assert_allclose(a.camera_intrinsics(cam), b.camera_intrinsics(cam))
+            pa, pb = a.camera_pose(cam), b.camera_pose(cam)
+            point = transform_point(pb, (0.05, -0.02, 0.6))  # a point in front of the camera
+            uv = []
+            for pose in (pa, pb):
+                p = transform_point(pose_inv(pose), point)
+                uv.append((a.camera_intrinsics(cam) @ p)[:2] / p[2])
+            assert np.all(np.abs(uv[0] - uv[1]) < 1.0), (cam, uv)
+        target = np.array([-0.5, 0.3, 0.01, 0.03])
+        for sim in (a, b):
+            sim.set_drive_targets(target)
+            sim.step(250)
+        np.testing.assert_allclose(a.get_qpos(), b.get_qpos(), atol=0.01)
+        pairs = [{frozenset((c.a, c.b)) for c in sim.get_contacts()} for sim in (a, b)]
+        for pair in (("cube", "table"), ("lidbox/base", "table"), ("dropper", "ground")):
+            assert frozenset(pair) in pairs[0] and frozenset(pair) in pairs[1], pair
+        for name in ("cube", "ball", "can", "block"):
+            np.testing.assert_allclose(a.get_object_pose(name)[:3], b.get_object_pose(name)[:3], atol=0.005)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_body_with_more_shapes_than_a_bullet_link_takes():
+    """40 cubes in a row (PyBullet takes 16 shapes per link): one rigid body with the right mass,
+    resting level on the ground, named as one object in contacts."""
+    shapes = [Shape(Box((0.01, 0.01, 0.01)), pose=(0.02 * i - 0.39, 0, 0, 1, 0, 0, 0)) for i in range(40)]
+    scene = SceneSpec(bodies=[Body("row", shapes, pose=(0.3, 0.3, 0.05, 1, 0, 0, 0), density=1000.0)],
+                      cameras=sc.make_scene().cameras)
+    sim = PybulletSimulator({"render": True, "renderer": "tiny"})
+    sim.build(scene, sc.make_embodiment())
+    try:
+        mb = sim._bodies["row"]
+        c = sim._c
+        masses = [c.getDynamicsInfo(mb.uid, link)[0] for link in range(-1, c.getNumJoints(mb.uid))]
+        assert len(masses) == 3 and sum(masses) == pytest.approx(40 * 8e-6 * 1000)
+        # each link keeps the inertia of its own 16 (or 8) cubes: a row 0.32 m long about z
+        izz = [c.getDynamicsInfo(mb.uid, link)[2][2] for link in (-1, 0, 1)]
+        assert izz[0] == pytest.approx(16 * 8e-3 * 0.32 ** 2 / 12, rel=0.02), izz
+        sim.step(250)
+        pose = sim.get_object_pose("row")
+        assert abs(pose[2] - 0.01) < 1e-3 and abs(abs(pose[3]) - 1.0) < 1e-4, pose
+        assert {(x.a, x.b) for x in sim.get_contacts()} == {("ground", "row")}
+        assert sim.render(sc.HEAD_CAMERA).std() > 2.0
+    finally:
+        sim.close()

@@ -18,10 +18,15 @@ def suite_check(tmp_path, *args):
     return r, summary
 
 
-def test_oracles_succeed_and_idle_fails_at_catalog_seeds(tmp_path):
+# every simulator CI runs the oracle suite on, at the catalog seeds
+SIMS = ["sapien", "pybullet"]
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_oracles_succeed_and_idle_fails_at_catalog_seeds(tmp_path, sim):
     from cab_core.plugins import all_tasks
 
-    r, s = suite_check(tmp_path)
+    r, s = suite_check(tmp_path, "--sim", sim)
     print(r.stdout)
     v = s["verdict"]
     n = len(all_tasks())
@@ -42,3 +47,24 @@ def test_oracles_succeed_on_other_seeds(tmp_path):
     failed = [(x["task"], x["seed"], x.get("error") or x.get("termination")) for x in s["rows"] if not x.get("success")]
     assert failed == []
     assert r.returncode == 0
+
+
+def test_cross_simulator_table(tmp_path):
+    """Several simulators: the same attempts on each, and a per-task, per-simulator table."""
+    r, s = suite_check(tmp_path, "--sim", "sapien,pybullet", "--tasks", "click_bell", "--jobs", "2")
+    assert s["sims"] == ["sapien", "pybullet"]
+    assert sorted((x["sim"], x["agent"]) for x in s["rows"]) == [
+        ("pybullet", "idle"), ("pybullet", "oracle"), ("sapien", "idle"), ("sapien", "oracle")]
+    cells = s["cross_sim"]["click_bell"]
+    for sim in ("sapien", "pybullet"):
+        assert cells[sim]["success"] is True and cells[sim]["calls"] > 0, cells
+        assert 0 < cells[sim]["sim_s"] and 0 < cells[sim]["wall_s"], cells
+        assert s["verdict_by_sim"][sim]["oracle_success_within_budget"] == 1
+    assert "result  calls   sim s  wall s" in r.stdout
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_unknown_simulator_is_refused(tmp_path):
+    r = subprocess.run([os.path.join(BIN, "cab-suite-check"), "--out", str(tmp_path), "--sim", "no_such_sim"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "no_such_sim" in r.stderr

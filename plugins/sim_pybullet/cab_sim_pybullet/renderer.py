@@ -70,6 +70,16 @@ def load_egl(client) -> int:
     return plugin
 
 
+def display_color(rgba) -> list[float]:
+    """A linear RGBA colour (cab's convention, SAPIEN's too) encoded as sRGB: TinyRenderer writes
+    the shaded colour to the image as it is, where SAPIEN converts its linear result to sRGB."""
+    out = []
+    for c in list(rgba)[:3]:
+        c = min(1.0, max(0.0, float(c)))
+        out.append(12.92 * c if c <= 0.0031308 else 1.055 * c ** (1.0 / 2.4) - 0.055)
+    return out + [float(list(rgba)[3]) if len(rgba) > 3 else 1.0]
+
+
 def view_matrix(camera_pose_cv) -> list[float]:
     """PyBullet view matrix (column-major 16 floats) of a camera with an OpenCV-axes world pose."""
     world_from_gl = pose_to_mat(camera_pose_cv) @ _GL_FROM_CV

@@ -40,7 +40,7 @@ import json
 import logging
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pybullet
@@ -76,7 +76,7 @@ PHYSICS_DEFAULTS: dict[str, float] = {
     "drive_rate_scale": 1.0,
     # Diffuse and specular coefficients of TinyRenderer's light (the ambient one comes from the scene).
     "light_diffuse": 0.6,
-    "light_specular": 0.05,
+    "light_specular": 0.0,
 }
 # Friction: PhysX combines two materials' coefficients by their average, Bullet by their product.
 # Each material gets sqrt(mu) here (mu = mean of its static and dynamic coefficients), so a pair
@@ -114,9 +114,29 @@ def _bullet_friction(m: Material) -> float:
     return math.sqrt(max(0.0, 0.5 * (float(m.static_friction) + float(m.dynamic_friction))))
 
 
+# PyBullet's limit on the shapes of one link (MAX_COMPOUND_COLLISION_SHAPES); more overflow its buffers.
+_MAX_SHAPES = 16
+_TOKEN_MASS = 1e-4  # kg
+
 # Capsules and cylinders: cab's axis is local x, Bullet's local z. This rotation (about y by +90
 # degrees, wxyz) takes Bullet's z axis onto x.
 _Z_TO_X = (0.0, 0.0, 0.0, math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0)
+
+
+def _split_capsules(shapes: list) -> list:
+    """Visual shapes with every capsule drawn as a cylinder and two spheres (TinyRenderer's own
+    capsule mesh is coarse, with pointed ends)."""
+    out = []
+    for s in shapes:
+        g = s.geometry
+        if not isinstance(g, Capsule):
+            out.append(s)
+            continue
+        pose = _pose_or_bad(s.pose)
+        out.append(replace(s, geometry=Cylinder(g.radius, g.half_length)))
+        for end in (-g.half_length, g.half_length):
+            out.append(replace(s, geometry=Sphere(g.radius), pose=tuple(pose_mul(pose, (end, 0, 0, 1, 0, 0, 0)))))
+    return out
 
 
 @dataclass
@@ -240,7 +260,7 @@ class PybulletSimulator(Simulator):
         if self._render_enabled:
             vis = c.createVisualShape(pybullet.GEOM_BOX, halfExtents=[20.0, 20.0, 0.0005],
                                       visualFramePosition=[0.0, 0.0, -0.0005],
-                                      rgbaColor=[float(x) for x in scene.ground_color])
+                                      rgbaColor=_renderer.display_color(scene.ground_color))
         uid = c.createMultiBody(0.0, col, vis, [0.0, 0.0, float(scene.ground_z)])
         self._set_material(uid, -1, scene.default_material)
         self._names[(uid, -1)] = "ground"
@@ -250,11 +270,8 @@ class PybulletSimulator(Simulator):
                                restitution=math.sqrt(max(0.0, float(m.restitution))))
 
     # -- bodies -------------------------------------------------------------------------------
-    def _shape_arrays(self, body, collision: bool) -> dict | None:
-        """Arguments of createCollisionShapeArray / createVisualShapeArray for a body's shapes."""
-        shapes = [s for s in body.shapes if (s.collision if collision else s.visual)]
-        if not shapes:
-            return None
+    def _shape_arrays(self, body, shapes: list, collision: bool) -> dict:
+        """Arguments of createCollisionShapeArray / createVisualShapeArray for some of a body's shapes."""
         out: dict[str, list] = {"shapeTypes": [], "halfExtents": [], "radii": [], "lengths": [],
                                 "fileNames": [], "meshScales": [], "flags": []}
         pos_key, orn_key = (("collisionFramePositions", "collisionFrameOrientations") if collision
@@ -290,60 +307,90 @@ class PybulletSimulator(Simulator):
                                ("flags", flags), (pos_key, list(pose[:3])), (orn_key, _xyzw(pose[3:]))):
                 out[key].append(value)
             if not collision:
-                out["rgbaColors"].append([float(x) for x in s.material.color])
+                out["rgbaColors"].append(_renderer.display_color(s.material.color))
         if not collision:
             del out["flags"]
         return out
 
-    def _mass_props(self, body) -> massprops.MassProps:
-        parts = []
-        for s in body.shapes:
-            if s.collision:
+    def _chunk_props(self, body, chunks: list[list]) -> list[massprops.MassProps | None]:
+        """Mass properties of each chunk of collision shapes (None for an empty chunk), scaled so
+        that the whole body has ``body.mass`` when it is given."""
+        props = []
+        for shapes in chunks:
+            parts = []
+            for sh in shapes:
                 try:
-                    parts.append(massprops.transformed(massprops.shape_props(s.geometry, float(body.density)),
-                                                       _pose_or_bad(s.pose)))
+                    parts.append(massprops.transformed(massprops.shape_props(sh.geometry, float(body.density)),
+                                                       _pose_or_bad(sh.pose)))
                 except ValueError as e:
                     raise BadCommand(f"body {body.name!r}: {e}") from None
-        props = massprops.combine(parts)
+            props.append(massprops.combine(parts) if parts else None)
         if body.mass is not None:
             if not body.mass > 0:
                 raise BadCommand(f"body {body.name!r}: mass must be positive, got {body.mass}")
-            k = float(body.mass) / props.mass
-            props = massprops.MassProps(float(body.mass), props.com, props.inertia * k)
+            k = float(body.mass) / sum(p.mass for p in props if p is not None)
+            props = [None if p is None else massprops.MassProps(p.mass * k, p.com, p.inertia * k) for p in props]
         return props
 
     def _build_body(self, body) -> None:
+        """A body is one Bullet multibody. PyBullet takes at most 16 shapes per link, so a body with
+        more is split into links of up to 16 shapes joined by fixed joints: one rigid body still, with
+        each link's mass properties computed from its own shapes."""
         if body.kind not in ("static", "dynamic", "kinematic"):
             raise BadCommand(f"body {body.name!r}: unknown kind {body.kind!r}")
         c = self._c
-        col_args = self._shape_arrays(body, collision=True)
-        vis_args = self._shape_arrays(body, collision=False) if self._render_enabled else None
-        col = c.createCollisionShapeArray(**col_args) if col_args else -1
-        vis = c.createVisualShapeArray(**vis_args) if vis_args else -1
-        if col_args and col < 0:
-            raise SimulatorError(f"body {body.name!r}: a collision shape failed to build (bad mesh?)")
+        col_shapes = [sh for sh in body.shapes if sh.collision]
+        vis_shapes = _split_capsules([sh for sh in body.shapes if sh.visual]) if self._render_enabled else []
+        if body.kind == "dynamic" and not col_shapes:
+            raise BadCommand(f"body {body.name!r}: a dynamic body needs a collision shape")
+        n = max(1, -(-len(col_shapes) // _MAX_SHAPES), -(-len(vis_shapes) // _MAX_SHAPES))
+        col_chunks = [col_shapes[i * _MAX_SHAPES:(i + 1) * _MAX_SHAPES] for i in range(n)]
+        vis_chunks = [vis_shapes[i * _MAX_SHAPES:(i + 1) * _MAX_SHAPES] for i in range(n)]
+        cols, viss = [], []
+        for chunk in col_chunks:
+            cols.append(c.createCollisionShapeArray(**self._shape_arrays(body, chunk, True)) if chunk else -1)
+            if chunk and cols[-1] < 0:
+                raise SimulatorError(f"body {body.name!r}: a collision shape failed to build (bad mesh?)")
+        for chunk in vis_chunks:
+            viss.append(c.createVisualShapeArray(**self._shape_arrays(body, chunk, False)) if chunk else -1)
+        dynamic = body.kind == "dynamic"
+        props = self._chunk_props(body, col_chunks) if dynamic else [None] * n
+        masses, frames, moments = [], [], []
+        for p in props:
+            if p is None:  # a link of visual shapes only: a token mass keeps Bullet's inverse finite
+                masses.append(_TOKEN_MASS if dynamic else 0.0)
+                frames.append(np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
+                moments.append(np.full(3, _TOKEN_MASS * 1e-4))
+                continue
+            m, axes = massprops.principal(p)
+            masses.append(p.mass)
+            frames.append(np.concatenate([p.com, mat_to_quat(axes)]))
+            moments.append(m)
         pose = _pose_or_bad(body.pose)
-        com_local = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-        mass, moments = 0.0, None
-        if body.kind == "dynamic":
-            if not col_args:
-                raise BadCommand(f"body {body.name!r}: a dynamic body needs a collision shape")
-            props = self._mass_props(body)
-            moments, axes = massprops.principal(props)
-            com_local = np.concatenate([props.com, mat_to_quat(axes)])
-            mass = props.mass
-        uid = c.createMultiBody(mass, col, vis, list(pose[:3]), _xyzw(pose[3:]),
-                                baseInertialFramePosition=list(com_local[:3]),
-                                baseInertialFrameOrientation=_xyzw(com_local[3:]))
+        links = n - 1
+        uid = c.createMultiBody(
+            masses[0], cols[0], viss[0], list(pose[:3]), _xyzw(pose[3:]),
+            baseInertialFramePosition=list(frames[0][:3]), baseInertialFrameOrientation=_xyzw(frames[0][3:]),
+            linkMasses=masses[1:], linkCollisionShapeIndices=cols[1:], linkVisualShapeIndices=viss[1:],
+            linkPositions=[[0.0, 0.0, 0.0]] * links, linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * links,
+            linkInertialFramePositions=[list(f[:3]) for f in frames[1:]],
+            linkInertialFrameOrientations=[_xyzw(f[3:]) for f in frames[1:]],
+            linkParentIndices=[0] * links, linkJointTypes=[pybullet.JOINT_FIXED] * links,
+            linkJointAxis=[[0.0, 0.0, 1.0]] * links)
         if uid < 0:
             raise SimulatorError(f"body {body.name!r}: PyBullet refused the body")
-        first = next((s.material for s in body.shapes if s.collision), self._scene_spec.default_material)
-        self._set_material(uid, -1, first)
-        if body.kind == "dynamic":
-            c.changeDynamics(uid, -1, localInertiaDiagonal=[float(x) for x in moments],
-                             linearDamping=float(body.linear_damping), angularDamping=float(body.angular_damping))
-        self._bodies[body.name] = _MultiBody(uid, body.kind, com_local)
-        self._names[(uid, -1)] = body.name
+        first = col_shapes[0].material if col_shapes else self._scene_spec.default_material
+        for link in range(-1, links):
+            self._set_material(uid, link, first)
+            self._names[(uid, link)] = body.name
+            if dynamic:
+                c.changeDynamics(uid, link, localInertiaDiagonal=[float(x) for x in moments[link + 1]])
+        if dynamic:
+            # damping belongs to the whole multibody; PyBullet 3.2.7 also writes a link call's
+            # inertia onto the base when the same call sets damping, hence the separate calls
+            c.changeDynamics(uid, -1, linearDamping=float(body.linear_damping),
+                             angularDamping=float(body.angular_damping))
+        self._bodies[body.name] = _MultiBody(uid, body.kind, frames[0])
 
     # -- articulations ------------------------------------------------------------------------
     def _load_urdf(self, urdf: str, fix_root: bool, pose, flags: int = 0) -> _MultiBody:
@@ -364,9 +411,19 @@ class PybulletSimulator(Simulator):
             mb.links[ji[12].decode()] = j
             if ji[2] in (pybullet.JOINT_REVOLUTE, pybullet.JOINT_PRISMATIC):
                 mb.joints.append(j)
-            c.changeDynamics(uid, j, linearDamping=0.0, angularDamping=0.0)
-        c.changeDynamics(uid, -1, linearDamping=0.0, angularDamping=0.0)
+        c.changeDynamics(uid, -1, linearDamping=0.0, angularDamping=0.0)  # the whole multibody
+        if self._render_enabled:
+            self._urdf_display_colors(uid)
         return mb
+
+    def _urdf_display_colors(self, uid: int) -> None:
+        """URDF colours are linear like every cab colour: give TinyRenderer their display values."""
+        per_link: dict[int, int] = {}
+        for v in self._c.getVisualShapeData(uid):
+            link = v[1]
+            k = per_link.get(link, 0)
+            per_link[link] = k + 1
+            self._c.changeVisualShape(uid, link, shapeIndex=k, rgbaColor=_renderer.display_color(v[7]))
 
     def _build_articulated_object(self, obj, default: Material) -> None:
         c = self._c
