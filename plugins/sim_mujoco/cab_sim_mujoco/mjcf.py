@@ -311,6 +311,7 @@ class MjcfWriter:
                 attrs.update(damping=repr(float(damping)), armature=repr(float(armature)))
                 if friction > 0:
                     attrs["frictionloss"] = repr(float(friction) * self.phys.joint_friction_scale)
+                    attrs["solimpfriction"] = _fmt(self.phys.joint_friction_solimp)
                 ET.SubElement(el, "joint", **attrs)
                 art.joints.append(jn)
             for child in by_parent.get(link, []):

@@ -45,6 +45,10 @@ class PhysicsParams:
     # PhysX joint friction is a coefficient; MuJoCo's frictionloss is a torque (N m): the scale
     # that turns a scene's joint_friction into a frictionloss
     joint_friction_scale: float = 1.0
+    # MuJoCo's dry friction is soft too: under a load below frictionloss a joint still creeps, at a
+    # speed set by this impedance (d0, dmax, width). dmax near 1 makes it hold, as static friction
+    # does (a laptop lid stays where it was left)
+    joint_friction_solimp: tuple[float, float, float] = (0.99, 0.99999, 0.001)
 
     @classmethod
     def from_cfg(cls, overrides: dict | None) -> "PhysicsParams":
