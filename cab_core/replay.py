@@ -27,8 +27,9 @@ from .errors import AttemptEnded, CabError, RecordError
 
 TOLERANCE_M = 0.005
 CALL_KINDS = ("call", "internal_call", "call_refused", "tool_fault")
-# terminations the episode decides by itself; any other was decided by the harness and is mirrored
-EPISODE_ENDINGS = ("done", "tool_budget", "sim_budget", "wall_budget", "no_done", "error")
+# terminations the replayed calls decide by themselves; any other (the wall clock, which a replay
+# does not reproduce, or a harness's decision) is mirrored once the recorded calls are made
+EPISODE_ENDINGS = ("done", "tool_budget", "sim_budget", "no_done", "error")
 MAX_LISTED = 25
 
 
@@ -87,6 +88,7 @@ def _spec(attempt: Attempt, out: Path):
     except TypeError as e:
         raise RecordError(f"attempt_start.config does not match this cab's AttemptSpec: {e}") from e
     spec.record = {**(spec.record or {}), "video": False}  # the video changes no physics
+    spec.budget_wall_seconds = 1e9  # wall time is not replayed (no model latency); see EPISODE_ENDINGS
     return spec
 
 

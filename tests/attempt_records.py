@@ -4,7 +4,9 @@
 the sweep layout ``task/model/seed-S/attempt-A`` (what ``cab -m`` writes), once per test session:
 the directory is reused when its ``.complete`` marker exists. The scripted agent exercises what the
 oracle and idle agents never do: a planner refusal, a program that raises, a program that moves,
-an over-claim, and (on the second task) an attempt that ends without ``done``.
+an over-claim, and (on the second task) an attempt that ends without ``done``. On the first task it
+also reaches the hammer's grasp region first, and leaves without grasping: arrival without object
+control.
 """
 from __future__ import annotations
 
@@ -25,15 +27,25 @@ MOVING_PROGRAM = ("p = get_arm_pose(arm='right')\n"
                   "result = r['status']\n")
 
 
-def scripted_calls(with_done: bool) -> list[dict]:
-    """The scripted agent's calls: look, an unreachable target, two programs, maybe done."""
+# beat_block_hammer: above the hammer's handle, top-down, then down to it (the oracle's approach)
+HAMMER_APPROACH = [
+    {"tool": "reach_tcp", "args": {"arm": "left", "target_xyz": [-0.05, -0.06, 0.94],
+                                   "target_quat": [0.7071068, 0.0, 0.7071068, 0.0]}},
+    {"tool": "move_delta", "args": {"arm": "left", "dx": 0.0, "dy": 0.0, "dz": -0.16}},
+]
+
+
+def scripted_calls(first_task: bool) -> list[dict]:
+    """The scripted agent's calls: look, (approach the hammer,) an unreachable target, two
+    programs, and done on the first task only."""
     calls = [
         {"tool": "capture_head", "args": {}},
+        *(HAMMER_APPROACH if first_task else []),
         {"tool": "reach_tcp", "args": {"arm": "left", "target_xyz": [0.0, 0.7, 1.45]}},
         {"tool": "run_code", "args": {"code": RAISING_PROGRAM}},
         {"tool": "run_code", "args": {"code": MOVING_PROGRAM}},
     ]
-    if with_done:
+    if first_task:
         calls.append({"tool": "done", "args": {"report": "moved the right arm down", "success_claim": True}})
     return calls
 
@@ -64,7 +76,7 @@ def build_sweep(root: Path) -> Path:
                 extra: list[str] = ["record.video_every_steps=50"]
                 if model == "scripted":
                     script = root / f"script-{task}.json"
-                    script.write_text(json.dumps(scripted_calls(with_done=(i == 0))))
+                    script.write_text(json.dumps(scripted_calls(first_task=(i == 0))))
                     extra.append(f"model.script={script}")
                 run_one(out, task, model, a, *extra)
     (root / ".complete").write_text("")
