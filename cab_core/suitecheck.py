@@ -122,8 +122,9 @@ def cross_sim(rows: list[dict]) -> dict:
     for r in rows:
         if r["agent"] != "oracle" or r["sim"] in out.get(r["task"], {}):
             continue
-        cell = {"success": False, "calls": None, "sim_s": None, "wall_s": r["wall_s"], "error": r["error"]}
-        if "error" not in r:
+        if "error" in r:
+            cell = {"success": False, "calls": None, "sim_s": None, "wall_s": r["wall_s"], "error": r["error"]}
+        else:
             cell = {"success": r["success"], "calls": r["calls"], "sim_s": round(r["sim_s"], 2), "wall_s": r["wall_s"]}
         out.setdefault(r["task"], {})[r["sim"]] = cell
     return out

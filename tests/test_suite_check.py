@@ -19,7 +19,7 @@ def suite_check(tmp_path, *args):
 
 
 # every simulator CI runs the oracle suite on, at the catalog seeds
-SIMS = ["sapien", "pybullet"]
+SIMS = ["sapien", "pybullet", "mujoco"]
 
 
 @pytest.mark.parametrize("sim", SIMS)
