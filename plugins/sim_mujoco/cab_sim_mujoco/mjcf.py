@@ -29,7 +29,8 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand
 from cab_core.geometry import axis_angle_quat, euler_quat, quat_mul, quat_to_mat
 from cab_core.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
-                            SceneSpec, Shape, Sphere, as_pose)
+                            SceneSpec, Shape, Sphere)
+from cab_core.simsupport import check_object_names, pose_or_bad
 from cab_core.simulator import ROBOT
 
 from .physics import PhysicsParams
@@ -54,8 +55,8 @@ def srgb(rgba) -> tuple[float, ...]:
 
 def _pose_or_bad(pose, what: str) -> tuple[float, ...]:
     try:
-        return as_pose(pose)
-    except (ValueError, TypeError) as e:
+        return pose_or_bad(pose)
+    except BadCommand as e:
         raise BadCommand(f"{what}: {e}") from None
 
 
@@ -422,12 +423,7 @@ class MjcfWriter:
         self.plan.cameras[spec.name] = Camera(spec, body, local)
 
     def write(self, scene: SceneSpec, emb: EmbodimentSpec, timestep: float) -> Plan:
-        seen: set[str] = set()
-        for name in scene.names():
-            if not name or "/" in name or name in (ROBOT, "ground") or name in seen:
-                raise BadCommand(f"invalid or duplicate object name {name!r} (names are unique, "
-                                 f"non-empty, without '/', and not 'robot' or 'ground')")
-            seen.add(name)
+        check_object_names(scene)
         cameras = list(scene.cameras) + list(emb.cameras)
         self._options(scene, timestep, cameras)
         world = ET.SubElement(self.root, "worldbody")

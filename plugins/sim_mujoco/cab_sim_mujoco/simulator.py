@@ -39,7 +39,8 @@ import numpy as np
 from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, pose_mul, quat_to_mat
-from cab_core.scene import SceneSpec, as_pose
+from cab_core.scene import SceneSpec
+from cab_core.simsupport import pose_or_bad, start_joint_values, vector_or_bad
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import gl
@@ -52,25 +53,6 @@ BACKEND = "mujoco"
 STATE_FORMAT = 1
 _KNOWN_OPTIONS = {"render", "timestep", "physics", "name"}
 _STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
-
-
-def _pose_or_bad(pose) -> tuple[float, ...]:
-    try:
-        return as_pose(pose)
-    except (ValueError, TypeError) as e:
-        raise BadCommand(str(e)) from None
-
-
-def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
-    try:
-        a = np.asarray(values, dtype=np.float64)
-    except (ValueError, TypeError) as e:
-        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
-    if a.shape != (n,):
-        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
-    return a
 
 
 @dataclass
@@ -201,7 +183,7 @@ class MujocoSimulator(Simulator):
         obj_by_name = {o.name: o for o in scene.articulations}
         for name, t in self._things.items():
             if t.kind == "articulation" and obj_by_name[name].qpos is not None:
-                d.qpos[t.jq] = _vector_or_bad(obj_by_name[name].qpos, len(t.jq), f"initial qpos of {name!r}")
+                d.qpos[t.jq] = vector_or_bad(obj_by_name[name].qpos, len(t.jq), f"initial qpos of {name!r}")
         self._object_order = scene.names()
         # robot
         robot = plan.robot
@@ -214,18 +196,8 @@ class MujocoSimulator(Simulator):
         self._rq, self._rd = self._rq_all[:n], self._rd_all[:n]
         self._kp = np.array([m.actuator_gainprm[i, 0] for i in range(len(plan.actuators))])
         self._kd = np.array([-m.actuator_biasprm[i, 2] for i in range(len(plan.actuators))])
-        start = d.qpos[self._rq].copy()
-        pos = {nm: i for i, nm in enumerate(self._joint_names)}
-        for arm in emb.arms.values():
-            home = tuple(arm.home_qpos)
-            if len(home) == len(arm.joints):
-                values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
-            elif len(home) == len(arm.joints) + len(arm.gripper.joints):
-                values = list(home)
-            else:
-                raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for {len(arm.joints)} joints")
-            for nm, v in zip(list(arm.joints) + list(arm.gripper.joints), values):
-                start[pos[nm]] = v
+        home = start_joint_values(emb)
+        start = np.array([home.get(nm, q) for nm, q in zip(self._joint_names, d.qpos[self._rq])])
         d.qpos[self._rq] = start
         for extra in plan.actuators[n:]:
             log.warning("robot joint %r is not in the embodiment's joint order; holding it at its start", extra)
@@ -306,7 +278,7 @@ class MujocoSimulator(Simulator):
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         self._live()
-        q = _vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        q = vector_or_bad(qpos, len(self._joint_names), "robot qpos")
         self._data.qpos[self._rq] = q
         self._data.qvel[self._rd_all] = 0.0
         self._apply_targets(q)
@@ -314,8 +286,8 @@ class MujocoSimulator(Simulator):
 
     def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        t = _vector_or_bad(targets, len(self._joint_names), "drive targets")
-        v = None if velocities is None else _vector_or_bad(velocities, len(self._joint_names),
+        t = vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else vector_or_bad(velocities, len(self._joint_names),
                                                             "drive velocity targets")
         self._apply_targets(t, v)
 
@@ -368,7 +340,7 @@ class MujocoSimulator(Simulator):
         """Teleport a body (or an articulated object's root) and zero its velocity (and, for an
         articulated object, its joints' velocities)."""
         t = self._thing(name)
-        p = np.asarray(_pose_or_bad(pose))
+        p = np.asarray(pose_or_bad(pose))
         d = self._data
         if t.qadr >= 0:
             d.qpos[t.qadr:t.qadr + 7] = p
@@ -400,7 +372,7 @@ class MujocoSimulator(Simulator):
         t = self._thing(name)
         if t.jq is None:
             raise BadCommand(f"{name!r} is a rigid body; it has no joints")
-        q = _vector_or_bad(qpos, len(t.jq), f"qpos of {name!r}")
+        q = vector_or_bad(qpos, len(t.jq), f"qpos of {name!r}")
         self._data.qpos[t.jq] = q
         self._data.qvel[t.jd] = 0.0
         self._touched()

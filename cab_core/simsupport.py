@@ -1,0 +1,62 @@
+"""Validation and start-up rules that every simulator backend applies alike, written once.
+
+The :class:`cab_core.simulator.Simulator` contract says what a bad command raises, which object
+names a scene may use and where the robot starts; backends import these helpers instead of each
+restating the rules (and drifting apart). Nothing here imports a simulator.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .embodiment import EmbodimentSpec
+from .errors import BadCommand
+from .scene import SceneSpec, as_pose
+from .simulator import ROBOT
+
+
+def pose_or_bad(pose) -> tuple[float, ...]:
+    """A normalised 7-vector pose, or BadCommand saying what is wrong with it."""
+    try:
+        return as_pose(pose)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(str(e)) from None
+
+
+def vector_or_bad(values, n: int, what: str) -> np.ndarray:
+    """``n`` finite float64 values, or BadCommand naming ``what`` was malformed."""
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (ValueError, TypeError) as e:
+        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
+    if a.shape != (n,):
+        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
+    return a
+
+
+def check_object_names(scene: SceneSpec) -> None:
+    """Object names are unique, non-empty, without '/', and not 'robot' or 'ground' (contact
+    reports name links ``<object>/<link>`` and ``robot/<link>``, and the ground ``ground``)."""
+    seen: set[str] = set()
+    for name in scene.names():
+        if not name or "/" in name or name in (ROBOT, "ground") or name in seen:
+            raise BadCommand(f"invalid or duplicate object name {name!r} (names are unique, "
+                             f"non-empty, without '/', and not 'robot' or 'ground')")
+        seen.add(name)
+
+
+def start_joint_values(emb: EmbodimentSpec) -> dict[str, float]:
+    """Where each driven joint starts: every arm at its ``home_qpos``, its gripper open unless the
+    home values include the gripper joints."""
+    out: dict[str, float] = {}
+    for arm in emb.arms.values():
+        home = tuple(arm.home_qpos)
+        if len(home) == len(arm.joints):
+            values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
+        elif len(home) == len(arm.joints) + len(arm.gripper.joints):
+            values = list(home)
+        else:
+            raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for {len(arm.joints)} joints")
+        out.update(zip(list(arm.joints) + list(arm.gripper.joints), (float(v) for v in values)))
+    return out

@@ -1,0 +1,40 @@
+"""The rules every simulator backend shares (cab_core.simsupport)."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cab_core.errors import BadCommand
+from cab_core.scene import Body, Box, SceneSpec, Shape
+from cab_core.simsupport import check_object_names, pose_or_bad, start_joint_values, vector_or_bad
+from cab_core.testing import sim_conformance as sc
+
+
+def test_start_joint_values_open_the_grippers_at_home():
+    emb = sc.make_embodiment()
+    assert start_joint_values(emb) == {"joint1": 0.0, "joint2": 0.0, "finger_a_joint": sc.FINGER_OPEN,
+                                       "finger_b_joint": sc.FINGER_OPEN}
+    arm = emb.arms["right"]
+    closed = replace(emb, arms={"right": replace(arm, home_qpos=(0.1, 0.2, 0.0, 0.01))})
+    assert start_joint_values(closed)["finger_b_joint"] == 0.01
+    with pytest.raises(BadCommand, match="home_qpos has 3 values"):
+        start_joint_values(replace(emb, arms={"right": replace(arm, home_qpos=(0.1, 0.2, 0.3))}))
+
+
+@pytest.mark.parametrize("name", ["", "a/b", "robot", "ground", "dup"])
+def test_bad_object_names_are_refused(name):
+    box = [Shape(Box((0.1, 0.1, 0.1)))]
+    bodies = [Body("dup", box), Body(name, box)]
+    with pytest.raises(BadCommand, match=repr(name)):
+        check_object_names(SceneSpec(bodies=bodies))
+    check_object_names(SceneSpec(bodies=[Body("dup", box), Body("other", box)]))
+
+
+def test_malformed_values_are_bad_commands():
+    assert pose_or_bad([0, 0, 1, 2, 0, 0, 0]) == (0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(vector_or_bad([1, 2], 2, "x"), [1.0, 2.0])
+    for bad in ([1, 2, 3], [1, float("nan")], ["a", "b"], [[1, 2]]):
+        with pytest.raises(BadCommand, match="x:"):
+            vector_or_bad(bad, 2, "x")
+    with pytest.raises(BadCommand):
+        pose_or_bad([0, 0, 1, 0, 0, 0, 0])
