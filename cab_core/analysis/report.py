@@ -79,6 +79,11 @@ def num(x: float | None, fmt: str = "{:.1f}") -> str:
     return "–" if x is None else fmt.format(x)
 
 
+def usd(x: float | None) -> str:
+    """Dollars: cents at paper scale, four decimals for the cheap attempts of small models."""
+    return "–" if x is None else (f"${x:.2f}" if abs(x) >= 1 else f"${x:.4f}")
+
+
 def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
     """(title, header, rows) of every table, in page order."""
     cs = r["configs"]
@@ -108,8 +113,8 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
             ["Configuration", "Calls (mean)", "Sim. s (median)", "Wall s (median)", "Wait s (median)",
              "Cost total", "Cost median", "Cost IQR", "Infra. retries"],
             [[c["config"], num(c["calls_mean"]), num(c["sim_seconds_median"]), num(c["wall_seconds_median"]),
-              num(c["wait_seconds_median"]), num(c["cost_total"], "${:.2f}"), num(c["cost_median"], "${:.2f}"),
-              "–" if c["cost_iqr"] is None else f"${c['cost_iqr'][0]:.2f}–${c['cost_iqr'][1]:.2f}",
+              num(c["wait_seconds_median"]), usd(c["cost_total"]), usd(c["cost_median"]),
+              "–" if c["cost_iqr"] is None else f"{usd(c['cost_iqr'][0])}–{usd(c['cost_iqr'][1])}",
               str(c["infra_retries"])] for c in cs]),
            ("Checkpoints (task-weighted coverage) and confirmed progress",
             ["Configuration", "Subgoal coverage", "Spatial coverage", "Success", "Failed: subgoal attained",
@@ -176,6 +181,10 @@ def figures(r: dict) -> list[str]:
             svg.stacked("Outcome and failure stage per attempt", [(c["config"], [c["successes"]] + [c["failure_stages"].get(s, 0) for s in STAGES]) for c in cs],
                         ["Success"] + [LABELS[s] for s in STAGES]),
             svg.stacked("Completion claims", [(c["config"], [c["claims"][k] for k in CLAIMS]) for c in cs], list(CLAIMS)),
+            svg.hbars("Subgoal checkpoint coverage (task-weighted)",
+                      [(c["config"], c["subgoal_coverage"] or 0.0, None) for c in cs]),
+            svg.hbars("Spatial checkpoint coverage (task-weighted)",
+                      [(c["config"], c["spatial_coverage"] or 0.0, None) for c in cs]),
             svg.lines("Spatial checkpoint coverage over charged calls", [(c["config"], c["spatial_curve"]) for c in cs],
                       "charged calls", "coverage")]
     with_cost = [(c["config"], c["cost_total"], c["success_rate"]) for c in cs if c["cost_total"] is not None]
