@@ -174,6 +174,25 @@ def test_ray_launcher_on_a_local_instance(tmp_path):
     assert sum("cab sweep [" in l for l in (r.stdout + r.stderr).splitlines()) == 2
 
 
+@pytest.mark.parametrize("launcher, target, settings", [
+    ("joblib", "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher", {"n_jobs": -1}),
+    ("ray_local", "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher",
+     {"ray": {"init": {"address": None, "num_cpus": None, "include_dashboard": False}, "remote": {"num_cpus": 1}}}),
+    ("slurm", "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher",
+     {"cpus_per_task": 2, "mem_gb": 8, "timeout_min": 240, "array_parallelism": 64, "name": "cab"}),
+])
+def test_launcher_configs_compose(launcher, target, settings):
+    from omegaconf import OmegaConf
+
+    pytest.importorskip(target.rsplit(".", 2)[0])
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        overrides = [] if launcher == "joblib" else [f"hydra/launcher={launcher}"]  # joblib is the default
+        cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    got = OmegaConf.to_container(cfg.hydra.launcher, resolve=False)
+    assert got["_target_"] == target
+    assert {k: got[k] for k in settings} == settings
+
+
 # -- infrastructure failures ----------------------------------------------------------------------
 
 def composed(*overrides: str) -> dict:

@@ -1,0 +1,80 @@
+"""``cab-bench-sweep``: attempts per hour of a real sweep with 1 worker and with N workers.
+
+Runs the same sweep (``cab -m``, the joblib launcher) once per worker count into fresh sweep
+directories under ``--out``, checks that every attempt completed, and prints attempts per hour and
+the speed-up over one worker. The machine's load average is printed beside the figures: other
+processes on the same cores change them.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .sweep import completed_results
+
+
+def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool) -> dict:
+    """One timed sweep; returns its figures."""
+    sweep_dir = out / f"workers-{workers}"
+    cab = os.path.join(os.path.dirname(sys.executable), "cab")
+    cmd = [cab, "-m", f"task={task}", f"model={model}", f"attempt={','.join(str(a) for a in range(1, attempts + 1))}",
+           f"record.video={str(video).lower()}", f"hydra.sweep.dir={sweep_dir}", f"hydra.launcher.n_jobs={workers}"]
+    load0 = os.getloadavg()[0]
+    t0 = time.monotonic()
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=out)
+    wall = time.monotonic() - t0
+    if r.returncode != 0:
+        raise RuntimeError(f"sweep with {workers} worker(s) failed ({r.returncode}):\n{r.stderr[-3000:]}")
+    results = [json.loads(p.read_text()) for p in completed_results(sweep_dir)]
+    if len(results) != attempts:
+        raise RuntimeError(f"{len(results)} of {attempts} attempts completed in {sweep_dir}")
+    return {"workers": workers, "attempts": attempts, "wall_s": round(wall, 1),
+            "attempts_per_hour": round(3600 * attempts / wall, 1),
+            "successes": sum(bool(r["verdict"]["success"]) for r in results),
+            "mean_attempt_wall_s": round(sum(r["timing"]["wall_seconds"] for r in results) / attempts, 2),
+            "load_avg_1min": [round(load0, 2), round(os.getloadavg()[0], 2)]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(prog="cab-bench-sweep", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="directory for the sweeps (must not exist or be empty)")
+    ap.add_argument("--task", default="beat_block_hammer")
+    ap.add_argument("--model", default="oracle")
+    ap.add_argument("--attempts", type=int, default=6, help="attempts per sweep (same task, attempt=1..N)")
+    ap.add_argument("--workers", default="1,2", help="comma-separated worker counts; the first is the baseline")
+    ap.add_argument("--video", action="store_true", help="record the head-view video (off by default)")
+    ap.add_argument("--json", help="also write the figures to this JSON file")
+    a = ap.parse_args()
+    out = Path(a.out)
+    if out.exists() and any(out.iterdir()):
+        print(f"cab-bench-sweep: {out} is not empty", file=sys.stderr)
+        sys.exit(2)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for w in (int(x) for x in a.workers.split(",")):
+        print(f"cab-bench-sweep: {a.attempts} x {a.task}/{a.model} with {w} worker(s)...", file=sys.stderr, flush=True)
+        try:
+            rows.append(run_sweep(out.resolve(), w, a.task, a.model, a.attempts, a.video))
+        except RuntimeError as e:
+            print(f"cab-bench-sweep: {e}", file=sys.stderr)
+            sys.exit(1)
+    base = rows[0]["attempts_per_hour"]
+    print(f"| workers | attempts | wall s | attempts/h | speed-up | successes | mean attempt s | load avg (start, end) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        r["speedup"] = round(r["attempts_per_hour"] / base, 2)
+        print(f"| {r['workers']} | {r['attempts']} | {r['wall_s']} | {r['attempts_per_hour']} | {r['speedup']}x | "
+              f"{r['successes']}/{r['attempts']} | {r['mean_attempt_wall_s']} | {r['load_avg_1min']} |")
+    print(f"cpu cores: {os.cpu_count()}; task {a.task}, model {a.model}, video {'on' if a.video else 'off'}")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"cpu_count": os.cpu_count(), "task": a.task, "model": a.model,
+                                            "video": a.video, "rows": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
