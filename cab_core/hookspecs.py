@@ -67,7 +67,9 @@ def cab_harnesses() -> dict[str, Callable[[dict], Any]]:
     agents), ``reference`` (model providers + context policy), ``mcp`` (an external MCP client).
     ``factory(cfg)`` returns an object with ``run(episode, model_cfg) -> None`` and, optionally,
     ``preflight(model_cfg) -> None``, called before any simulator starts (credentials, endpoints);
-    it raises ``ConfigError`` naming what is missing."""
+    it raises ``ConfigError`` naming what is missing. Also optional: ``before_build(spec)``, called
+    with the ``AttemptSpec`` after the preflight and before the world is built (a server can start
+    answering its client meanwhile), and ``close()``, called if building the world fails after it."""
 
 
 @hookspec

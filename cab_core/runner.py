@@ -71,10 +71,19 @@ def run_attempt(spec: AttemptSpec) -> dict:
     preflight = getattr(harness, "preflight", None)
     if preflight is not None:  # credentials and endpoints are checked before any simulator starts
         preflight(spec.model_cfg)
-    emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
-    planner = create("planners", spec.planner, spec.planner_cfg)
-    sim = create("simulators", spec.sim, spec.sim_cfg)
-    episode = Episode(spec, tasks[spec.task], sim, planner, emb)
+    before_build = getattr(harness, "before_build", None)
+    if before_build is not None:  # e.g. a server that answers its client while the world is built
+        before_build(spec)
+    try:
+        emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
+        planner = create("planners", spec.planner, spec.planner_cfg)
+        sim = create("simulators", spec.sim, spec.sim_cfg)
+        episode = Episode(spec, tasks[spec.task], sim, planner, emb)
+    except BaseException:
+        close = getattr(harness, "close", None)
+        if close is not None:
+            close()
+        raise
     try:
         try:
             harness.run(episode, spec.model_cfg)

@@ -18,7 +18,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -68,6 +70,14 @@ class McpSettings:
         return s
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
 def _png(image) -> bytes:
     from cab_harness_reference.loop import png_bytes
 
@@ -92,6 +102,9 @@ class McpHarness:
         self._stdio = None
         self._clients: set[str | None] = set()
         self.transport: ServerThread | None = None
+        self.bridge: CallBridge | None = None
+        self.tools: list = []
+        self._info: dict = {}
 
     # -- before the simulator starts ----------------------------------------------------------
     def preflight(self, model_cfg: dict) -> None:
@@ -117,50 +130,75 @@ class McpHarness:
     def on_stop(self) -> None:
         """Called when the server has stopped, whatever happened."""
 
-    # -- the attempt --------------------------------------------------------------------------
-    def run(self, episode, model_cfg: dict) -> None:
+    # -- serving starts while the world is built -------------------------------------------------
+    def before_build(self, spec) -> None:
+        """Start the server from what the spec alone determines (tools, prompt, budgets): a client
+        gets its ``initialize`` and ``tools/list`` answered at once; calls wait in the queue until
+        the attempt exists."""
+        if self.transport is not None:
+            return
         s = self.settings
-        self.preflight(model_cfg)
-        if model_cfg.get("agent"):  # an in-process agent's config (the default, oracle) plays no part here
-            episode.spec.model = "mcp_client"
+        self.preflight(spec.model_cfg)
         from cab_harness_reference.prompt import first_user_message, system_prompt
 
-        rc = dict(episode.spec.sandbox or {})
-        rc["max_internal_calls"] = episode.spec.run_code_max_internal_calls
-        system = system_prompt(episode.ledger.remaining(), run_code=rc)
-        self.task_prompt = instructions_text(system, first_user_message(episode.instruction))
-        tools = tool_list(episode)
-        bridge = CallBridge()
-        server = build_server(tools, bridge, self.task_prompt, _version(), self.task_prompt)
-        if s.transport == "stdio":
-            transport: ServerThread = StdioServerThread(server, self._stdio)
-        else:
-            transport = HttpServerThread(server, s.host, s.port, s.auth, s.idle_timeout_s)
-        self.transport = transport
-        transport.start(s.startup_timeout_s)
-        self._announce(episode, transport, tools)
-        try:
-            self.on_serving(episode, transport)
-            self._serve(episode, bridge, transport)
-        except KeyboardInterrupt:
-            episode.end("interrupted", "the operator interrupted cab")
-        finally:
-            transport.stop()
-            self.on_stop()
+        from cab_core.catalog import task_info
 
-    def _announce(self, episode, transport: ServerThread, tools) -> None:
-        info = {"transport": self.settings.transport, "tools": len(tools), "server": "cab", "version": _version()}
+        budget = {"tool_calls_remaining": spec.budget_tool_calls, "tool_calls_limit": spec.budget_tool_calls,
+                  "sim_seconds_remaining": spec.budget_sim_seconds, "sim_seconds_limit": spec.budget_sim_seconds}
+        rc = dict(spec.sandbox or {})
+        rc["max_internal_calls"] = spec.run_code_max_internal_calls
+        self.task_prompt = instructions_text(system_prompt(budget, run_code=rc),
+                                             first_user_message(task_info(spec.task).instruction))
+        self.tools = tool_list()
+        self.bridge = CallBridge()
+        server = build_server(self.tools, self.bridge, self.task_prompt, _version(), self.task_prompt)
+        if s.transport == "stdio":
+            self.transport = StdioServerThread(server, self._stdio)
+        else:
+            self.transport = HttpServerThread(server, s.host, s.port, s.auth, s.idle_timeout_s)
+        self.transport.start(s.startup_timeout_s)
+        self._announce(spec)
+
+    def close(self) -> None:
+        """Stop serving (the world could not be built)."""
+        if self.transport is not None:
+            self.transport.stop()
+        self.on_stop()
+
+    # -- the attempt --------------------------------------------------------------------------
+    def run(self, episode, model_cfg: dict) -> None:
+        if model_cfg.get("agent"):  # an in-process agent's config (the default, oracle) plays no part here
+            episode.spec.model = "mcp_client"
+        self.before_build(episode.spec)  # when the runner did not call it
+        episode.recorder.event("mcp_server_start", **self._info)
+        # a stdio client that lets go stops its server with SIGTERM: the attempt is recorded first
+        previous = signal.signal(signal.SIGTERM, _interrupt) if _main_thread() else None
+        try:
+            self.on_serving(episode, self.transport)
+            self._serve(episode, self.bridge, self.transport)
+        except KeyboardInterrupt:
+            episode.end("interrupted", "cab was interrupted or terminated")
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+            self.close()
+
+    def _announce(self, spec) -> None:
+        transport = self.transport
+        self._info = {"transport": self.settings.transport, "tools": len(self.tools), "server": "cab",
+                      "version": _version()}
         if isinstance(transport, HttpServerThread):
-            info["url"] = transport.url
+            self._info["url"] = transport.url
             endpoint = {"url": transport.url, "transport": "streamable-http",
                         "headers": ({"Authorization": f"Bearer {transport.token}"} if transport.token else {})}
-            path = Path(episode.out) / ENDPOINT_FILE
+            out = Path(spec.output_dir)
+            out.mkdir(parents=True, exist_ok=True)
+            path = out / ENDPOINT_FILE
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
             with os.fdopen(fd, "w") as f:
                 json.dump(endpoint, f, indent=2)
-            print(f"cab: attempt {episode.spec.task} served over MCP at {transport.url} "
-                  f"(endpoint and token: {path})", file=sys.stderr, flush=True)
-        episode.recorder.event("mcp_server_start", **info)
+            print(f"cab: attempt {spec.task} served over MCP at {transport.url} (endpoint and token: {path})",
+                  file=sys.stderr, flush=True)
 
     def _serve(self, episode, bridge: CallBridge, transport: ServerThread) -> None:
         s = self.settings

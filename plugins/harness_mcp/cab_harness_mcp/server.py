@@ -23,13 +23,15 @@ SERVER_NAME = "cab"
 ALWAYS_LOAD = {"anthropic/alwaysLoad": True}
 
 
-def tool_list(episode) -> list[types.Tool]:
-    """The attempt's tools as MCP tools: same names, descriptions and input schemas as the
-    reference harness, with observation tools marked read-only and motion tools destructive."""
-    defs = episode.registry
+def tool_list() -> list[types.Tool]:
+    """The attempt's tools as MCP tools: the registry every episode is built from, so names,
+    descriptions and input schemas are the reference harness's (``Episode.tool_specs``), with
+    observation tools marked read-only and motion tools destructive."""
+    from cab_core.tools import build_registry
+
     tools = []
-    for spec in episode.tool_specs():
-        d = defs[spec["name"]]
+    for d in build_registry().values():
+        spec = d.spec()
         tools.append(types.Tool(
             name=spec["name"], description=spec["description"], input_schema=spec["parameters"],
             annotations=types.ToolAnnotations(read_only_hint=bool(d.read_only), destructive_hint=bool(d.destructive),
