@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .analysis.records import Attempt, read_jsonl
+from .analysis.records import Attempt
 from .errors import AttemptEnded, CabError, RecordError
 
 TOLERANCE_M = 0.005

@@ -141,7 +141,7 @@ def render(a: Attempt) -> str:
         ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
     ]
     rows = "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
-    video = (f'<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
+    video = ('<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
              else "<p>no video recorded</p>")
     try:
         events = read_jsonl(a.dir / "events.jsonl")

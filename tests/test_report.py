@@ -191,6 +191,10 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     log = attempt_dir(d, TASKS[1], "scripted", 1) / "events.jsonl"
     lines = log.read_text().splitlines()
     log.write_text("\n".join(lines[:2] + ["{not json"] + lines[2:]) + "\n")
+    odd = attempt_dir(d, TASKS[0], "idle", 2) / "result.json"
+    res = json.loads(odd.read_text())
+    res["checkpoints"]["spatial"] = [{"index": 1}]  # a checkpoint without its outcome
+    odd.write_text(json.dumps(res))
     # the sweep gave up on one attempt (infrastructure failures), after setting its records aside
     gave_up = attempt_dir(d, TASKS[1], "oracle", 2)
     identity = {k: json.loads((gave_up / "result.json").read_text())[k] for k in ("task", "seed", "attempt", "sim", "model")}
@@ -207,7 +211,8 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     assert problems[f"{TASKS[0]}/oracle/seed-0/attempt-2"].startswith("result.json is not valid JSON")
     assert problems[f"{TASKS[1]}/idle/seed-0/attempt-1"] == "result.json lacks 'verdict'"
     assert problems[f"{TASKS[1]}/scripted/seed-0/attempt-1"].startswith("events.jsonl line 3 is not valid JSON")
-    assert r["attempts"] == len(results(sweep)) - 5
+    assert problems[f"{TASKS[0]}/idle/seed-0/attempt-2"] == "malformed record (KeyError: 'attained')"
+    assert r["attempts"] == len(results(sweep)) - 6
     assert cfg(r, "oracle")["attempts"] == 1 and cfg(r, "oracle")["tasks"] == 1
     md = (d / "report.md").read_text()
     assert "Unfinished attempts (no result.json): 1" in md and "result.json lacks 'verdict'" in md

@@ -24,20 +24,24 @@ from .measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, Attempt
 from .records import Scan, read_json, scan
 
 REPORT_VERSION = "cab-report/1"
+MALFORMED = (LookupError, TypeError, ValueError, AttributeError)  # a field of the wrong shape in a record
 
 
 def measure(s: Scan) -> list[AttemptMeasures]:
-    """Per-attempt measures, failure stage included. An attempt whose event log is unreadable
-    moves from ``s.attempts`` to ``s.problems``."""
+    """Per-attempt measures, failure stage included. An attempt whose records cannot be measured
+    (an unreadable event log, a malformed field) moves from ``s.attempts`` to ``s.problems``."""
     classify = Classifier()
     out, keep = [], []
     for a in s.attempts:
         try:
             m = AttemptMeasures.of(a)
+            m.failure_stage, m.failure_detail = classify(a)
         except CabError as e:
             s.problems.append((a.rel, str(e)))
             continue
-        m.failure_stage, m.failure_detail = classify(a)
+        except MALFORMED as e:
+            s.problems.append((a.rel, f"malformed record ({type(e).__name__}: {e})"))
+            continue
         out.append(m)
         keep.append(a)
     s.attempts = keep
@@ -75,8 +79,8 @@ def pct(x: float | None) -> str:
     return "–" if x is None else f"{100 * x:.1f}%"
 
 
-def num(x: float | None, fmt: str = "{:.1f}") -> str:
-    return "–" if x is None else fmt.format(x)
+def num(x: float | None) -> str:
+    return "–" if x is None else f"{x:.1f}"
 
 
 def usd(x: float | None) -> str:
