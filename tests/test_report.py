@@ -202,7 +202,10 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     write_infrastructure_result(gave_up, identity, [{"kind": "crash", "detail": "simulator died"}])
     # and redid another after two infrastructure failures: recorded, not counted against the model
     annotate_result(attempt_dir(d, TASKS[1], "oracle", 1), [{"kind": "hang"}, {"kind": "provider outage"}])
+    # the sweep planned two attempts more than there are directories
+    (d / "sweep.json").write_text(json.dumps({"fingerprint": "sha256:0f", "n_jobs": len(results(sweep)) + 2}))
     r = rep.write(d, views=False)
+    assert r["sweep"] == {"fingerprint": "sha256:0f", "jobs": len(results(sweep)) + 2, "not_started": 2}
     assert cfg(r, "oracle")["infra_retries"] == 2 and cfg(r, "oracle")["successes"] == 1
     assert r["in_flight"] == [f"{TASKS[0]}/oracle/seed-0/attempt-1"]
     assert [e["dir"] for e in r["excluded"]] == [f"{TASKS[1]}/oracle/seed-0/attempt-2"]
@@ -217,6 +220,7 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     md = (d / "report.md").read_text()
     assert "Unfinished attempts (no result.json): 1" in md and "result.json lacks 'verdict'" in md
     assert "Excluded as infrastructure failures (not the model's): 1" in md
+    assert "(2 not started), configuration fingerprint sha256:0f" in md
 
 
 def test_provider_usage_gives_cost_and_wait(sweep, tmp_path):

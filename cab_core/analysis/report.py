@@ -56,9 +56,13 @@ def build(root: Path) -> dict:
     configs = sorted({m.config for m in ms})
     summaries = [ConfigSummary.of(c, [m for m in ms if m.config == c], max_calls) for c in configs]
     summaries.sort(key=lambda c: (-c.success_rate, c.config))
+    sweep = sweep_manifest(Path(root))
+    if sweep and isinstance(sweep["jobs"], int):  # planned attempts with no records at all yet
+        seen = len(ms) + len(s.in_flight) + len(s.excluded) + len(s.problems)
+        sweep["not_started"] = max(0, sweep["jobs"] - seen)
     return {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
             "problems": [{"dir": d, "problem": p} for d, p in s.problems],
-            "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep_manifest(Path(root)),
+            "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep,
             "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
             "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))]}
 
@@ -153,7 +157,9 @@ def notes(r: dict) -> list[str]:
     """Plain-text lines on what the report does not count, and on the sweep."""
     out = [f"{r['attempts']} attempts, {len(r['configs'])} configurations."]
     if r["sweep"]:
-        out.append(f"Sweep manifest: {r['sweep']['jobs']} jobs, configuration fingerprint {r['sweep']['fingerprint']}.")
+        sw = r["sweep"]
+        out.append(f"Sweep manifest: {sw['jobs']} jobs ({sw.get('not_started', '?')} not started), "
+                   f"configuration fingerprint {sw['fingerprint']}.")
     if r["in_flight"]:
         out.append(f"Unfinished attempts (no result.json): {len(r['in_flight'])}: " + ", ".join(r["in_flight"]))
     if r["excluded"]:
