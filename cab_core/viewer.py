@@ -21,7 +21,8 @@ CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-co
 td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}th{background:#f3f3f3}
 .call{border-left:4px solid #4e79a7;margin:.6em 0;padding:.2em .8em}.internal{border-left-color:#bab0ac;margin-left:2em}
 .turn{border-left:4px solid #b07aa1;margin:.6em 0;padding:.2em .8em;background:#faf6fa}
-.bad{color:#b00}.good{color:#070}pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-height:24em}
+.bad{color:#b00}.good{color:#070}.mark{color:#070;font-weight:bold;margin:.2em 0 .2em 1em}
+pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-height:24em}
 img.obs{max-width:320px;margin:2px;border:1px solid #ccc}summary{cursor:pointer;color:#333}"""
 
 
@@ -53,10 +54,11 @@ def _status(ev: dict) -> str:
     return f'<span class="{cls}">{escape(str(s))}</span>'
 
 
-def _call(d: Path, ev: dict, internal: bool) -> str:
+def _call(d: Path, ev: dict, internal: bool, charged_index: int | None) -> str:
     r = ev.get("result") or {}
     head = (f"<b>{'↳ ' if internal else ''}{escape(str(ev.get('tool')))}</b> {_status(ev)}"
-            f" · #{ev.get('seq')} · t={ev.get('t_wall', 0):.1f}s")
+            + (f" · charged call {charged_index}" if charged_index else "")
+            + f" · #{ev.get('seq')} · t={ev.get('t_wall', 0):.1f}s")
     if ev.get("physics_steps"):
         head += f" · {ev['physics_steps']} physics steps"
     if ev.get("charged") is False:
@@ -91,14 +93,37 @@ def _turn(ev: dict) -> str:
     return f'<div class="turn">{"".join(body)}</div>'
 
 
-def timeline(d: Path, events: list[dict]) -> str:
-    """The events in order; a program's internal calls are shown just before its run_code entry
-    (they are logged as they happen, the program's own entry when it returns)."""
+def matched_at(ck) -> dict[int, list[str]]:
+    """Charged-call index -> the checkpoints first matched by then (from the result's checkpoints)."""
+    out: dict[int, list[str]] = {}
+    if not isinstance(ck, dict) or "error" in ck:
+        return out
+    for kind in ("subgoals", "spatial"):
+        for c in ck.get(kind, []):
+            k = (c.get("first") or {}).get("calls")
+            if c.get("attained") and isinstance(k, int):
+                what = c.get("text", "") if kind == "subgoals" else c.get("name", "")
+                label = f"{'subgoal' if kind == 'subgoals' else 'spatial'} {c['index']}: {what}"
+                out.setdefault(k, []).append(label)
+    return out
+
+
+def timeline(d: Path, events: list[dict], ck=None) -> str:
+    """The events in order, each checkpoint marked after the charged call that first matched it.
+    A program's internal calls are shown just before its run_code entry (they are logged as they
+    happen, the program's own entry when it returns)."""
     out = []
+    marks = matched_at(ck)
+    charged = 0
     for ev in events:
         kind = ev.get("kind")
         if kind in ("call", "internal_call", "call_refused"):
-            out.append(_call(d, ev, internal=(kind == "internal_call")))
+            index = None
+            if kind == "call" and ev.get("charged", True):
+                charged += 1
+                index = charged
+            out.append(_call(d, ev, internal=(kind == "internal_call"), charged_index=index))
+            out += [f'<div class="mark">✓ checkpoint {escape(m)}</div>' for m in marks.get(index, [])]
         elif kind == "model_turn":
             out.append(_turn(ev))
         elif kind not in ("attempt_start",):
@@ -151,7 +176,7 @@ def render(a: Attempt) -> str:
             f"<h1>{escape(r['task'])} · {escape(a.config)} · attempt {r['attempt']}</h1><table>{rows}</table>"
             f"<h2>Verdict details</h2>{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
             f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
-            f"<h2>Timeline</h2>{timeline(a.dir, events)}</body></html>\n")
+            f"<h2>Timeline</h2>{timeline(a.dir, events, r.get('checkpoints'))}</body></html>\n")
 
 
 def write_view(attempt_dir: Path) -> Path:

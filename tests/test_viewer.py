@@ -1,5 +1,6 @@
 """cab-view: one page per attempt, from its records."""
 import html
+import json
 import re
 import shutil
 
@@ -37,6 +38,12 @@ def test_page_shows_timeline_programs_images_verdict_claim_and_checkpoints(scrip
     assert '<video src="video.mp4"' in page
     assert "<th>verdict</th><td>failure</td>" in page and "<th>claim</th><td>success</td>" in page
     assert "Approach hammer" in text and "not attained" in text
+    # the checkpoint is marked right after the charged call that first matched it (the move down)
+    k = next(c["first"]["calls"] for c in json.loads((scripted / "result.json").read_text())["checkpoints"]["spatial"]
+             if c["attained"])
+    call = page.index(f"charged call {k} ·")
+    assert page.index("✓ checkpoint spatial 1: Approach hammer") > call
+    assert f"charged call {k + 1} ·" not in page[call:page.index("✓ checkpoint spatial 1")]
     assert "https://" not in page and "http://" not in page  # nothing fetched from elsewhere
 
 

@@ -186,10 +186,12 @@ figure{display:inline-block;margin:0 1em 1em 0;vertical-align:top}"""
 
 
 def figures(r: dict) -> list[str]:
+    """The page's figures, as inline SVG: success, outcomes, claims, coverage, cost and time."""
     cs = r["configs"]
-    figs = [svg.hbars("Success rate (Wilson 95% interval)", [(c["config"], c["success_rate"], tuple(c["wilson95"])) for c in cs]),
-            svg.stacked("Outcome and failure stage per attempt", [(c["config"], [c["successes"]] + [c["failure_stages"].get(s, 0) for s in STAGES]) for c in cs],
-                        ["Success"] + [LABELS[s] for s in STAGES]),
+    outcomes = [(c["config"], [c["successes"]] + [c["failure_stages"].get(s, 0) for s in STAGES]) for c in cs]
+    figs = [svg.hbars("Success rate (Wilson 95% interval)",
+                      [(c["config"], c["success_rate"], tuple(c["wilson95"])) for c in cs]),
+            svg.stacked("Outcome and failure stage per attempt", outcomes, ["Success"] + [LABELS[s] for s in STAGES]),
             svg.stacked("Completion claims", [(c["config"], [c["claims"][k] for k in CLAIMS]) for c in cs], list(CLAIMS)),
             svg.hbars("Subgoal checkpoint coverage (task-weighted)",
                       [(c["config"], c["subgoal_coverage"] or 0.0, None) for c in cs]),
