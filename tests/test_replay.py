@@ -122,3 +122,10 @@ def test_cli_replays_a_scripted_attempt(tmp_path_factory, capsys):
     n = sum(e["kind"] in rp.CALL_KINDS for e in events(d))
     assert out.startswith(f"cab-replay: VALID: {n} calls") and "success False -> False" in out
     assert json.loads((d / "again" / "replay.json").read_text())["valid"] is True
+
+
+def test_cli_regrade_prints_the_recomputed_analyses(oracle, capsys):
+    rp.main(["--regrade", str(oracle)])
+    g = json.loads(capsys.readouterr().out)
+    assert g == {"attempt": str(oracle), "success": True, "claim": "correct", "checkpoints_changed": [],
+                 "failure_stage": None, "failure_detail": ""}
