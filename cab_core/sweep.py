@@ -172,15 +172,15 @@ def _hms(s: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
-def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = None,
-            on_child=None) -> tuple[dict | None, str]:
+def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = None) -> tuple[dict | None, str]:
     """One job of a sweep: skip a complete attempt, set a partial one aside, run it supervised.
     Returns the result (None when skipped) and the progress line."""
     from .runner import attempt_spec
 
     spec = attempt_spec(cfg, attempt_dir)  # a bad config fails here, before any process starts
     identity = {"task": spec.task, "seed": spec.seed, "attempt": spec.attempt, "sim": spec.sim, "model": spec.model}
-    job = str(Path(attempt_dir).relative_to(sweep_dir)) if Path(attempt_dir).is_relative_to(sweep_dir) else str(attempt_dir)
+    here, root = Path(attempt_dir).resolve(), Path(sweep_dir).resolve()
+    job = str(here.relative_to(root)) if here.is_relative_to(root) else str(attempt_dir)
     check = check_attempt(attempt_dir, identity, job_log)
     if check.state == "complete":
         return None, progress_line(sweep_dir, job, "complete already, skipped")
@@ -189,7 +189,7 @@ def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = 
         set_aside(attempt_dir, "infrastructure" if infra else "interrupted", job_log)
     plain = _plain(cfg)
     result = AttemptSupervisor(plain, attempt_dir, identity, SupervisorConfig.from_cfg(plain.get("sweep")),
-                               job_log, on_child).run()
+                               job_log).run()
     return result, progress_line(sweep_dir, job, describe(result))
 
 

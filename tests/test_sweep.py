@@ -162,8 +162,8 @@ def test_config_diff_names_each_changed_key():
 def test_ray_launcher_on_a_local_instance(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     sweep = tmp_path / "sw"
-    r = subprocess.run([CAB, "-m", "hydra/launcher=ray", "+hydra.launcher.ray.init.num_cpus=2",
-                        "+hydra.launcher.ray.init.include_dashboard=false", "task=beat_block_hammer", "model=idle",
+    r = subprocess.run([CAB, "-m", "hydra/launcher=ray_local", "hydra.launcher.ray.init.num_cpus=2",
+                        "task=beat_block_hammer", "model=idle",
                         "attempt=1,2", "record.video=false", f"hydra.sweep.dir={sweep}"],
                        cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
