@@ -109,6 +109,9 @@ def test_programs_actions_and_resources(built, sweep):
         assert c["charged_calls"] == charged and c["program_calls"] == len(programs)
         assert c["program_errors"] == sum(not e["result"]["ok"] for e in programs)
         assert c["actions"] == len(actions) and c["not_completed"]["planner"] == len(failed)
+        stopped = [e for e in actions if e["result"]["status"] != "SUCCESS"]
+        assert c["not_completed_total"] == len(stopped)
+        assert c["not_completed_moved"] == sum(e["physics_steps"] > 0 for e in stopped)
         assert c["calls_mean"] == pytest.approx(charged / len(rs))
         assert c["sim_seconds_median"] == pytest.approx(median(x["budget"]["sim_seconds_used"] for x in rs))
         assert c["wall_seconds_median"] == pytest.approx(median(x["timing"]["wall_seconds"] for x in rs))

@@ -11,7 +11,8 @@ motion outcomes, termination, checkpoints and failure analysis):
 * program share: charged calls submitted through ``run_code`` over all charged calls; program
   errors: returned programs that raised or were rejected (not robot-action interruptions);
 * non-completed robot actions (direct and inside programs), by planner refusal, stall, trajectory
-  deviation and motion allowance (leg budget, probe travel);
+  deviation and motion allowance (leg budget, probe travel), and how many of them advanced the
+  simulation (a stopped action can still change the scene);
 * calls (mean), simulated, wall and provider-wait time (medians); cost (total, median, IQR);
   infrastructure retries (tries a sweep redid for simulator or provider faults, not counted as failures);
 * subgoal and spatial checkpoint coverage: per attempt the attained fraction, averaged over a
@@ -112,6 +113,7 @@ class AttemptMeasures:
     program_errors: int
     actions: int
     not_completed: dict
+    not_completed_moved: int  # non-completed actions during which the simulation advanced
     sim_seconds: float
     wall_seconds: float | None
     wait_seconds: float | None
@@ -130,9 +132,10 @@ class AttemptMeasures:
         ev = a.events
         calls = [e for e in ev if e.get("kind") == "call" and e.get("charged", True)]
         programs = [e for e in calls if e.get("tool") == "run_code"]
-        acts = [e.get("result") or {} for e in ev if e.get("kind") in ("call", "internal_call")]
-        acts = [x for x in acts if "action_id" in x]
+        act_events = [e for e in ev if e.get("kind") in ("call", "internal_call") and "action_id" in (e.get("result") or {})]
+        acts = [e["result"] for e in act_events]
         causes = Counter(c for c in (action_cause(x) for x in acts) if c)
+        moved = sum(1 for e in act_events if action_cause(e["result"]) and (e.get("physics_steps") or 0) > 0)
         wait, usd = _provider(ev)
         ck = r.get("checkpoints") if isinstance(r.get("checkpoints"), dict) else {}
         ok_ck = bool(ck) and "error" not in ck
@@ -145,7 +148,7 @@ class AttemptMeasures:
             charged_calls=int(r["budget"].get("tool_calls_used", len(calls))), program_calls=len(programs),
             programs_returned=sum(1 for e in programs if isinstance(e.get("result"), dict)),
             program_errors=sum(1 for e in programs if program_error(e.get("result") or {})),
-            actions=len(acts), not_completed={c: causes.get(c, 0) for c in ACTION_CAUSES},
+            actions=len(acts), not_completed={c: causes.get(c, 0) for c in ACTION_CAUSES}, not_completed_moved=moved,
             sim_seconds=float(r["budget"].get("sim_seconds_used", 0.0)),
             wall_seconds=(r.get("timing") or {}).get("wall_seconds"), wait_seconds=wait, cost_usd=usd,
             subgoal_coverage=ck.get("subgoal_coverage") if ok_ck and ck.get("subgoals") else None,
@@ -203,6 +206,7 @@ class ConfigSummary:
     actions: int
     not_completed: dict
     not_completed_total: int
+    not_completed_moved: int
     calls_mean: float
     sim_seconds_median: float
     wall_seconds_median: float | None
@@ -252,6 +256,7 @@ class ConfigSummary:
             charged_calls=charged, program_calls=prog, program_share=prog / charged if charged else None,
             programs_returned=sum(m.programs_returned for m in ms), program_errors=sum(m.program_errors for m in ms),
             actions=sum(m.actions for m in ms), not_completed=nc, not_completed_total=sum(nc.values()),
+            not_completed_moved=sum(m.not_completed_moved for m in ms),
             calls_mean=charged / n if n else 0.0, sim_seconds_median=median(m.sim_seconds for m in ms) if ms else 0.0,
             wall_seconds_median=median(walls) if walls else None, wait_seconds_median=median(waits) if waits else None,
             cost_total=sum(costs) if costs else None, cost_median=q[1] if q else None,

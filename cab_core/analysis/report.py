@@ -113,10 +113,10 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
               + (f" ({pct(c['program_errors'] / c['programs_returned'])})" if c["programs_returned"] else "")]
              for c in cs]),
            ("Non-completed robot actions (direct and inside programs)",
-            ["Configuration", "Non-completion", *[a.capitalize() for a in ACTION_CAUSES]],
+            ["Configuration", "Non-completion", "Sim. advanced", *[a.capitalize() for a in ACTION_CAUSES]],
             [[c["config"], f"{c['not_completed_total']}/{c['actions']}"
               + (f" ({pct(c['not_completed_total'] / c['actions'])})" if c["actions"] else ""),
-              *[str(c["not_completed"][a]) for a in ACTION_CAUSES]] for c in cs]),
+              str(c["not_completed_moved"]), *[str(c["not_completed"][a]) for a in ACTION_CAUSES]] for c in cs]),
            ("Resources",
             ["Configuration", "Calls (mean)", "Sim. s (median)", "Wall s (median)", "Wait s (median)",
              "Cost total", "Cost median", "Cost IQR", "Infra. retries"],
