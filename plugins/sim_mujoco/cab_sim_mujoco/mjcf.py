@@ -86,6 +86,7 @@ class Plan:
     actuators: list[str] = field(default_factory=list)  # joint_order(), one servo each
     cameras: dict[str, Camera] = field(default_factory=dict)
     masses: dict[str, float] = field(default_factory=dict)  # scene body -> mass to impose after compile
+    damping: dict[str, tuple[float, float]] = field(default_factory=dict)  # body -> (linear, angular) 1/s
 
 
 # -- URDF -------------------------------------------------------------------------------------------
@@ -276,6 +277,7 @@ class MjcfWriter:
                 if not body.mass > 0:
                     raise BadCommand(f"{what}: mass must be positive, got {body.mass}")
                 self.plan.masses[body.name] = float(body.mass)
+            self.plan.damping[body.name] = (float(body.linear_damping), float(body.angular_damping))
             if not any(s.collision for s in body.shapes):
                 raise BadCommand(f"{what}: a dynamic body needs a collision shape (its mass comes from them)")
         else:

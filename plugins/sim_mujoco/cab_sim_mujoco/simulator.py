@@ -158,6 +158,12 @@ class MujocoSimulator(Simulator):
                 m.body_inertia[b] *= mass / m.body_mass[b]
             m.body_mass[b] = mass
         mujoco.mj_setConst(m, d)  # derived masses; it puts qpos back to qpos0, so it comes first
+        for name, (linear, angular) in plan.damping.items():
+            # PhysX's body damping scales velocity by 1 / (1 + dt c) each step; MuJoCo's implicit
+            # joint damping D does the same when D = c x mass (and c x inertia for rotation)
+            b, dof = body(name), int(m.jnt_dofadr[joint(name)])
+            m.dof_damping[dof:dof + 3] = linear * m.body_mass[b]
+            m.dof_damping[dof + 3:dof + 6] = angular * float(np.mean(m.body_inertia[b]))
         self._things: dict[str, _Thing] = {}
         for name, kind in plan.bodies.items():
             b = body(name)
