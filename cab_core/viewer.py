@@ -150,40 +150,75 @@ def _checkpoints(ck) -> str:
             + "".join(rows) + "</table>")
 
 
+def _rows(summary: list[tuple[str, object]]) -> str:
+    return "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
+
+
+def _events(d: Path) -> tuple[list[dict], str]:
+    """The event log, and a table row saying what is wrong with it when it cannot be read."""
+    try:
+        return read_jsonl(d / "events.jsonl"), ""
+    except CabError as e:
+        return [], f"<tr><th>events</th><td class='bad'>{escape(str(e))}</td></tr>"
+
+
+def _page(title: str, heading: str, rows: str, sections: str) -> str:
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(title)}</title><style>{CSS}</style>"
+            f"</head><body><h1>{escape(heading)}</h1><table>{rows}</table>{sections}</body></html>\n")
+
+
 def render(a: Attempt) -> str:
+    """The page of a finished attempt."""
     r = a.result
     v, claim, b = r["verdict"], r["claim"], r["budget"]
-    ok = v["success"]
     claimed = claim.get("success_claim")
-    summary = [
+    events, bad = _events(a.dir)
+    rows = _rows([
         ("task", f"{r['task']} (seed {r['seed']}, attempt {r['attempt']})"),
         ("configuration", a.config), ("instruction", r.get("instruction", "")),
-        ("verdict", "success" if ok else "failure"),
+        ("verdict", "success" if v["success"] else "failure"),
         ("claim", "absent" if claimed is None else ("success" if claimed else "failure")),
-        ("report", claim.get("report") or ""), ("termination", f"{r['termination']['reason']}: {r['termination'].get('detail', '')}"),
+        ("report", claim.get("report") or ""),
+        ("termination", f"{r['termination']['reason']}: {r['termination'].get('detail', '')}"),
         ("tool calls", f"{b.get('tool_calls_used')}/{b.get('tool_calls_limit')}"),
         ("simulated s", f"{b.get('sim_seconds_used')}/{b.get('sim_seconds_limit')}"),
         ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
-    ]
-    rows = "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
+    ]) + bad
     video = ('<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
              else "<p>no video recorded</p>")
-    try:
-        events = read_jsonl(a.dir / "events.jsonl")
-    except CabError as e:
-        events, rows = [], rows + f"<tr><th>events</th><td class='bad'>{escape(str(e))}</td></tr>"
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(a.rel)}</title><style>{CSS}</style></head><body>"
-            f"<h1>{escape(r['task'])} · {escape(a.config)} · attempt {r['attempt']}</h1><table>{rows}</table>"
-            f"<h2>Verdict details</h2>{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
-            f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
-            f"<h2>Timeline</h2>{timeline(a.dir, events, r.get('checkpoints'))}</body></html>\n")
+    return _page(a.rel, f"{r['task']} · {a.config} · attempt {r['attempt']}", rows,
+                 f"<h2>Verdict details</h2>{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
+                 f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
+                 f"<h2>Timeline</h2>{timeline(a.dir, events, r.get('checkpoints'))}")
+
+
+def render_unfinished(d: Path) -> str:
+    """The page of an attempt without result.json (still running, or interrupted): what its
+    event log holds so far. No verdict, checkpoints or video exist before the attempt ends."""
+    events, bad = _events(d)
+    start = next((e for e in events if e.get("kind") == "attempt_start"), {})
+    c = start.get("config") or {}
+    config = f"{c.get('model', '?')} ({c.get('harness', '?')}, {c.get('sim', '?')})"
+    charged = sum(1 for e in events if e.get("kind") == "call" and e.get("charged", True))
+    rows = _rows([
+        ("task", f"{start.get('task', '?')} (seed {start.get('seed', '?')}, attempt {start.get('attempt', '?')})"),
+        ("configuration", config), ("instruction", start.get("instruction", "")),
+        ("state", "unfinished: no result.json (still running, or interrupted)"),
+        ("tool calls so far", charged), ("last event at wall s", events[-1].get("t_wall") if events else "–"),
+    ]) + bad
+    return _page(d.name, f"{start.get('task', d.name)} · {config} · unfinished", rows,
+                 f"<h2>Timeline so far</h2>{timeline(d, events)}")
 
 
 def write_view(attempt_dir: Path) -> Path:
-    """Write ``view.html`` into the attempt directory; returns its path."""
+    """Write ``view.html`` into the attempt directory (finished or not); returns its path."""
     d = Path(attempt_dir)
+    if (d / "result.json").exists() or not (d / "events.jsonl").exists():
+        html_text = render(Attempt.load(d))
+    else:
+        html_text = render_unfinished(d)
     page = d / "view.html"
-    page.write_text(render(Attempt.load(d)))
+    page.write_text(html_text)
     return page
 
 
@@ -191,7 +226,7 @@ def main(argv: list[str] | None = None) -> None:
     import argparse
 
     ap = argparse.ArgumentParser(prog="cab-view", description="Write view.html for one attempt directory.")
-    ap.add_argument("dir", help="an attempt directory (holding result.json)")
+    ap.add_argument("dir", help="an attempt directory (finished, running or interrupted)")
     a = ap.parse_args(argv)
     try:
         page = write_view(Path(a.dir))

@@ -67,3 +67,22 @@ def test_cli_and_bad_input(scripted, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main([str(tmp_path)])
     assert e.value.code == 2 and "result.json is missing" in capsys.readouterr().err
+
+
+def test_unfinished_attempt_page_and_its_link_in_the_report(scripted, tmp_path):
+    from cab_core.analysis.report import write
+
+    d = tmp_path / "sweep" / "a"
+    shutil.copytree(scripted, d, ignore=shutil.ignore_patterns("view.html"))
+    (d / "result.json").unlink()  # killed after its fourth event, mid-write of the fifth
+    lines = (d / "events.jsonl").read_text().splitlines()
+    (d / "events.jsonl").write_text("\n".join(lines[:4]) + "\n" + lines[4][:20])
+    page = write_view(d).read_text()
+    assert "unfinished: no result.json (still running, or interrupted)" in page
+    assert "scripted (direct, sapien)" in page
+    made = [json.loads(l)["tool"] for l in lines[1:4]]
+    assert re.findall(r"<b>(?:↳ )?([a-z_]+)</b>", page) == made
+    assert f"<th>tool calls so far</th><td>{len(made)}</td>" in page
+    r = write(tmp_path / "sweep")
+    assert r["in_flight"] == ["a"] and r["attempts"] == 0
+    assert '<li><a href="a/view.html">a</a></li>' in (tmp_path / "sweep" / "report.html").read_text()

@@ -230,6 +230,9 @@ def _matrix_class(v: str) -> str | None:
 def html(r: dict, view_links: dict[str, str]) -> str:
     ts = tables(r)
     parts = ["<h1>cab report</h1>"] + [f"<p>{escape(line)}</p>" for line in notes(r)]
+    unfinished = [f'<li><a href="{escape(view_links[d])}">{escape(d)}</a></li>' for d in r["in_flight"] if d in view_links]
+    if unfinished:
+        parts.append(f"<p>Unfinished attempts, their records so far:</p><ul>{''.join(unfinished)}</ul>")
     parts.append("<h2>Figures</h2>" + "".join(f"<figure>{f}</figure>" for f in figures(r)))
     for title, header, rows in ts:
         cc = _matrix_class if title.startswith("Task x") else None
@@ -259,9 +262,9 @@ def write(root: Path, out: Path | None = None, views: bool = True) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     links = {}
     if views:
-        for m in r["attempt_rows"]:
-            page = write_view(root / m["rel"])
-            links[m["rel"]] = os.path.relpath(page, out).replace(os.sep, "/")
+        for rel in [m["rel"] for m in r["attempt_rows"]] + r["in_flight"]:
+            page = write_view(root / rel)
+            links[rel] = os.path.relpath(page, out).replace(os.sep, "/")
     (out / "report.json").write_text(json.dumps(r, indent=1))
     (out / "report.md").write_text(markdown(r))
     (out / "report.html").write_text(html(r, links))
