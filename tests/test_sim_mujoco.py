@@ -253,3 +253,36 @@ def test_body_damping_decays_velocity_as_physx_does():
         np.testing.assert_allclose(v[[0, 5]], [1.0 / (1 + dt * 0.2) ** 100, 2.0 / (1 + dt * 0.5) ** 100], rtol=1e-9)
     finally:
         sim.close()
+
+
+_BUILD_AND_REPORT = """
+from cab_core.errors import RendererUnavailable
+from cab_core.testing import sim_conformance as sc
+try:
+    from cab_sim_mujoco.simulator import MujocoSimulator
+    sim = MujocoSimulator({"render": True})
+    sim.build(sc.make_scene(), sc.make_embodiment())
+    v = sim.versions()
+    print("RENDERED", v["gl_backend"], v["gl_backend_chosen_by"], sim.render(sc.HEAD_CAMERA).std() > 2)
+except RendererUnavailable as e:
+    print("UNAVAILABLE", e)
+"""
+
+
+@pytest.mark.parametrize("backend", ["egl", "osmesa"])
+def test_an_operator_set_mujoco_gl_is_used_or_diagnosed(backend):
+    """MUJOCO_GL is honoured in a fresh process: that backend renders, or its absence is a
+    RendererUnavailable naming the package (never MuJoCo's bare import failure, never another
+    backend)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, MUJOCO_GL=backend)
+    env.pop("PYOPENGL_PLATFORM", None)
+    out = subprocess.run([sys.executable, "-c", _BUILD_AND_REPORT], env=env, capture_output=True, text=True,
+                         timeout=120).stdout
+    if gl._loads(backend):
+        assert f"RENDERED {backend} MUJOCO_GL True" in out, out
+    else:
+        assert "UNAVAILABLE" in out and f"MUJOCO_GL={backend} was set" in out, out

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from cab_core.errors import RendererUnavailable
 
 VALID = ("egl", "osmesa", "glfw")
+_OFF = ("disable", "disabled", "off", "false", "0")  # MuJoCo's own words for "no rendering"
 _LIBS = {"egl": ("EGL", "libEGL.so.1"), "osmesa": ("OSMesa", "libOSMesa.so.8")}
 _PACKAGES = {"egl": "libegl1 libegl-mesa0 libgl1-mesa-dri", "osmesa": "libosmesa6",
              "glfw": "libglfw3 and a display"}
@@ -55,16 +56,34 @@ def _loads(backend: str) -> bool:
     return False
 
 
+def forced_backend(environ=os.environ) -> str | None:
+    """The backend the operator set in ``MUJOCO_GL`` (None when unset), checked to load.
+
+    MuJoCo's own ``import mujoco`` starts that backend's OpenGL bindings and fails with a bare
+    AttributeError when its library is missing; the simulator module calls this before importing
+    MuJoCo, so the operator reads why instead."""
+    forced = (environ.get("MUJOCO_GL") or "").strip().lower()
+    if not forced:
+        return None
+    if forced in _OFF:
+        return "off"
+    if forced not in VALID:
+        raise RendererUnavailable(f"MUJOCO_GL={forced!r} is not a backend MuJoCo can render with "
+                                  f"headless here; use one of {', '.join(VALID)} (or unset it)")
+    if not _loads(forced):
+        raise RendererUnavailable(f"MUJOCO_GL={forced} was set, but its library does not load (MuJoCo "
+                                  f"cannot even be imported so); install {_PACKAGES[forced]}, or unset "
+                                  f"MUJOCO_GL to let cab choose")
+    return forced
+
+
 def choose_backend(environ=os.environ) -> tuple[str, str]:
     """(backend, how it was chosen). Raises RendererUnavailable when none can load."""
-    forced = (environ.get("MUJOCO_GL") or "").strip().lower()
-    if forced:
-        if forced not in VALID:
-            raise RendererUnavailable(f"MUJOCO_GL={forced!r} is not a backend MuJoCo can render with "
-                                      f"headless here; use one of {', '.join(VALID)} (or unset it)")
-        if not _loads(forced):
-            raise RendererUnavailable(f"MUJOCO_GL={forced} was set, but its library does not load; "
-                                      f"install {_PACKAGES[forced]}, or unset MUJOCO_GL to let cab choose")
+    forced = forced_backend(environ)
+    if forced == "off":
+        raise RendererUnavailable("MUJOCO_GL turns MuJoCo's rendering off; unset it, or build the "
+                                  "simulator with render: false for physics-only use")
+    if forced is not None:
         return forced, "MUJOCO_GL"
     for backend in ("egl", "osmesa"):
         if _loads(backend):

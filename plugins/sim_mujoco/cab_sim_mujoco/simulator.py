@@ -33,8 +33,12 @@ import logging
 import math
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
+
+from . import gl
+
+gl.forced_backend()  # before MuJoCo's import starts the OpenGL bindings MUJOCO_GL names
+import mujoco  # noqa: E402
 
 from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
@@ -43,7 +47,6 @@ from cab_core.scene import SceneSpec
 from cab_core.simsupport import pose_or_bad, start_joint_values, vector_or_bad
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
-from . import gl
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
 from .physics import PhysicsParams
 
