@@ -1,6 +1,6 @@
 """Vendor launchers and MCP harness settings, without a simulator: the command lines Claude Code
 and Codex CLI are started with, the checks made before any simulator starts, and the usage read
-back from each vendor's JSON stream."""
+back from each vendor's JSON stream. (tests/test_vendor_cli.py runs the real CLIs.)"""
 from __future__ import annotations
 
 import json
@@ -15,7 +15,7 @@ pytest.importorskip("mcp")
 from cab_core.errors import ConfigError, MissingDependency  # noqa: E402
 from cab_core.plugins import create  # noqa: E402
 from cab_harness_mcp.harness import McpSettings  # noqa: E402
-from cab_harness_mcp.launchers import CLAUDE_BUILTINS, TOKEN_ENV, ClaudeCodeLauncher, CodexLauncher  # noqa: E402
+from cab_harness_mcp.launchers import TOKEN_ENV, ClaudeCodeLauncher, CodexLauncher  # noqa: E402
 from cab_harness_mcp.transport import HttpServerThread  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[1] / "cab_core" / "conf" / "model"
@@ -104,6 +104,7 @@ def served(tmp_path):
 def test_claude_code_command_line(tmp_path, monkeypatch, served):
     monkeypatch.setenv("PATH", f"{fake_cli(tmp_path, 'claude', '2.1.212 (Claude Code)')}{os.pathsep}{os.environ['PATH']}")
     monkeypatch.setenv("ANTHROPIC_API_KEY", "sk-test")
+    monkeypatch.delenv("ANTHROPIC_BASE_URL", raising=False)
     launcher = ClaudeCodeLauncher({})
     launcher.preflight(model_cfg("opus5_claude_code"))
     launcher.task_prompt = "TASK PROMPT"
@@ -113,8 +114,9 @@ def test_claude_code_command_line(tmp_path, monkeypatch, served):
     opt = {argv[i]: argv[i + 1] for i in range(1, len(argv) - 1) if argv[i].startswith("--")}
     assert opt["--output-format"] == "stream-json" and "--verbose" in argv
     assert "--strict-mcp-config" in argv and "--no-session-persistence" in argv
-    assert opt["--allowedTools"] == "mcp__cab"
-    assert set(opt["--disallowedTools"].split(",")) == set(CLAUDE_BUILTINS) >= {"Bash", "Read", "Write", "WebFetch", "Task"}
+    # the benchmark's tools allowed; of the built-ins only ToolSearch (it loads deferred tool definitions)
+    assert opt["--allowedTools"] == "mcp__cab" and opt["--tools"] == "ToolSearch"
+    assert "--disallowedTools" not in argv
     assert opt["--model"] == "claude-opus-5" and opt["--effort"] == "high"
     config_file = Path(opt["--mcp-config"])
     assert oct(config_file.stat().st_mode & 0o777) == "0o600"
@@ -123,11 +125,40 @@ def test_claude_code_command_line(tmp_path, monkeypatch, served):
     env = launcher.env(served)
     # time-outs above the longest call: run_code's 180 s sandbox limit
     assert int(env["MCP_TOOL_TIMEOUT"]) == 610_000 and int(env["MCP_TIMEOUT"]) == 120_000
+    assert env["DISABLE_AUTOUPDATER"] == "1" and env["CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC"] == "1"
+    assert "ANTHROPIC_BASE_URL" not in env  # Claude Code's default endpoint
+
+
+@pytest.mark.parametrize("launcher_cls, env_var, version", [
+    (ClaudeCodeLauncher, "ANTHROPIC_BASE_URL", "2.1.212 (Claude Code)"),
+    (CodexLauncher, "OPENAI_BASE_URL", "codex-cli 0.154.0"),
+])
+def test_base_url_from_the_model_config_else_the_provider_variable(tmp_path, monkeypatch, served, launcher_cls,
+                                                                   env_var, version):
+    name = launcher_cls.default_command
+    monkeypatch.setenv("PATH", f"{fake_cli(tmp_path, name, version)}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv(launcher_cls.default_api_key_env, "sk-test")
+    monkeypatch.setenv(env_var, "http://127.0.0.1:9/from-env")
+    cfg = model_cfg("opus5_claude_code" if name == "claude" else "astra_codex")
+    launcher = launcher_cls({})
+    launcher.preflight(cfg)
+    assert launcher.base_url() == "http://127.0.0.1:9/from-env"
+    cfg["base_url"] = "http://127.0.0.1:9/from-config"
+    launcher.preflight(cfg)
+    assert launcher.base_url() == "http://127.0.0.1:9/from-config"
+    launcher.task_prompt, launcher._out = "TASK PROMPT", tmp_path
+    argv, env = launcher.command(served, tmp_path / "work"), launcher.env(served)
+    if launcher_cls is ClaudeCodeLauncher:
+        assert env["ANTHROPIC_BASE_URL"] == "http://127.0.0.1:9/from-config"
+    else:  # Codex 0.154 ignores OPENAI_BASE_URL: the launcher passes the URL as a config override
+        assert 'openai_base_url="http://127.0.0.1:9/from-config"' in argv
 
 
 def test_codex_command_line(tmp_path, monkeypatch, served):
     monkeypatch.setenv("PATH", f"{fake_cli(tmp_path, 'codex', 'codex-cli 0.154.0')}{os.pathsep}{os.environ['PATH']}")
     monkeypatch.setenv("OPENAI_API_KEY", "sk-test")
+    monkeypatch.delenv("OPENAI_BASE_URL", raising=False)
+    monkeypatch.delenv("CODEX_API_KEY", raising=False)
     launcher = CodexLauncher({})
     launcher.preflight(model_cfg("astra_codex"))
     launcher.task_prompt = "TASK PROMPT"
@@ -146,7 +177,9 @@ def test_codex_command_line(tmp_path, monkeypatch, served):
         "web_search": '"disabled"',
         "model_reasoning_effort": '"high"',
     }
-    assert launcher.env(served)[TOKEN_ENV] == served.token
+    env = launcher.env(served)
+    assert env[TOKEN_ENV] == served.token
+    assert env["CODEX_API_KEY"] == "sk-test"  # codex exec reads its key from CODEX_API_KEY only
 
 
 def test_usage_from_the_vendor_streams(tmp_path):
@@ -167,9 +200,10 @@ def test_usage_from_the_vendor_streams(tmp_path):
         {"type": "thread.started"},
         {"type": "turn.completed", "usage": {"input_tokens": 1000, "cached_input_tokens": 600, "output_tokens": 90,
                                              "reasoning_output_tokens": 40}},
-        {"type": "turn.completed", "usage": {"input_tokens": 2000, "cached_input_tokens": 1500, "output_tokens": 10}},
+        {"type": "turn.completed", "usage": {"input_tokens": 2000, "cached_input_tokens": 1500,
+                                             "cache_write_input_tokens": 200, "output_tokens": 10}},
     ]))
-    assert CodexLauncher({}).usage(codex) == {"complete": True, "input_tokens": 900, "output_tokens": 100,
-                                              "cache_read_tokens": 2100, "reasoning_tokens": 40, "usd": None,
-                                              "turns": 2}
+    assert CodexLauncher({}).usage(codex) == {"complete": True, "input_tokens": 700, "output_tokens": 100,
+                                              "cache_read_tokens": 2100, "cache_write_tokens": 200,
+                                              "reasoning_tokens": 40, "usd": None, "turns": 2}
     assert CodexLauncher({}).usage(tmp_path / "missing.jsonl") == {"complete": False}

@@ -1,11 +1,12 @@
 """Vendor harnesses: Claude Code and Codex CLI run headless as the agent of one attempt.
 
 The attempt is served over streamable HTTP on loopback (:class:`.harness.McpHarness`), and the
-vendor CLI is started as a child process pointed at it, with only the benchmark's tools allowed:
+vendor CLI is started as a child process pointed at it, with only the benchmark's tools allowed
+(paper, "Vendor harnesses"):
 
-- Claude Code: an MCP config file, ``--strict-mcp-config`` (no other MCP server), ``--allowedTools
-  mcp__cab`` and its built-in file, shell, web and delegation tools disallowed, no session
-  persistence (paper, "Vendor harnesses").
+- Claude Code: ``claude -p`` with an MCP config file, ``--strict-mcp-config`` (no other MCP
+  server), ``--allowedTools mcp__cab`` (the benchmark's tools run without asking), ``--tools
+  ToolSearch`` (every other built-in tool gone), no session persistence.
 - Codex CLI: ``codex exec`` with ``-c mcp_servers.cab.*`` overrides (user config ignored), a
   read-only sandbox, web search off, and start-up and tool time-outs above the longest motion.
 
@@ -16,7 +17,30 @@ the paper's "repository-free read-only containers"). The vendor's own stream (JS
 ``model_usage_total`` event the reference harness writes, so reports treat both alike.
 
 Vendor settings live in the model config under ``vendor:`` (conf/model/opus5_claude_code.yaml,
-conf/model/astra_codex.yaml); the pinned CLI version is checked before any simulator starts.
+conf/model/astra_codex.yaml); the pinned CLI version is checked before any simulator starts. The
+model API's address is ``model.base_url``, else the provider's variable (``ANTHROPIC_BASE_URL``,
+``OPENAI_BASE_URL``), else the CLI's default, as for the reference harness's providers.
+
+Verified with the real CLIs (tests/test_vendor_cli.py: a full attempt each, against a local model
+server speaking the provider's streaming wire format):
+
+- Claude Code 2.1.212: every flag above is accepted; the model sees exactly the 31 ``mcp__cab__*``
+  tools. The guessed deny list of built-ins left 13 (Cron*, Task*, Workflow, SendMessage,
+  EnterWorktree, ...), hence the allow list ``--tools``; ``--tools ""`` would also drop
+  ToolSearch, which Claude Code needs whenever it defers MCP tools (``ENABLE_TOOL_SEARCH``; the
+  paper's runs used it), leaving the model no tool at all. Tool results reach the model as text +
+  image blocks; ``result`` in the stream carries summed usage and Claude Code's own cost.
+- Codex CLI 0.154.0: the overrides and flags above are accepted. Two differences from the
+  documentation the launcher was first written from: the key must be in ``CODEX_API_KEY`` (with only
+  ``OPENAI_API_KEY`` set, requests go out without one), and ``OPENAI_BASE_URL`` is ignored (the
+  config key ``openai_base_url`` works). For gpt-6-astra Codex runs in code mode: the model's tools
+  are ``exec`` (JavaScript that calls nested tools), ``wait``, ``request_user_input[_async]``,
+  ``sleep`` and the multi-agent tools; the benchmark's tools are nested in ``exec`` as
+  ``tools.mcp__cab__<name>`` beside ``exec_command``, ``apply_patch``, ``view_image``, goals and MCP
+  resources, and are listed to the model only through ``ALL_TOOLS``. The request shows the
+  read-only sandbox (``sandbox_mode`` in the turn metadata, read-only filesystem permissions). It
+  tries the Responses API over WebSocket first and falls back to HTTP streaming. Usage comes from
+  ``turn.completed`` (summed over the turn's requests), without cost.
 """
 from __future__ import annotations
 
@@ -38,10 +62,14 @@ USAGE = "vendor_usage.json"
 STDERR = "vendor_stderr.log"
 TOKEN_ENV = "CAB_MCP_TOKEN"
 
-# Claude Code's built-in tools that the evaluation disables (file, shell, web, delegation).
-CLAUDE_BUILTINS = ("Bash", "BashOutput", "KillShell", "Edit", "MultiEdit", "Write", "Read", "Glob", "Grep", "LS",
-                   "NotebookEdit", "NotebookRead", "WebFetch", "WebSearch", "Task", "Agent", "TodoWrite",
-                   "ExitPlanMode", "SlashCommand", "Skill")
+# The only Claude Code built-in tool kept (``--tools``): it loads tool definitions when Claude Code
+# defers them (paper, "Vendor harnesses"); every file, shell, web, delegation, task and scheduling
+# tool is left out. A deny list misses the built-ins it does not name (2.1.212 also has Cron*,
+# Workflow, SendMessage, ...), and ``--tools ""`` leaves deferred MCP tools unreachable.
+CLAUDE_TOOLS = ("ToolSearch",)
+# Claude Code settings (environment) for a reproducible headless run: no update in the middle of
+# a sweep, no telemetry, error reporting or other traffic beside the model's requests.
+CLAUDE_ENV = {"DISABLE_AUTOUPDATER": "1", "CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC": "1"}
 
 
 class VendorLauncher(McpHarness):
@@ -51,6 +79,7 @@ class VendorLauncher(McpHarness):
     default_command = ""
     install_hint = ""
     default_api_key_env: str | None = None
+    base_url_env: str | None = None
 
     def __init__(self, cfg: dict | None = None):
         cfg = dict(cfg or {})
@@ -102,6 +131,11 @@ class VendorLauncher(McpHarness):
         if key and not os.environ.get(key):
             raise ConfigError(f"{self.vendor} needs the environment variable {key} (model.vendor.api_key_env)")
         self.model_cfg = model_cfg
+
+    def base_url(self) -> str | None:
+        """The model API's base URL: ``model.base_url``, else the provider's environment variable,
+        else None (the CLI's default endpoint); the reference harness's providers read the same."""
+        return self.model_cfg.get("base_url") or (os.environ.get(self.base_url_env) if self.base_url_env else None)
 
     # -- the vendor process -------------------------------------------------------------------
     def command(self, transport: HttpServerThread, workdir: Path) -> list[str]:  # pragma: no cover - abstract
@@ -201,6 +235,7 @@ class ClaudeCodeLauncher(VendorLauncher):
     default_command = "claude"
     install_hint = "npm install -g @anthropic-ai/claude-code@2.1.212"
     default_api_key_env = "ANTHROPIC_API_KEY"
+    base_url_env = "ANTHROPIC_BASE_URL"
 
     def command(self, transport: HttpServerThread, workdir: Path) -> list[str]:
         headers = {"Authorization": f"Bearer {transport.token}"} if transport.token else {}
@@ -213,7 +248,7 @@ class ClaudeCodeLauncher(VendorLauncher):
         argv = [shutil.which(v["command"]) or v["command"], "-p", self.task_prompt,
                 "--output-format", "stream-json", "--verbose",
                 "--mcp-config", str(path), "--strict-mcp-config",
-                "--allowedTools", "mcp__cab", "--disallowedTools", ",".join(CLAUDE_BUILTINS),
+                "--allowedTools", "mcp__cab", "--tools", ",".join(CLAUDE_TOOLS),
                 "--no-session-persistence"]
         if self.model_cfg.get("model_id"):
             argv += ["--model", str(self.model_cfg["model_id"])]
@@ -223,6 +258,10 @@ class ClaudeCodeLauncher(VendorLauncher):
 
     def env(self, transport: HttpServerThread) -> dict[str, str]:
         env = super().env(transport)
+        for k, val in CLAUDE_ENV.items():
+            env.setdefault(k, val)
+        if self.base_url():
+            env["ANTHROPIC_BASE_URL"] = self.base_url()
         # MCP start-up and per-call time-outs, in milliseconds, above the longest motion
         env.setdefault("MCP_TIMEOUT", str(int(float(self.vcfg["startup_timeout_s"]) * 1000)))
         env.setdefault("MCP_TOOL_TIMEOUT", str(int(float(self.vcfg["tool_timeout_s"]) * 1000)))
@@ -250,6 +289,7 @@ class CodexLauncher(VendorLauncher):
     default_command = "codex"
     install_hint = "npm install -g @openai/codex@0.154.0"
     default_api_key_env = "OPENAI_API_KEY"
+    base_url_env = "OPENAI_BASE_URL"
 
     def command(self, transport: HttpServerThread, workdir: Path) -> list[str]:
         v = self.vcfg
@@ -263,6 +303,9 @@ class CodexLauncher(VendorLauncher):
             cfg["mcp_servers.cab.bearer_token_env_var"] = json.dumps(TOKEN_ENV)
         if self.model_cfg.get("reasoning_effort"):
             cfg["model_reasoning_effort"] = json.dumps(str(self.model_cfg["reasoning_effort"]))
+        base_url = self.base_url()
+        if base_url:
+            cfg["openai_base_url"] = json.dumps(base_url)
         argv = [shutil.which(v["command"]) or v["command"], "exec", "--json", "--skip-git-repo-check",
                 "--ignore-user-config", "--sandbox", "read-only", "--cd", str(workdir)]
         if self.model_cfg.get("model_id"):
@@ -271,17 +314,29 @@ class CodexLauncher(VendorLauncher):
             argv += ["-c", f"{k}={val}"]
         return argv + list(v["extra_args"]) + [self.task_prompt]
 
+    def env(self, transport: HttpServerThread) -> dict[str, str]:
+        """``codex exec`` takes its API key from ``CODEX_API_KEY`` (0.154.0 sends no key taken from
+        ``OPENAI_API_KEY``): the configured key variable is handed over under that name."""
+        env = super().env(transport)
+        key = self.vcfg.get("api_key_env")
+        if key and os.environ.get(key):
+            env["CODEX_API_KEY"] = os.environ[key]
+        return env
+
     def usage(self, transcript: Path) -> dict:
         """Summed over the stream's ``turn.completed`` events."""
         turns = [e for e in self.events(transcript) if e.get("type") == "turn.completed"]
         if not turns:
             return {"complete": False}
-        tot = {"input_tokens": 0, "output_tokens": 0, "cache_read_tokens": 0, "reasoning_tokens": 0}
+        tot = {"input_tokens": 0, "output_tokens": 0, "cache_read_tokens": 0, "cache_write_tokens": 0,
+               "reasoning_tokens": 0}
         for e in turns:
             u = e.get("usage") or {}
             cached = int(u.get("cached_input_tokens") or 0)
-            tot["input_tokens"] += int(u.get("input_tokens") or 0) - cached
+            written = int(u.get("cache_write_input_tokens") or 0)
+            tot["input_tokens"] += int(u.get("input_tokens") or 0) - cached - written
             tot["cache_read_tokens"] += cached
+            tot["cache_write_tokens"] += written
             tot["output_tokens"] += int(u.get("output_tokens") or 0)
             tot["reasoning_tokens"] += int(u.get("reasoning_output_tokens") or 0)
         return {"complete": True, **tot, "usd": None, "turns": len(turns)}
