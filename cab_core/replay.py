@@ -16,6 +16,7 @@ with ``replay.json`` holding the validation. Analysis never counts an attempt ne
 from __future__ import annotations
 
 import json
+import os
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -37,7 +38,7 @@ MAX_LISTED = 25
 class Validation:
     """The outcome of comparing a replay's records with the original's."""
     attempt: str
-    replay_dir: str
+    replay_dir: str  # relative to the attempt directory: records name no machine path
     valid: bool = True
     mismatches: list[str] = field(default_factory=list)
     mismatch_count: int = 0
@@ -167,7 +168,7 @@ def compare_snapshots(v: Validation, orig: list[dict], new: list[dict], tol: flo
 
 def validate(original: Attempt, replayed: Attempt, tol: float = TOLERANCE_M) -> Validation:
     """Compare two attempts' records (the original first)."""
-    v = Validation(original.rel, str(replayed.dir))
+    v = Validation(original.rel, os.path.relpath(replayed.dir, original.dir).replace(os.sep, "/"))
     compare_calls(v, original.events, replayed.events)
     compare_snapshots(v, original.snapshots, replayed.snapshots, tol)
     ta, tb = original.result["termination"]["reason"], replayed.result["termination"]["reason"]
@@ -245,5 +246,5 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  {m}")
     if v.mismatch_count > len(v.mismatches):
         print(f"  ... and {v.mismatch_count - len(v.mismatches)} more")
-    print(f"cab-replay: records and replay.json in {v.replay_dir}")
+    print(f"cab-replay: records and replay.json in {Path(a.dir) / v.replay_dir}")
     sys.exit(0 if v.valid else 1)

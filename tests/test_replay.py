@@ -39,7 +39,8 @@ def test_oracle_replay_validates(oracle, replayed):
     assert v.max_tcp_error_m <= rp.TOLERANCE_M and v.max_object_error_m <= rp.TOLERANCE_M
     assert v.original_success is True and v.replay_success is True
     out = oracle / "replay"
-    assert json.loads((out / "replay.json").read_text())["valid"] is True
+    saved = json.loads((out / "replay.json").read_text())
+    assert saved["valid"] is True and saved["replay_dir"] == "replay" and saved["attempt"] == "attempt"
     # the replay's records are nested in the attempt: no analysis counts them as another attempt
     assert [a.rel for a in scan(oracle.parent).attempts] == ["attempt"]
 
