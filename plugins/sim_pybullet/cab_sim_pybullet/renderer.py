@@ -83,7 +83,10 @@ def display_color(rgba) -> list[float]:
 def view_matrix(camera_pose_cv) -> list[float]:
     """PyBullet view matrix (column-major 16 floats) of a camera with an OpenCV-axes world pose."""
     world_from_gl = pose_to_mat(camera_pose_cv) @ _GL_FROM_CV
-    return np.linalg.inv(world_from_gl).T.reshape(-1).tolist()
+    view = np.eye(4)  # the rigid inverse: R^T, -R^T t
+    view[:3, :3] = world_from_gl[:3, :3].T
+    view[:3, 3] = -view[:3, :3] @ world_from_gl[:3, 3]
+    return view.T.reshape(-1).tolist()
 
 
 def projection_matrix(K: np.ndarray, width: int, height: int, near: float, far: float) -> list[float]:

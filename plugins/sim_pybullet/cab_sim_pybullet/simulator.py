@@ -74,6 +74,15 @@ PHYSICS_DEFAULTS: dict[str, float] = {
     # step, the massless limit of the PhysX drive force stiffness * error + damping * (v_t - v).
     # This factor scales the stiffness / damping ratio.
     "drive_rate_scale": 1.0,
+    # Rolling resistance (m: the lever arm of the resisting torque per newton of normal force), on
+    # every surface. PhysX's exact cylinders rest on a contact patch; Bullet's rest on a line whose
+    # contact noise sets a free cylinder rolling by itself within seconds (measured: a roller on a
+    # table drifts 0.1 m in 4 s with none, stays put with 0.0005).
+    "rolling_friction_m": 0.001,
+    # Torsional friction (m: resisting torque per newton of normal force about the contact
+    # normal), on every surface. PhysX's friction patches resist twisting over their area; a
+    # Bullet contact point does not. About (2/3) mu r of a patch of radius r ~ 1 cm.
+    "spinning_friction_m": 0.003,
     # Diffuse and specular coefficients of TinyRenderer's light (the ambient one comes from the scene).
     "light_diffuse": 0.6,
     "light_specular": 0.0,
@@ -147,6 +156,10 @@ class _MultiBody:
     com_local: np.ndarray  # pose of the base's centre-of-mass frame in the base link frame
     joints: list[int] = field(default_factory=list)  # movable joints, URDF order
     links: dict[str, int] = field(default_factory=dict)  # link name -> link index (-1: base)
+    com_inv: np.ndarray = field(init=False)  # pose of the base link frame in the com frame
+
+    def __post_init__(self):
+        self.com_inv = pose_inv(self.com_local)
 
 
 @dataclass
@@ -267,6 +280,8 @@ class PybulletSimulator(Simulator):
 
     def _set_material(self, uid: int, link: int, m: Material) -> None:
         self._c.changeDynamics(uid, link, lateralFriction=_bullet_friction(m),
+                               rollingFriction=self._physics["rolling_friction_m"],
+                               spinningFriction=self._physics["spinning_friction_m"],
                                restitution=math.sqrt(max(0.0, float(m.restitution))))
 
     # -- bodies -------------------------------------------------------------------------------
@@ -575,7 +590,7 @@ class PybulletSimulator(Simulator):
         c = self._c
         if index == -1:
             pos, orn = c.getBasePositionAndOrientation(mb.uid)
-            return pose_mul(_pose_from_bullet(pos, orn), pose_inv(mb.com_local))
+            return pose_mul(_pose_from_bullet(pos, orn), mb.com_inv)
         s = c.getLinkState(mb.uid, index, computeForwardKinematics=1)
         return _pose_from_bullet(s[4], s[5])
 
