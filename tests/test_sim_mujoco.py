@@ -286,3 +286,16 @@ def test_an_operator_set_mujoco_gl_is_used_or_diagnosed(backend):
         assert f"RENDERED {backend} MUJOCO_GL True" in out, out
     else:
         assert "UNAVAILABLE" in out and f"MUJOCO_GL={backend} was set" in out, out
+
+
+def test_malformed_urdf_is_a_bad_command(tmp_path):
+    from cab_core.scene import ArticulatedObject
+
+    bad = tmp_path / "bad.urdf"
+    bad.write_text('<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="revolute">'
+                   '<parent link="a"/><child link="b"/><limit lower="zero" upper="1"/></joint></robot>')
+    for text in (bad.read_text(), "<robot", '<robot name="x"><link name="a"/><link name="b"/></robot>'):
+        bad.write_text(text)
+        scene = SceneSpec(articulations=[ArticulatedObject("thing", str(bad))])
+        with pytest.raises(BadCommand, match="URDF"):
+            MujocoSimulator({"render": False}).build(scene, sc.make_embodiment())

@@ -118,13 +118,17 @@ def _origin(el) -> tuple[float, ...]:
 
 
 def _parse_urdf(path: str):
-    """(links {name: element}, joints [_UrdfJoint], root link, named colours)."""
+    """(links {name: element}, joints [_UrdfJoint], root link, named colours); BadCommand for a
+    missing or malformed file."""
     if not os.path.isfile(path):
         raise BadCommand(f"URDF not found: {path}")
     try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as e:
-        raise BadCommand(f"cannot parse URDF {path}: {e}") from None
+        return _read_urdf(ET.parse(path).getroot(), path)
+    except (ET.ParseError, ValueError, AttributeError, TypeError) as e:
+        raise BadCommand(f"cannot read URDF {path}: {type(e).__name__}: {e}") from None
+
+
+def _read_urdf(root, path: str):
     colours = {}
     for m in root.findall("material"):
         c = m.find("color")
