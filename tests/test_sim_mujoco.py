@@ -299,3 +299,28 @@ def test_malformed_urdf_is_a_bad_command(tmp_path):
         scene = SceneSpec(articulations=[ArticulatedObject("thing", str(bad))])
         with pytest.raises(BadCommand, match="URDF"):
             MujocoSimulator({"render": False}).build(scene, sc.make_embodiment())
+
+
+def test_object_velocity_is_the_centre_of_mass_velocity():
+    """A body whose centre of mass is off its origin, spinning freely: the reported linear
+    velocity is the (constant) velocity of its centre of mass, which a finite difference of
+    the centre's position confirms."""
+    from cab_core.geometry import transform_point
+    from cab_core.scene import Box
+
+    body = Body("bar", [Shape(Box((0.1, 0.02, 0.02)), pose=(0.2, 0, 0, 1, 0, 0, 0))], pose=(0, 0, 1, 1, 0, 0, 0),
+                angular_damping=0.0)
+    sim = MujocoSimulator({"render": False})
+    sim.build(SceneSpec(bodies=[body], gravity=(0.0, 0.0, 0.0)), sc.make_embodiment())
+    try:
+        t = sim._things["bar"]
+        sim._data.qvel[t.dadr:t.dadr + 6] = [0.0, 0.0, 0.0, 0.0, 0.0, 3.0]  # origin at rest, spinning
+        com = lambda: transform_point(sim.get_object_pose("bar"), (0.2, 0, 0))  # noqa: E731
+        c0 = com()
+        v0 = sim.get_object_velocity("bar")
+        sim.step(1)
+        # one step's chord of the centre's path (it turns by w^2 r dt / 2 = 0.004 m/s within it)
+        np.testing.assert_allclose(v0[:3], (com() - c0) / sim.timestep, atol=0.005)
+        np.testing.assert_allclose(v0, [0.0, 0.6, 0.0, 0.0, 0.0, 3.0], atol=1e-9)  # w x r, r = 0.2 m
+    finally:
+        sim.close()

@@ -362,15 +362,17 @@ class MujocoSimulator(Simulator):
         self._touched()
 
     def get_object_velocity(self, name: str) -> np.ndarray:
-        """[v, w] in the world frame: the velocity of the body's origin and its angular velocity
-        (MuJoCo's free joint holds the angular part in the body frame)."""
+        """[v, w] in the world frame: the velocity of the centre of mass (as PhysX and Bullet
+        report it) and the angular velocity. MuJoCo's free joint holds the velocity of the body's
+        origin, and the angular part in the body frame; both are converted."""
         t = self._thing(name)
         if t.dadr < 0:
             return np.zeros(6)
         d = self._data
         v = d.qvel[t.dadr:t.dadr + 6]
-        w = quat_to_mat(d.qpos[t.qadr + 3:t.qadr + 7]) @ v[3:]
-        return np.concatenate([v[:3], w])
+        r = quat_to_mat(d.qpos[t.qadr + 3:t.qadr + 7])
+        w = r @ v[3:]
+        return np.concatenate([v[:3] + np.cross(w, r @ self._model.body_ipos[t.body]), w])
 
     def get_object_qpos(self, name: str) -> np.ndarray:
         t = self._thing(name)
