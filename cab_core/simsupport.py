@@ -1,17 +1,19 @@
 """Validation and start-up rules that every simulator backend applies alike, written once.
 
 The :class:`cab_core.simulator.Simulator` contract says what a bad command raises, which object
-names a scene may use and where the robot starts; backends import these helpers instead of each
+names a scene may use, where the robot starts and what a snapshot must refuse; backends import these helpers instead of each
 restating the rules (and drifting apart). Nothing here imports a simulator.
 """
 from __future__ import annotations
+
+import json
 
 import numpy as np
 
 from .embodiment import EmbodimentSpec
 from .errors import BadCommand
 from .scene import SceneSpec, as_pose
-from .simulator import ROBOT
+from .simulator import ROBOT, Contact, SimState
 
 
 def pose_or_bad(pose) -> tuple[float, ...]:
@@ -60,3 +62,34 @@ def start_joint_values(emb: EmbodimentSpec) -> dict[str, float]:
             raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for {len(arm.joints)} joints")
         out.update(zip(list(arm.joints) + list(arm.gripper.joints), (float(v) for v in values)))
     return out
+
+
+def pack_state(backend: str, layout: str, arrays: dict[str, np.ndarray], contacts: list[Contact]) -> SimState:
+    """A snapshot as an ``.npz`` archive (no pickle): the backend's arrays, its world ``layout``
+    (checked on restore) and the last step's contacts."""
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, layout=np.array(layout), contacts=np.array(json.dumps([[c.a, c.b, c.impulse, c.point]
+                                                                          for c in contacts])), **arrays)
+    return SimState(backend=backend, data=buf.getvalue())
+
+
+def unpack_state(state, backend: str, layout: str) -> tuple[dict[str, np.ndarray], list[Contact]]:
+    """The arrays and contacts of a :func:`pack_state` snapshot; BadCommand if it is not this
+    backend's, cannot be decoded, or was saved from a different world ``layout``."""
+    import io
+
+    if not isinstance(state, SimState) or state.backend != backend:
+        raise BadCommand(f"not a {backend} state: {getattr(state, 'backend', type(state).__name__)!r}")
+    try:
+        with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+        saved_layout = str(d.pop("layout"))
+        contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
+                    for a, b, imp, pt in json.loads(str(d.pop("contacts")))]
+    except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
+        raise BadCommand(f"corrupt {backend} state: {e}") from None
+    if saved_layout != layout:
+        raise BadCommand("the state was saved from a different scene or robot")
+    return d, contacts

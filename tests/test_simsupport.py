@@ -38,3 +38,21 @@ def test_malformed_values_are_bad_commands():
             vector_or_bad(bad, 2, "x")
     with pytest.raises(BadCommand):
         pose_or_bad([0, 0, 1, 0, 0, 0, 0])
+
+
+def test_snapshot_pack_round_trip_and_refusals():
+    from cab_core.simsupport import pack_state, unpack_state
+    from cab_core.simulator import Contact, SimState
+
+    arrays = {"qpos": np.array([0.1, -0.2]), "steps": np.array(7, np.int64)}
+    contacts = [Contact("cube", "table", 0.004, (0.1, 0.2, 0.74)), Contact("ground", "robot/link1", 0.5)]
+    state = pack_state("toy", "layout-1", arrays, contacts)
+    d, c = unpack_state(state, "toy", "layout-1")
+    assert sorted(d) == ["qpos", "steps"] and np.array_equal(d["qpos"], arrays["qpos"]) and int(d["steps"]) == 7
+    assert c == contacts
+    for bad, match in ((SimState("other", state.data), "not a toy state"), (SimState("toy", b"garbage"), "corrupt"),
+                       (object(), "not a toy state")):
+        with pytest.raises(BadCommand, match=match):
+            unpack_state(bad, "toy", "layout-1")
+    with pytest.raises(BadCommand, match="different scene"):
+        unpack_state(state, "toy", "layout-2")

@@ -35,7 +35,6 @@ restore costs a rebuild (tens of milliseconds for an aloha scene).
 from __future__ import annotations
 
 import importlib.metadata
-import io
 import json
 import logging
 import math
@@ -49,8 +48,9 @@ from pybullet_utils.bullet_client import BulletClient
 from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
-from cab_core.scene import (Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere,
-                            as_pose)
+from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
+from cab_core.simsupport import (check_object_names, pack_state, pose_or_bad, start_joint_values, unpack_state,
+                                vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import massprops
@@ -100,25 +100,6 @@ def _pose_from_bullet(pos, orn) -> np.ndarray:
     return np.array([pos[0], pos[1], pos[2], orn[3], orn[0], orn[1], orn[2]], dtype=float)
 
 
-def _pose_or_bad(pose) -> tuple[float, ...]:
-    try:
-        return as_pose(pose)
-    except (ValueError, TypeError) as e:
-        raise BadCommand(str(e)) from None
-
-
-def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
-    try:
-        a = np.asarray(values, dtype=np.float64)
-    except (ValueError, TypeError) as e:
-        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
-    if a.shape != (n,):
-        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
-    return a
-
-
 def _bullet_friction(m: Material) -> float:
     return math.sqrt(max(0.0, 0.5 * (float(m.static_friction) + float(m.dynamic_friction))))
 
@@ -141,7 +122,7 @@ def _split_capsules(shapes: list) -> list:
         if not isinstance(g, Capsule):
             out.append(s)
             continue
-        pose = _pose_or_bad(s.pose)
+        pose = pose_or_bad(s.pose)
         out.append(replace(s, geometry=Cylinder(g.radius, g.half_length)))
         for end in (-g.half_length, g.half_length):
             out.append(replace(s, geometry=Sphere(g.radius), pose=tuple(pose_mul(pose, (end, 0, 0, 1, 0, 0, 0)))))
@@ -222,7 +203,7 @@ class PybulletSimulator(Simulator):
             raise SimulatorError("build() is called once per simulator")
         self._timestep = self._timestep_override or float(scene.timestep)
         self._scene_spec, self._emb = scene, embodiment
-        self._validate_names(scene)
+        check_object_names(scene)
         self._c = BulletClient(connection_mode=pybullet.DIRECT)
         try:
             self._egl_plugin = None
@@ -234,15 +215,6 @@ class PybulletSimulator(Simulator):
             raise
         self._steps = 0
         self._contacts: list[Contact] | None = []
-
-    @staticmethod
-    def _validate_names(scene: SceneSpec) -> None:
-        seen: set[str] = set()
-        for name in scene.names():
-            if not name or "/" in name or name in (ROBOT, "ground") or name in seen:
-                raise BadCommand(f"invalid or duplicate object name {name!r} (names are unique, "
-                                 f"non-empty, without '/', and not 'robot' or 'ground')")
-            seen.add(name)
 
     def _build_world(self) -> None:
         """(Re)create everything in the client, in a fixed order (a rebuild gives the same ids)."""
@@ -296,7 +268,7 @@ class PybulletSimulator(Simulator):
             out["rgbaColors"] = []
         for s in shapes:
             g = s.geometry
-            pose = _pose_or_bad(s.pose)
+            pose = pose_or_bad(s.pose)
             kind, half, radius, length, fname, scale, flags = pybullet.GEOM_BOX, [0.0] * 3, 0.0, 0.0, "", [1.0] * 3, 0
             if isinstance(g, Box):
                 half = [float(h) for h in g.half_size]
@@ -336,7 +308,7 @@ class PybulletSimulator(Simulator):
             for sh in shapes:
                 try:
                     parts.append(massprops.transformed(massprops.shape_props(sh.geometry, float(body.density)),
-                                                       _pose_or_bad(sh.pose)))
+                                                       pose_or_bad(sh.pose)))
                 except ValueError as e:
                     raise BadCommand(f"body {body.name!r}: {e}") from None
             props.append(massprops.combine(parts) if parts else None)
@@ -381,7 +353,7 @@ class PybulletSimulator(Simulator):
             masses.append(p.mass)
             frames.append(np.concatenate([p.com, mat_to_quat(axes)]))
             moments.append(m)
-        pose = _pose_or_bad(body.pose)
+        pose = pose_or_bad(body.pose)
         links = n - 1
         uid = c.createMultiBody(
             masses[0], cols[0], viss[0], list(pose[:3]), _xyzw(pose[3:]),
@@ -412,7 +384,7 @@ class PybulletSimulator(Simulator):
         if not os.path.isfile(urdf):
             raise BadCommand(f"URDF not found: {urdf}")
         c = self._c
-        p = _pose_or_bad(pose)
+        p = pose_or_bad(pose)
         try:
             uid = c.loadURDF(urdf, list(p[:3]), _xyzw(p[3:]), useFixedBase=bool(fix_root),
                              flags=flags | pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_MAINTAIN_LINK_ORDER)
@@ -451,7 +423,7 @@ class PybulletSimulator(Simulator):
             if obj.joint_damping > 0:
                 c.changeDynamics(mb.uid, j, jointDamping=float(obj.joint_damping))
         if obj.qpos is not None:
-            q = _vector_or_bad(obj.qpos, len(mb.joints), f"initial qpos of {obj.name!r}")
+            q = vector_or_bad(obj.qpos, len(mb.joints), f"initial qpos of {obj.name!r}")
             for j, v in zip(mb.joints, q.tolist()):
                 c.resetJointState(mb.uid, j, v, 0.0)
         for link, index in mb.links.items():
@@ -482,7 +454,8 @@ class PybulletSimulator(Simulator):
             effort = float(c.getJointInfo(mb.uid, j)[10])
             self._force.append(self._physics["gripper_force_n"] if n in gripper
                                else (effort if effort > 0 else self._physics["arm_force_nm"]))
-        start = self._home(emb, order)
+        home = start_joint_values(emb)
+        start = np.array([home[n] for n in order])
         for j, v in zip(self._drive_idx, start.tolist()):
             c.resetJointState(mb.uid, j, v, 0.0)
         # movable joints outside joint_order (none in a well-formed embodiment) hold their start
@@ -496,23 +469,6 @@ class PybulletSimulator(Simulator):
         self._targets = np.zeros(len(order))
         self._vtargets = np.zeros(len(order))
         self._apply_targets(start)
-
-    @staticmethod
-    def _home(emb: EmbodimentSpec, order: list[str]) -> np.ndarray:
-        start = np.zeros(len(order))
-        pos = {n: i for i, n in enumerate(order)}
-        for arm in emb.arms.values():
-            home = tuple(arm.home_qpos)
-            if len(home) == len(arm.joints):
-                values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
-            elif len(home) == len(arm.joints) + len(arm.gripper.joints):
-                values = list(home)
-            else:
-                raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for "
-                                 f"{len(arm.joints)} joints")
-            for n, v in zip(list(arm.joints) + list(arm.gripper.joints), values):
-                start[pos[n]] = v
-        return start
 
     def _filter_self_collisions(self, emb: EmbodimentSpec) -> None:
         """Links of one arm never collide with each other nor with the robot's body; the two arms
@@ -551,7 +507,7 @@ class PybulletSimulator(Simulator):
                     raise BadCommand(f"camera {spec.name!r}: mount link {spec.mount_link!r} is not a robot link")
             K = intrinsics(int(spec.width), int(spec.height), float(spec.fovy_deg))
             proj = _renderer.projection_matrix(K, int(spec.width), int(spec.height), float(spec.near), float(spec.far))
-            self._cameras[spec.name] = _Camera(spec, K, mount, np.asarray(_pose_or_bad(spec.pose)), proj)
+            self._cameras[spec.name] = _Camera(spec, K, mount, np.asarray(pose_or_bad(spec.pose)), proj)
 
     def close(self) -> None:
         """Disconnect the physics client. Idempotent."""
@@ -613,15 +569,15 @@ class PybulletSimulator(Simulator):
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         c = self._live()
-        q = _vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        q = vector_or_bad(qpos, len(self._joint_names), "robot qpos")
         for j, v in zip(self._drive_idx, q.tolist()):
             c.resetJointState(self._robot.uid, j, v, 0.0)
         self._apply_targets(q)
 
     def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        t = _vector_or_bad(targets, len(self._joint_names), "drive targets")
-        v = None if velocities is None else _vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
+        t = vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
         self._apply_targets(t, v)
 
     def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
@@ -665,7 +621,7 @@ class PybulletSimulator(Simulator):
     def set_object_pose(self, name: str, pose) -> None:
         """Teleport a body (or an articulated object's root) and zero its velocity."""
         mb = self._object(name)
-        p = pose_mul(_pose_or_bad(pose), mb.com_local)
+        p = pose_mul(pose_or_bad(pose), mb.com_local)
         c = self._c
         c.resetBasePositionAndOrientation(mb.uid, p[:3].tolist(), _xyzw(p[3:]))
         c.resetBaseVelocity(mb.uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
@@ -688,7 +644,7 @@ class PybulletSimulator(Simulator):
         mb = self._object(name)
         if mb.kind != "articulation":
             raise BadCommand(f"{name!r} is a rigid body; it has no joints")
-        q = _vector_or_bad(qpos, len(mb.joints), f"qpos of {name!r}")
+        q = vector_or_bad(qpos, len(mb.joints), f"qpos of {name!r}")
         for j, v in zip(mb.joints, q.tolist()):
             self._c.resetJointState(mb.uid, j, v, 0.0)
 
@@ -798,31 +754,19 @@ class PybulletSimulator(Simulator):
             for s in (c.getJointStates(mb.uid, mb.joints) if mb.joints else []):
                 q.append(s[0])
                 qd.append(s[1])
-        contacts = json.dumps([[x.a, x.b, x.impulse, x.point] for x in self.get_contacts()])
-        d = dict(layout=np.array(self._layout()), base=base, qpos=np.array(q, float), qvel=np.array(qd, float),
-                 targets=self._targets.copy(), vtargets=self._vtargets.copy(),
-                 steps=np.array(self._steps, np.int64), contacts=np.array(contacts))
-        self._rebuild_with(d)
-        buf = io.BytesIO()
-        np.savez(buf, **d)
-        return SimState(backend=BACKEND, data=buf.getvalue())
+        d = dict(base=base, qpos=np.array(q, float), qvel=np.array(qd, float), targets=self._targets.copy(),
+                 vtargets=self._vtargets.copy(), steps=np.array(self._steps, np.int64))
+        contacts = self.get_contacts()
+        self._rebuild_with(d, contacts)
+        return pack_state(BACKEND, self._layout(), d, contacts)
 
     def restore_state(self, state: SimState) -> None:
         """Restore a snapshot of this world (or of another build of the same scene and robot)."""
         self._live()
-        if not isinstance(state, SimState) or state.backend != BACKEND:
-            raise BadCommand(f"not a {BACKEND} state: {getattr(state, 'backend', type(state).__name__)!r}")
-        try:
-            with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-            layout = str(d["layout"])
-        except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
-            raise BadCommand(f"corrupt {BACKEND} state: {e}") from None
-        if layout != self._layout():
-            raise BadCommand("the state was saved from a different scene or robot")
-        self._rebuild_with(d)
+        d, contacts = unpack_state(state, BACKEND, self._layout())
+        self._rebuild_with(d, contacts)
 
-    def _rebuild_with(self, d: dict) -> None:
+    def _rebuild_with(self, d: dict, contacts: list[Contact]) -> None:
         """Rebuild the world from its description (fresh contact caches), then write ``d``."""
         self._build_world()
         c = self._c
@@ -836,8 +780,7 @@ class PybulletSimulator(Simulator):
                 k += 1
         self._apply_targets(np.asarray(d["targets"], float), np.asarray(d["vtargets"], float))
         self._steps = int(d["steps"])
-        self._contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
-                          for a, b, imp, pt in json.loads(str(d["contacts"]))]
+        self._contacts = list(contacts)
 
     # -- provenance ---------------------------------------------------------------------------
     def versions(self) -> dict[str, str]:
