@@ -151,12 +151,33 @@ class MujocoSimulator(Simulator):
             self.close()
             raise
 
+    def _id(self, kind, name: str) -> int:
+        return mujoco.mj_name2id(self._model, kind, name)
+
     def _index(self, plan: Plan, scene: SceneSpec, emb: EmbodimentSpec) -> None:
+        """Impose masses and damping, find every part of the plan in the compiled model, set the
+        start state; then derive everything else (``mj_forward``)."""
         m, d = self._model, self._data
-        body = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
-        joint = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)  # noqa: E731
+        self._impose_mass_and_damping(plan)
+        self._index_objects(plan, scene)
+        self._index_robot(plan, emb)
+        # contact attribution: body id -> reported name (the world's only geom is the ground)
+        self._body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(m.nbody)]
+        self._body_names[0] = "ground"
+        self._cameras = plan.cameras
+        self._camera_ids = {c: self._id(mujoco.mjtObj.mjOBJ_CAMERA, c) for c in plan.cameras}
+        self._camera_bodies = {c: self._id(mujoco.mjtObj.mjOBJ_BODY, cam.body)
+                               for c, cam in plan.cameras.items() if cam.body is not None}
+        self._steps = 0
+        self._contacts: list[Contact] | None = []
+        mujoco.mj_forward(m, d)
+        self._kinematics_current = True
+
+    def _impose_mass_and_damping(self, plan: Plan) -> None:
+        m, d = self._model, self._data
+        body = mujoco.mjtObj.mjOBJ_BODY
         for name, mass in plan.masses.items():
-            b = body(name)
+            b = self._id(body, name)
             if m.body_mass[b] > 0:
                 m.body_inertia[b] *= mass / m.body_mass[b]
             m.body_mass[b] = mass
@@ -164,47 +185,51 @@ class MujocoSimulator(Simulator):
         for name, (linear, angular) in plan.damping.items():
             # PhysX's body damping scales velocity by 1 / (1 + dt c) each step; MuJoCo's implicit
             # joint damping D does the same when D = c x mass (and c x inertia for rotation)
-            b, dof = body(name), int(m.jnt_dofadr[joint(name)])
+            b, dof = self._id(body, name), int(m.jnt_dofadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, name)])
             m.dof_damping[dof:dof + 3] = linear * m.body_mass[b]
             m.dof_damping[dof + 3:dof + 6] = angular * float(np.mean(m.body_inertia[b]))
+
+    def _index_objects(self, plan: Plan, scene: SceneSpec) -> None:
+        m, d = self._model, self._data
+        body = lambda n: self._id(mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
+        joint = lambda n: self._id(mujoco.mjtObj.mjOBJ_JOINT, n)  # noqa: E731
         self._things: dict[str, _Thing] = {}
         for name, kind in plan.bodies.items():
-            b = body(name)
-            t = _Thing(kind, b)
+            t = _Thing(kind, body(name))
             if kind == "dynamic":
                 j = joint(name)
                 t.qadr, t.dadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
             else:
-                t.mocap = int(m.body_mocapid[b])
+                t.mocap = int(m.body_mocapid[t.body])
             self._things[name] = t
+        initial = {o.name: o.qpos for o in scene.articulations}
         for name, art in plan.articulations.items():
-            root = body(art.root)
-            t = _Thing("articulation", root, links={l: body(n) for l, n in art.links.items()})
+            t = _Thing("articulation", body(art.root), links={l: body(n) for l, n in art.links.items()})
             if art.fixed:
-                t.mocap = int(m.body_mocapid[root])
+                t.mocap = int(m.body_mocapid[t.body])
             else:
                 j = joint(f"{name}/root")
                 t.qadr, t.dadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
             ids = [joint(n) for n in art.joints]
             t.jq = np.array([m.jnt_qposadr[j] for j in ids], dtype=np.int64)
             t.jd = np.array([m.jnt_dofadr[j] for j in ids], dtype=np.int64)
+            if initial[name] is not None:
+                d.qpos[t.jq] = vector_or_bad(initial[name], len(t.jq), f"initial qpos of {name!r}")
             self._things[name] = t
-        obj_by_name = {o.name: o for o in scene.articulations}
-        for name, t in self._things.items():
-            if t.kind == "articulation" and obj_by_name[name].qpos is not None:
-                d.qpos[t.jq] = vector_or_bad(obj_by_name[name].qpos, len(t.jq), f"initial qpos of {name!r}")
         self._object_order = scene.names()
-        # robot
-        robot = plan.robot
-        self._robot_links = {l: body(n) for l, n in robot.links.items()}
+
+    def _index_robot(self, plan: Plan, emb: EmbodimentSpec) -> None:
+        """Joint addresses and servo gains; the arms at home, grippers open, targets there."""
+        m, d = self._model, self._data
+        self._robot_links = {l: self._id(mujoco.mjtObj.mjOBJ_BODY, n) for l, n in plan.robot.links.items()}
         self._joint_names = emb.joint_order()
-        jids = [joint(f"{ROBOT}/{n}") for n in plan.actuators]
+        jids = [self._id(mujoco.mjtObj.mjOBJ_JOINT, f"{ROBOT}/{n}") for n in plan.actuators]
         self._rq_all = np.array([m.jnt_qposadr[j] for j in jids], dtype=np.int64)
         self._rd_all = np.array([m.jnt_dofadr[j] for j in jids], dtype=np.int64)
         n = len(self._joint_names)
         self._rq, self._rd = self._rq_all[:n], self._rd_all[:n]
-        self._kp = np.array([m.actuator_gainprm[i, 0] for i in range(len(plan.actuators))])
-        self._kd = np.array([-m.actuator_biasprm[i, 2] for i in range(len(plan.actuators))])
+        self._kp = m.actuator_gainprm[:, 0].copy()
+        self._kd = -m.actuator_biasprm[:, 2].copy()
         home = start_joint_values(emb)
         start = np.array([home.get(nm, q) for nm, q in zip(self._joint_names, d.qpos[self._rq])])
         d.qpos[self._rq] = start
@@ -214,15 +239,6 @@ class MujocoSimulator(Simulator):
         self._vtargets = np.zeros(n)
         self._apply_targets(start)
         d.ctrl[n:] = d.qpos[self._rq_all[n:]]
-        # contact attribution: body id -> reported name (the world's only geom is the ground)
-        self._body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(m.nbody)]
-        self._body_names[0] = "ground"
-        self._cameras = plan.cameras
-        self._camera_ids = {c: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, c) for c in plan.cameras}
-        self._steps = 0
-        self._contacts: list[Contact] | None = []
-        mujoco.mj_forward(m, d)
-        self._kinematics_current = True
 
     def close(self) -> None:
         """Release the renderer and the model. Idempotent."""
@@ -461,8 +477,7 @@ class MujocoSimulator(Simulator):
         cam = self._camera(name)
         if cam.body is None:
             return np.asarray(cam.local, dtype=float)
-        b = mujoco.mj_name2id(self._model, mujoco.mjtObj.mjOBJ_BODY, cam.body)
-        return pose_mul(self._body_pose(b), cam.local)
+        return pose_mul(self._body_pose(self._camera_bodies[name]), cam.local)
 
     def camera_intrinsics(self, name: str) -> np.ndarray:
         s = self._camera(name).spec
