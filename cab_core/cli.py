@@ -89,7 +89,8 @@ def _sweep_job(cfg, hc) -> None:
     from .sweep import run_job
 
     _, line = run_job(cfg, Path(hc.runtime.output_dir), Path(hc.sweep.dir), f"{hc.job.name}.log")
-    print(line, file=sys.stderr, flush=True)
+    sys.stderr.write(line + "\n")  # one write: lines of parallel workers do not interleave
+    sys.stderr.flush()
 
 
 class SweepManifestCallback(Callback):
@@ -108,6 +109,11 @@ class SweepManifestCallback(Callback):
         except Exception as e:  # a sweep without its manifest cannot be resumed safely: stop
             print(f"cab: cannot write the sweep manifest: {type(e).__name__}: {e}", file=sys.stderr)
             sys.exit(1)
+
+    def on_multirun_end(self, config, **kwargs) -> None:
+        from .sweep import summary_line
+
+        print(summary_line(config.hydra.sweep.dir), file=sys.stderr, flush=True)
 
 
 def plugins_main() -> None:

@@ -167,6 +167,23 @@ def progress_line(sweep_dir: Path, job: str, what: str) -> str:
     return f"cab sweep [{len(done)}/{m['n_jobs']}] {job}: {what} | {rate}{eta}"
 
 
+def summary_line(sweep_dir: Path) -> str:
+    """The state of a whole sweep after a session: complete, infrastructure failures, missing."""
+    m = json.loads((Path(sweep_dir) / MANIFEST).read_text())
+    complete = len(completed_results(Path(sweep_dir)))
+    infra = 0
+    for p in Path(sweep_dir).rglob("result.json"):
+        if SET_ASIDE not in p.relative_to(sweep_dir).parts:
+            try:
+                infra += is_infrastructure_failure(json.loads(p.read_text()))
+            except (OSError, json.JSONDecodeError):
+                pass
+    missing = max(m["n_jobs"] - complete - infra, 0)
+    return (f"cab sweep: {complete}/{m['n_jobs']} attempts complete, {infra} given up on for infrastructure "
+            f"failures, {missing} missing; {sweep_dir} (run the same command again to resume)"
+            if complete < m["n_jobs"] else f"cab sweep: {complete}/{m['n_jobs']} attempts complete; {sweep_dir}")
+
+
 def _hms(s: float) -> str:
     s = int(round(s))
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"

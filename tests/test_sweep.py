@@ -94,6 +94,7 @@ def test_resumed_sweep_redoes_no_finished_attempt(killed_and_resumed):
     skipped = [l for l in k["rerun"].stderr.splitlines() if "complete already, skipped" in l]
     assert len(skipped) == len(k["done"])
     assert sum("cab sweep [" in l for l in k["rerun"].stderr.splitlines()) == len(ATTEMPTS)
+    assert k["rerun"].stderr.splitlines()[-1] == f"cab sweep: 4/4 attempts complete; {k['sweep']}"
 
 
 @pytest.mark.sim
@@ -157,21 +158,67 @@ def test_config_diff_names_each_changed_key():
     assert fingerprint(old, [["attempt=1"]]) != fingerprint(new, [["attempt=1"]])
 
 
+def _descends_from(pid: int, root: int) -> bool:
+    while pid > 1:
+        if pid == root:
+            return True
+        try:
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            return False
+    return False
+
+
+def attempt_in_flight(root: int) -> tuple[Path, int] | None:
+    """(attempt dir, pid of the worker supervising it) of an attempt process of the sweep ``root``
+    that is recording: found by the event log it holds open."""
+    for proc in Path("/proc").iterdir():
+        try:
+            if not proc.name.isdigit() or b"cab_core.sweep_child" not in (proc / "cmdline").read_bytes():
+                continue
+            if not _descends_from(int(proc.name), root):
+                continue
+            for fd in (proc / "fd").iterdir():
+                target = Path(os.readlink(fd))
+                if target.name == "events.jsonl":
+                    ppid = int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                    return target.parent, ppid
+        except (OSError, ValueError):
+            continue
+    return None
+
+
 @pytest.mark.sim
 @pytest.mark.slow
-def test_ray_launcher_on_a_local_instance(tmp_path):
+def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     sweep = tmp_path / "sw"
-    r = subprocess.run([CAB, "-m", "hydra/launcher=ray_local", "hydra.launcher.ray.init.num_cpus=2",
-                        "task=beat_block_hammer", "model=idle",
-                        "attempt=1,2", "record.video=false", f"hydra.sweep.dir={sweep}"],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    for a, d in list(attempt_dirs(sweep).items())[:2]:
+    proc = subprocess.Popen([CAB, "-m", "hydra/launcher=ray_local", "hydra.launcher.ray.init.num_cpus=2",
+                             "task=beat_block_hammer", "model=idle", "attempt=1,2,3", "record.video=false",
+                             f"hydra.sweep.dir={sweep}"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline, hit = time.monotonic() + 300, None
+        while hit is None and time.monotonic() < deadline and proc.poll() is None:
+            hit = attempt_in_flight(proc.pid)
+            time.sleep(0.2)
+        assert hit is not None, "no attempt in flight was found"
+        os.kill(hit[1], signal.SIGKILL)  # the Ray worker running that job; Ray runs the job again
+        out, err = proc.communicate(timeout=600)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, err[-3000:]
+    for a, d in attempt_dirs(sweep).items():
+        if a > 3:
+            continue
         assert check_attempt(d, {"attempt": a, "model": "idle"}, "cli.log").state == "complete"
+        aside = sorted(p.name for p in (d / "set_aside").iterdir()) if (d / "set_aside").exists() else []
+        assert aside == (["01-interrupted"] if d.resolve() == hit[0] else [])
     m = json.loads((sweep / MANIFEST).read_text())
     assert m["sessions"][0]["launcher"] == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
-    assert sum("cab sweep [" in l for l in (r.stdout + r.stderr).splitlines()) == 2
+    assert sum("cab sweep [" in l for l in (out + err).splitlines()) == 3
 
 
 @pytest.mark.parametrize("launcher, target, settings", [
