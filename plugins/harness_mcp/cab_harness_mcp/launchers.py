@@ -26,10 +26,13 @@ server speaking the provider's streaming wire format):
 
 - Claude Code 2.1.212: every flag above is accepted; the model sees exactly the 31 ``mcp__cab__*``
   tools. The guessed deny list of built-ins left 13 (Cron*, Task*, Workflow, SendMessage,
-  EnterWorktree, ...), hence the allow list ``--tools``; ``--tools ""`` would also drop
-  ToolSearch, which Claude Code needs whenever it defers MCP tools (``ENABLE_TOOL_SEARCH``; the
-  paper's runs used it), leaving the model no tool at all. Tool results reach the model as text +
-  image blocks; ``result`` in the stream carries summed usage and Claude Code's own cost.
+  EnterWorktree, ...), hence the allow list ``--tools``. ``--tools ""`` would also drop ToolSearch,
+  which Claude Code needs when it defers MCP tools (the paper's runs used it): with
+  ``ENABLE_TOOL_SEARCH=true`` the first request then carried no tool at all (4 runs of 4), where
+  ``--tools ToolSearch`` gave ToolSearch (against a local endpoint Claude Code then drops tool
+  search and lists the MCP tools; it also sent the first request without tools in 4 runs of 13, so
+  that mode is not under test). Tool results reach the model as text + image blocks; ``result``
+  in the stream carries summed usage and Claude Code's own cost.
 - Codex CLI 0.154.0: the overrides and flags above are accepted. Two differences from the
   documentation the launcher was first written from: the key must be in ``CODEX_API_KEY`` (with only
   ``OPENAI_API_KEY`` set, requests go out without one), and ``OPENAI_BASE_URL`` is ignored (the
