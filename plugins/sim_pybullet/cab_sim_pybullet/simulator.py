@@ -81,8 +81,10 @@ PHYSICS_DEFAULTS: dict[str, float] = {
     "rolling_friction_m": 0.001,
     # Torsional friction (m: resisting torque per newton of normal force about the contact
     # normal), on every surface. PhysX's friction patches resist twisting over their area; a
-    # Bullet contact point does not. About (2/3) mu r of a patch of radius r ~ 1 cm.
-    "spinning_friction_m": 0.003,
+    # Bullet contact point does not. About (2/3) mu r for a patch of radius r ~ 3 mm between hard
+    # surfaces. (Measured: 0.003 holds a block so stiffly in one gripper that the other arm's
+    # fingers shove it aside in handover_block; 0.0005 and 0.001 both hand it over.)
+    "spinning_friction_m": 0.001,
     # Diffuse and specular coefficients of TinyRenderer's light (the ambient one comes from the scene).
     "light_diffuse": 0.6,
     "light_specular": 0.0,
