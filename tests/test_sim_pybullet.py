@@ -280,6 +280,14 @@ def test_agrees_with_sapien_on_the_conformance_world():
             assert frozenset(pair) in pairs[0] and frozenset(pair) in pairs[1], pair
         for name in ("cube", "ball", "can", "block"):
             np.testing.assert_allclose(a.get_object_pose(name)[:3], b.get_object_pose(name)[:3], atol=0.005)
+        # articulations: the same joint value puts the same link at the same pose
+        for sim in (a, b):
+            sim.set_object_pose("lidbox", (-0.15, 0.02, 1.2, 1, 0, 0, 0))
+            sim.set_object_qpos("lidbox", [0.8])
+        assert a.get_object_link_names("lidbox") == b.get_object_link_names("lidbox") == ["base", "lid"]
+        lid_a, lid_b = a.get_object_link_pose("lidbox", "lid"), b.get_object_link_pose("lidbox", "lid")
+        np.testing.assert_allclose(lid_a[:3], lid_b[:3], atol=1e-5)
+        assert abs(abs(np.dot(lid_a[3:], lid_b[3:])) - 1) < 1e-6
     finally:
         a.close()
         b.close()
