@@ -324,3 +324,31 @@ def test_object_velocity_is_the_centre_of_mass_velocity():
         np.testing.assert_allclose(v0, [0.0, 0.6, 0.0, 0.0, 0.0, 3.0], atol=1e-9)  # w x r, r = 0.2 m
     finally:
         sim.close()
+
+
+def test_any_thread_may_render(render_available):
+    """The GL context is released after each picture: threads take turns (a host may serve tool
+    calls from worker threads), and every picture of one state is the same."""
+    import threading
+
+    if render_available is not None:
+        pytest.skip(render_available)
+    sim = sc.build(lambda: MujocoSimulator({"render": True}))
+    try:
+        images, errors = [], []
+
+        def take():
+            try:
+                images.append(sim.render(sc.HEAD_CAMERA))
+            except Exception as e:  # noqa: BLE001 (reported below)
+                errors.append(e)
+
+        for _ in range(3):
+            t = threading.Thread(target=take)
+            t.start()
+            t.join()
+        take()
+        assert errors == [] and len(images) == 4
+        assert all(np.array_equal(images[0], im) for im in images[1:])
+    finally:
+        sim.close()

@@ -111,24 +111,24 @@ def _context_class(backend: str):
 def context(width: int, height: int):
     """The process's GL context (started on first use) and its :class:`GLInfo`.
 
-    The context is made current on the calling thread. ``width``/``height`` bound only GLFW's
-    window; EGL and OSMesa render into MuJoCo's own off-screen framebuffer."""
+    The context is current on no thread: users wrap their GL work in ``ctx.as_current()``, which
+    releases it afterwards, so that any thread may render next (an EGL context current on one
+    thread cannot be made current on another). ``width``/``height`` bound only GLFW's window;
+    EGL and OSMesa render into MuJoCo's own off-screen framebuffer."""
     if "context" in _STARTED:
-        ctx = _STARTED["context"]
-        ctx.make_current()
-        return ctx, _STARTED["info"]
+        return _STARTED["context"], _STARTED["info"]
     backend, how = choose_backend()
     try:
         cls = _context_class(backend)
         ctx = cls(max(1, int(width)), max(1, int(height)))
-        ctx.make_current()
         from OpenGL import GL
 
         def read(name):
             v = GL.glGetString(name)
             return v.decode(errors="replace") if isinstance(v, bytes) else str(v or "")
 
-        info = GLInfo(backend, how, read(GL.GL_RENDERER), read(GL.GL_VERSION), read(GL.GL_VENDOR))
+        with ctx.as_current():
+            info = GLInfo(backend, how, read(GL.GL_RENDERER), read(GL.GL_VERSION), read(GL.GL_VENDOR))
     except RendererUnavailable:
         raise
     except Exception as e:  # noqa: BLE001 (any start-up failure becomes one diagnosis)

@@ -78,8 +78,8 @@ class _Renderer:
     def __init__(self, model, width: int, height: int):
         self.gl, self.info = gl.context(width, height)
         self.scene = mujoco.MjvScene(model, maxgeom=20000)
-        self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
+        with self.gl.as_current():
+            self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         self.option = mujoco.MjvOption()
         self.option.geomgroup[:] = 0
         self.option.geomgroup[VISUAL_GROUP] = 1
@@ -88,20 +88,20 @@ class _Renderer:
         self.perturb = mujoco.MjvPerturb()
 
     def render(self, model, data, camera_id: int, width: int, height: int) -> np.ndarray:
-        self.gl.make_current()
         self.camera.fixedcamid = camera_id
         mujoco.mjv_updateScene(model, data, self.option, self.perturb, self.camera,
                                mujoco.mjtCatBit.mjCAT_ALL, self.scene)
         rect = mujoco.MjrRect(0, 0, width, height)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
-        mujoco.mjr_render(rect, self.scene, self.context)
         rgb = np.empty((height, width, 3), dtype=np.uint8)
-        mujoco.mjr_readPixels(rgb, None, rect, self.context)
+        with self.gl.as_current():  # on whichever thread calls, released afterwards
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
+            mujoco.mjr_render(rect, self.scene, self.context)
+            mujoco.mjr_readPixels(rgb, None, rect, self.context)
         return np.ascontiguousarray(rgb[::-1])
 
     def free(self) -> None:
-        self.gl.make_current()
-        self.context.free()
+        with self.gl.as_current():
+            self.context.free()
 
 
 class MujocoSimulator(Simulator):
