@@ -5,6 +5,10 @@ coefficients, drive stiffness and damping). What is left is how MuJoCo's soft-co
 up to behave like the rigid contacts of PhysX, on which the suite's figures were first measured.
 Each default below says what it means and why it has its value; ``conf/sim/mujoco.yaml`` (key
 ``physics``) overrides any of them by name. Nothing here depends on a task.
+
+Differences that no parameter removes, by MuJoCo's design: one friction coefficient per geom (the
+material's dynamic one is used: PhysX's static coefficient only matters at the onset of sliding),
+and a pair's friction is the larger of its two geoms' (PhysX averages them).
 """
 from __future__ import annotations
 
