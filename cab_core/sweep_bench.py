@@ -18,9 +18,9 @@ from pathlib import Path
 from .sweep import completed_results
 
 
-def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool) -> dict:
+def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool, rnd: int = 1) -> dict:
     """One timed sweep; returns its figures."""
-    sweep_dir = out / f"workers-{workers}"
+    sweep_dir = out / f"round-{rnd}" / f"workers-{workers}"
     cab = os.path.join(os.path.dirname(sys.executable), "cab")
     cmd = [cab, "-m", f"task={task}", f"model={model}", f"attempt={','.join(str(a) for a in range(1, attempts + 1))}",
            f"record.video={str(video).lower()}", f"hydra.sweep.dir={sweep_dir}", f"hydra.launcher.n_jobs={workers}"]
@@ -33,7 +33,7 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
     results = [json.loads(p.read_text()) for p in completed_results(sweep_dir)]
     if len(results) != attempts:
         raise RuntimeError(f"{len(results)} of {attempts} attempts completed in {sweep_dir}")
-    return {"workers": workers, "attempts": attempts, "wall_s": round(wall, 1),
+    return {"round": rnd, "workers": workers, "attempts": attempts, "wall_s": round(wall, 1),
             "attempts_per_hour": round(3600 * attempts / wall, 1),
             "successes": sum(bool(r["verdict"]["success"]) for r in results),
             "mean_attempt_wall_s": round(sum(r["timing"]["wall_seconds"] for r in results) / attempts, 2),
@@ -48,6 +48,8 @@ def main() -> None:
     ap.add_argument("--attempts", type=int, default=6, help="attempts per sweep (same task, attempt=1..N)")
     ap.add_argument("--workers", default="1,2", help="comma-separated worker counts; the first is the baseline")
     ap.add_argument("--video", action="store_true", help="record the head-view video (off by default)")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="repeat, alternating the order of worker counts, so that all see the same background load")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     a = ap.parse_args()
     out = Path(a.out)
@@ -55,25 +57,32 @@ def main() -> None:
         print(f"cab-bench-sweep: {out} is not empty", file=sys.stderr)
         sys.exit(2)
     out.mkdir(parents=True, exist_ok=True)
+    counts = [int(x) for x in a.workers.split(",")]
     rows = []
-    for w in (int(x) for x in a.workers.split(",")):
-        print(f"cab-bench-sweep: {a.attempts} x {a.task}/{a.model} with {w} worker(s)...", file=sys.stderr, flush=True)
-        try:
-            rows.append(run_sweep(out.resolve(), w, a.task, a.model, a.attempts, a.video))
-        except RuntimeError as e:
-            print(f"cab-bench-sweep: {e}", file=sys.stderr)
-            sys.exit(1)
-    base = rows[0]["attempts_per_hour"]
-    print(f"| workers | attempts | wall s | attempts/h | speed-up | successes | mean attempt s | load avg (start, end) |")
+    for rnd in range(1, a.rounds + 1):
+        for w in (counts if rnd % 2 else counts[::-1]):
+            print(f"cab-bench-sweep: round {rnd}: {a.attempts} x {a.task}/{a.model} with {w} worker(s)...",
+                  file=sys.stderr, flush=True)
+            try:
+                rows.append(run_sweep(out.resolve(), w, a.task, a.model, a.attempts, a.video, rnd))
+            except RuntimeError as e:
+                print(f"cab-bench-sweep: {e}", file=sys.stderr)
+                sys.exit(1)
+    rate = {w: 3600 * sum(r["attempts"] for r in rows if r["workers"] == w)
+            / sum(r["wall_s"] for r in rows if r["workers"] == w) for w in counts}
+    print("| round | workers | attempts | wall s | attempts/h | successes | mean attempt s | load avg (start, end) |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        r["speedup"] = round(r["attempts_per_hour"] / base, 2)
-        print(f"| {r['workers']} | {r['attempts']} | {r['wall_s']} | {r['attempts_per_hour']} | {r['speedup']}x | "
+        print(f"| {r['round']} | {r['workers']} | {r['attempts']} | {r['wall_s']} | {r['attempts_per_hour']} | "
               f"{r['successes']}/{r['attempts']} | {r['mean_attempt_wall_s']} | {r['load_avg_1min']} |")
+    for w in counts:
+        print(f"{w} worker(s): {rate[w]:.1f} attempts/h over all rounds, speed-up {rate[w] / rate[counts[0]]:.2f}x")
     print(f"cpu cores: {os.cpu_count()}; task {a.task}, model {a.model}, video {'on' if a.video else 'off'}")
     if a.json:
         Path(a.json).write_text(json.dumps({"cpu_count": os.cpu_count(), "task": a.task, "model": a.model,
-                                            "video": a.video, "rows": rows}, indent=2))
+                                            "video": a.video, "rows": rows,
+                                            "attempts_per_hour": {str(w): round(v, 1) for w, v in rate.items()}},
+                                           indent=2))
 
 
 if __name__ == "__main__":
