@@ -35,6 +35,7 @@ class Turn:
 
 @dataclass
 class Request:
+    """One request as received: the header names lower-cased, the JSON body parsed."""
     method: str
     path: str
     headers: dict[str, str]
@@ -43,6 +44,7 @@ class Request:
 
 @dataclass
 class _Reply:
+    """What to send back: a JSON body, or server-sent events (``(event name, data)`` pairs)."""
     status: int
     headers: dict[str, str] = field(default_factory=dict)
     json_body: dict | None = None
@@ -154,7 +156,7 @@ class FakeAnthropic(FakeModelApi):
             if turn is None:
                 return _Reply(500, json_body={"type": "error", "error": {
                     "type": "api_error", "message": "the fake model's script is spent"}})
-            n = sum(1 for r in self.model_requests)
+            n = len(self.model_requests)
             return _Reply(200, {"request-id": f"req_{n}"}, events=messages_events(turn, req.body or {}, n))
         return _Reply(404, json_body={"type": "error", "error": {"type": "not_found_error", "message": req.path}})
 

@@ -172,6 +172,9 @@ def test_claude_code_runs_an_attempt_against_a_scripted_messages_api(tmp_path):
 LOOK = """text(JSON.stringify(ALL_TOOLS.map((t) => t.name)));
 const shot = await tools.mcp__cab__capture_head({});
 for (const c of shot.content) { if (c.type === "image") { image(c); } else { text(c.text); } }"""
+# the shell Codex keeps, in its read-only sandbox: reading works, writing fails
+PROBE = """const r = await tools.exec_command({cmd: "echo x > probe.txt; echo write_rc=$?; head -c 11 /etc/os-release"});
+text(r.output);"""
 GIVE_UP = f"""const r = await tools.mcp__cab__done({{report: {json.dumps(REPORT)}, success_claim: false}});
 text(r.content[0].text);"""
 # what Codex 0.154.0 keeps beside the benchmark's tools for gpt-6-astra (paper: computation and tool
@@ -195,8 +198,9 @@ def exec_call(n: int, code: str) -> dict:
 def codex_script() -> list[Turn]:
     return [
         Turn([exec_call(1, LOOK)], responses_usage(1)),
-        Turn([exec_call(2, GIVE_UP)], responses_usage(2)),
-        Turn([{"type": "message", "id": "msg_3", "role": "assistant",
+        Turn([exec_call(2, PROBE)], responses_usage(4)),
+        Turn([exec_call(3, GIVE_UP)], responses_usage(2)),
+        Turn([{"type": "message", "id": "msg_4", "role": "assistant",
                "content": [{"type": "output_text", "text": "Finished.", "annotations": []}]}], responses_usage(3)),
     ]
 
@@ -213,12 +217,16 @@ def top_level_tools(req: Request) -> set[str]:
 
 def test_codex_runs_an_attempt_against_a_scripted_responses_api(tmp_path):
     cli("codex")
-    codex_home = tmp_path / "codex_home"
+    # Codex refuses to set up its sandbox helper under the system's temporary directory, where
+    # tmp_path lives: its own temporary directory is moved aside so that CODEX_HOME is not inside it
+    codex_home, codex_tmp = tmp_path / "codex_home", tmp_path / "codex_tmp"
     codex_home.mkdir()
-    with FakeResponses(codex_script()) as api:
+    codex_tmp.mkdir()
+    script = codex_script()
+    with FakeResponses(list(script)) as api:
         out = run_attempt("astra_codex", tmp_path, {"OPENAI_BASE_URL": f"{api.url}/v1", "OPENAI_API_KEY": KEY,
-                                                    "CODEX_HOME": str(codex_home)})
-    assert not api.script and len(api.model_requests) == 3
+                                                    "CODEX_HOME": str(codex_home), "TMPDIR": str(codex_tmp)})
+    assert not api.script and len(api.model_requests) == len(script)
     # the key configured for the model (OPENAI_API_KEY) reached the API on every request
     assert all(r.headers.get("authorization") == f"Bearer {KEY}" for r in api.requests)
     first = api.model_requests[0]
@@ -242,14 +250,18 @@ def test_codex_runs_an_attempt_against_a_scripted_responses_api(tmp_path):
     prefix = "data:image/png;base64,"
     assert image["image_url"].startswith(prefix)
     assert same_image_as_recorded(base64.b64decode(image["image_url"][len(prefix):]), out)
-    assert json.loads(call_output(api.model_requests[2], "call_2")[1]["text"])["ok"] is True
+    # and as the shell finds it: reading works, writing fails, nothing is written
+    shell = call_output(api.model_requests[2], "call_2")[1]["text"]
+    assert "Read-only file system" in shell and "write_rc=1" in shell and "PRETTY_NAME" in shell
+    assert list((out / "vendor_workdir").iterdir()) == []
+    assert json.loads(call_output(api.model_requests[3], "call_3")[1]["text"])["ok"] is True
 
-    sums = {k: sum(responses_usage(i)[k] for i in (1, 2, 3)) for k in ("input_tokens", "output_tokens")}
-    cached = sum(responses_usage(i)["input_tokens_details"]["cached_tokens"] for i in (1, 2, 3))
-    reasoning = sum(responses_usage(i)["output_tokens_details"]["reasoning_tokens"] for i in (1, 2, 3))
-    check_record(out, {"input_tokens": sums["input_tokens"] - cached, "cache_read_tokens": cached,
-                       "cache_write_tokens": 0, "output_tokens": sums["output_tokens"],
+    total = {k: sum(t.usage[k] for t in script) for k in ("input_tokens", "output_tokens")}
+    cached = sum(t.usage["input_tokens_details"]["cached_tokens"] for t in script)
+    reasoning = sum(t.usage["output_tokens_details"]["reasoning_tokens"] for t in script)
+    check_record(out, {"input_tokens": total["input_tokens"] - cached, "cache_read_tokens": cached,
+                       "cache_write_tokens": 0, "output_tokens": total["output_tokens"],
                        "reasoning_tokens": reasoning, "source": "codex", "turns": 1,
                        # no cost in Codex's stream: the model config's rates (10 / 50 USD per M tokens;
                        # cache reads at the input rate, the config giving none of their own)
-                       "usd": pytest.approx((sums["input_tokens"] * 10 + sums["output_tokens"] * 50) / 1e6)})
+                       "usd": pytest.approx((total["input_tokens"] * 10 + total["output_tokens"] * 50) / 1e6)})

@@ -41,9 +41,11 @@ server speaking the provider's streaming wire format):
   ``sleep`` and the multi-agent tools; the benchmark's tools are nested in ``exec`` as
   ``tools.mcp__cab__<name>`` beside ``exec_command``, ``apply_patch``, ``view_image``, goals and MCP
   resources, and are listed to the model only through ``ALL_TOOLS``. The request shows the
-  read-only sandbox (``sandbox_mode`` in the turn metadata, read-only filesystem permissions). It
-  tries the Responses API over WebSocket first and falls back to HTTP streaming. Usage comes from
-  ``turn.completed`` (summed over the turn's requests), without cost.
+  read-only sandbox (``sandbox_mode`` in the turn metadata, read-only filesystem permissions), and
+  the shell keeps to it (a write fails with "Read-only file system"); with ``CODEX_HOME`` inside
+  the system's temporary directory, Codex sets up no sandbox helper and every shell command fails.
+  It tries the Responses API over WebSocket first and falls back to HTTP streaming. Usage comes
+  from ``turn.completed`` (summed over the turn's requests), without cost.
 """
 from __future__ import annotations
 
