@@ -93,3 +93,10 @@ def unpack_state(state, backend: str, layout: str) -> tuple[dict[str, np.ndarray
     if saved_layout != layout:
         raise BadCommand("the state was saved from a different scene or robot")
     return d, contacts
+
+
+def step_count_or_bad(n) -> int:
+    """A physics step count: a non-negative integer (bools refused), or BadCommand."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+    return int(n)

@@ -6,7 +6,8 @@ import pytest
 
 from cab_core.errors import BadCommand
 from cab_core.scene import Body, Box, SceneSpec, Shape
-from cab_core.simsupport import check_object_names, pose_or_bad, start_joint_values, vector_or_bad
+from cab_core.simsupport import (check_object_names, pose_or_bad, start_joint_values, step_count_or_bad,
+                                 vector_or_bad)
 from cab_core.testing import sim_conformance as sc
 
 
@@ -56,3 +57,10 @@ def test_snapshot_pack_round_trip_and_refusals():
             unpack_state(bad, "toy", "layout-1")
     with pytest.raises(BadCommand, match="different scene"):
         unpack_state(state, "toy", "layout-2")
+
+
+def test_step_counts():
+    assert step_count_or_bad(np.int64(3)) == 3 and step_count_or_bad(0) == 0
+    for bad in (-1, True, 1.5, "2", None):
+        with pytest.raises(BadCommand, match="step count"):
+            step_count_or_bad(bad)

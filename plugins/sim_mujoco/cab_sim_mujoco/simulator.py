@@ -44,7 +44,7 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, pose_mul, quat_to_mat
 from cab_core.scene import SceneSpec
-from cab_core.simsupport import pose_or_bad, start_joint_values, vector_or_bad
+from cab_core.simsupport import pose_or_bad, start_joint_values, step_count_or_bad, vector_or_bad
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
@@ -265,13 +265,12 @@ class MujocoSimulator(Simulator):
         return self._timestep
 
     def step(self, n: int = 1) -> None:
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-            raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+        n = step_count_or_bad(n)
         self._live()
         if n == 0:
             return
-        mujoco.mj_step(self._model, self._data, int(n))
-        self._steps += int(n)
+        mujoco.mj_step(self._model, self._data, n)
+        self._steps += n
         self._contacts = None
         self._kinematics_current = False
 
