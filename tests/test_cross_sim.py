@@ -96,19 +96,18 @@ def _projection(sim, camera: str, p) -> np.ndarray:
     return (sim.camera_intrinsics(camera) @ pc)[:2] / pc[2]
 
 
-def _centroids(img: np.ndarray, near: list[np.ndarray]) -> list[np.ndarray]:
-    """Centroid (u, v, pixel centres at +0.5) of the red pixels within 8 px of each expected point."""
-    from scipy import ndimage
-
+def _centroids(img: np.ndarray, near: list[np.ndarray], radius: float = 8.0) -> list[np.ndarray]:
+    """Centroid (u, v, pixel centres at +0.5) of the red pixels within ``radius`` px of each
+    expected point (the dots are a few pixels wide and far apart)."""
     img = img.astype(int)
-    mask = (img[..., 0] - np.maximum(img[..., 1], img[..., 2])) > 60
-    lab, n = ndimage.label(mask)
-    blobs = [np.asarray(c[::-1]) + 0.5 for c in ndimage.center_of_mass(mask, lab, range(1, n + 1))]
+    red = (img[..., 0] - np.maximum(img[..., 1], img[..., 2])) > 60
+    v, u = np.nonzero(red)
+    pixels = np.stack([u, v], axis=1) + 0.5
     out = []
     for p in near:
-        d = [np.linalg.norm(b - p) for b in blobs]
-        assert d and min(d) < 8.0, f"no red dot near {p} (blobs {blobs})"
-        out.append(blobs[int(np.argmin(d))])
+        mine = pixels[np.linalg.norm(pixels - p, axis=1) < radius]
+        assert len(mine) >= 3, f"no red dot near {p}"
+        out.append(mine.mean(axis=0))
     return out
 
 
