@@ -102,8 +102,11 @@ class AttemptSupervisor:
                                     stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         if self.on_child is not None:
             self.on_child(proc, try_no)
-        proc.stdin.write(json.dumps({"config": self.config, "output_dir": str(self.dir)}).encode())
-        proc.stdin.close()
+        try:
+            proc.stdin.write(json.dumps({"config": self.config, "output_dir": str(self.dir)}).encode())
+            proc.stdin.close()
+        except BrokenPipeError:  # the child died at once; its exit status tells why
+            pass
         mark, last_change = _progress_mark(self.dir), time.monotonic()
         while proc.poll() is None:
             time.sleep(self.settings.poll_s)
