@@ -352,3 +352,32 @@ def test_any_thread_may_render(render_available):
         assert all(np.array_equal(images[0], im) for im in images[1:])
     finally:
         sim.close()
+
+
+def test_two_simulators_render_concurrently(render_available):
+    """Two simulators in one process, each driven by its own thread at the same time, share the
+    process's GL context without corrupting each other's pictures."""
+    import threading
+
+    if render_available is not None:
+        pytest.skip(render_available)
+    sims = [sc.build(lambda: MujocoSimulator({"render": True})) for _ in range(2)]
+    try:
+        reference = sims[0].render(sc.HEAD_CAMERA)
+        results: list = []
+
+        def loop(sim):
+            try:
+                results.extend(np.array_equal(sim.render(sc.HEAD_CAMERA), reference) for _ in range(10))
+            except Exception as e:  # noqa: BLE001 (reported below)
+                results.append(e)
+
+        threads = [threading.Thread(target=loop, args=(s,)) for s in sims]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert results == [True] * 20, results
+    finally:
+        for s in sims:
+            s.close()

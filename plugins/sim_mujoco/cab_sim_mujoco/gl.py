@@ -14,9 +14,11 @@ frames are drawn on the CPU, and :func:`describe` records it.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
+import threading
 from dataclasses import dataclass
 
 from cab_core.errors import RendererUnavailable
@@ -39,6 +41,15 @@ class GLInfo:
 
 
 _STARTED: dict[str, object] = {}  # "context", "info": the process's context, once started
+_LOCK = threading.RLock()  # one thread draws at a time: the context is the process's, not a simulator's
+
+
+@contextlib.contextmanager
+def current(ctx):
+    """Make the process's context current on this thread for the block, then release it; threads
+    (and the simulators they drive) take turns."""
+    with _LOCK, ctx.as_current():
+        yield
 
 
 def _loads(backend: str) -> bool:
@@ -111,12 +122,18 @@ def _context_class(backend: str):
 def context(width: int, height: int):
     """The process's GL context (started on first use) and its :class:`GLInfo`.
 
-    The context is current on no thread: users wrap their GL work in ``ctx.as_current()``, which
+    The context is current on no thread: users wrap their GL work in :func:`current`, which
     releases it afterwards, so that any thread may render next (an EGL context current on one
     thread cannot be made current on another). ``width``/``height`` bound only GLFW's window;
     EGL and OSMesa render into MuJoCo's own off-screen framebuffer."""
-    if "context" in _STARTED:
+    with _LOCK:
+        if "context" not in _STARTED:
+            _start(width, height)
         return _STARTED["context"], _STARTED["info"]
+
+
+def _start(width: int, height: int) -> None:
+    """Start the chosen backend's context and read what it is (under ``_LOCK``)."""
     backend, how = choose_backend()
     try:
         cls = _context_class(backend)
@@ -133,12 +150,12 @@ def context(width: int, height: int):
         raise
     except Exception as e:  # noqa: BLE001 (any start-up failure becomes one diagnosis)
         other = "osmesa" if backend == "egl" else "egl"
+        chosen = "by MUJOCO_GL" if how != "auto" else "automatically"
         raise RendererUnavailable(
-            f"MuJoCo could not start an OpenGL context with {backend} (chosen {'by MUJOCO_GL' if how != 'auto' else 'automatically'}): "
+            f"MuJoCo could not start an OpenGL context with {backend} (chosen {chosen}): "
             f"{type(e).__name__}: {e}. Check that {_PACKAGES[backend]} is installed; or set "
             f"MUJOCO_GL={other} (needs {_PACKAGES[other]}); or build the simulator with render: false") from e
     _STARTED.update(context=ctx, info=info)
-    return ctx, info
 
 
 def is_software(renderer: str) -> bool:

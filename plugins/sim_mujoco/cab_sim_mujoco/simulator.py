@@ -78,7 +78,7 @@ class _Renderer:
     def __init__(self, model, width: int, height: int):
         self.gl, self.info = gl.context(width, height)
         self.scene = mujoco.MjvScene(model, maxgeom=20000)
-        with self.gl.as_current():
+        with gl.current(self.gl):
             self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         self.option = mujoco.MjvOption()
         self.option.geomgroup[:] = 0
@@ -93,14 +93,14 @@ class _Renderer:
                                mujoco.mjtCatBit.mjCAT_ALL, self.scene)
         rect = mujoco.MjrRect(0, 0, width, height)
         rgb = np.empty((height, width, 3), dtype=np.uint8)
-        with self.gl.as_current():  # on whichever thread calls, released afterwards
+        with gl.current(self.gl):  # on whichever thread calls, released afterwards
             mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
             mujoco.mjr_render(rect, self.scene, self.context)
             mujoco.mjr_readPixels(rgb, None, rect, self.context)
         return np.ascontiguousarray(rgb[::-1])
 
     def free(self) -> None:
-        with self.gl.as_current():
+        with gl.current(self.gl):
             self.context.free()
 
 
