@@ -41,7 +41,8 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(prog="cab-bench-sweep", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="cab-bench-sweep",
+                                 description="Attempts per hour of a real sweep with 1 worker and with N workers.")
     ap.add_argument("--out", required=True, help="directory for the sweeps (must not exist or be empty)")
     ap.add_argument("--task", default="beat_block_hammer")
     ap.add_argument("--model", default="oracle")
