@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install.sh
-bash scripts/install-node-tools.sh   # the MCP Inspector CLI the MCP harness tests drive
+bash scripts/install-node-tools.sh   # MCP Inspector, Claude Code, Codex CLI: the MCP harness tests drive them
 . .venv/bin/activate
 set +e
 python -m pytest -q -p no:cacheprovider "$@"

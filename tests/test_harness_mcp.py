@@ -229,7 +229,9 @@ def inspector_bin() -> Path | None:
 def inspector(*args: str, timeout: float = 120) -> dict:
     exe = inspector_bin()
     env = dict(os.environ, PATH=f"{exe.parent}{os.pathsep}{os.environ.get('PATH', '')}")
-    p = subprocess.run([str(exe), "--cli", *args], capture_output=True, text=True, timeout=timeout, env=env)
+    # a generous connection time-out: on a loaded 2-core machine the first answer can take > 15 s
+    p = subprocess.run([str(exe), "--cli", *args, "--connect-timeout", "120000"], capture_output=True, text=True,
+                       timeout=timeout + 120, env=env)
     assert p.returncode == 0, f"inspector {args[2:]} failed ({p.returncode}): {p.stdout[-2000:]} {p.stderr[-2000:]}"
     return json.loads(p.stdout)
 
