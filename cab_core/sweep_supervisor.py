@@ -118,7 +118,7 @@ class AttemptSupervisor:
                 return None, True
         return proc.returncode, False
 
-    def _failure(self, try_no: int, code: int | None, hung: bool) -> dict | None:
+    def _failure(self, code: int | None, hung: bool) -> dict | None:
         """Classify a finished try: None when it is a valid attempt, else the failure record."""
         if hung:
             return {"kind": "hang", "detail": f"no progress for {self.settings.hang_timeout_s:g} s; killed"}
@@ -141,7 +141,7 @@ class AttemptSupervisor:
         for try_no in range(1, s.max_retries + 2):
             t0 = time.monotonic()
             code, hung = self._run_child(try_no)
-            failure = self._failure(try_no, code, hung)
+            failure = self._failure(code, hung)
             if failure is None:
                 return annotate_result(self.dir, infrastructure_failures(self.dir))
             failure.update(try_no=try_no, wall_seconds=round(time.monotonic() - t0, 3), at=time.time())
