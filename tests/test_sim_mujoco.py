@@ -381,3 +381,24 @@ def test_two_simulators_render_concurrently(render_available):
     finally:
         for s in sims:
             s.close()
+
+
+def test_an_attempt_through_the_cli_records_mujoco(tmp_path, render_available):
+    """``cab +sim=mujoco`` composes conf/sim/mujoco.yaml, a physics override reaches the model,
+    and the record names the simulator, its parameters and the GL renderer."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    if render_available is not None:
+        pytest.skip(render_available)
+    cab = os.path.join(os.path.dirname(sys.executable), "cab")
+    r = subprocess.run([cab, "+sim=mujoco", "+model=oracle", "task=click_bell", "+sim.physics.impratio=12",
+                        f"hydra.run.dir={tmp_path}/d"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads((tmp_path / "d" / "result.json").read_text())
+    assert res["sim"] == "mujoco" and res["verdict"]["success"] is True
+    v = res["versions"]["simulator"]
+    assert v["simulator"] == "mujoco" and json.loads(v["physics"])["impratio"] == 12.0
+    assert v["render"] == "on" and v["gl_backend"] in ("egl", "osmesa", "glfw") and v["llvmpipe"] in ("yes", "no")
