@@ -6,8 +6,23 @@ import json
 import sys
 
 from hydra.experimental.callback import Callback
+from omegaconf import OmegaConf
 
 GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment")
+
+
+def scene_seed(seed, task: str) -> int:
+    """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the catalog's fixed seed of
+    the task), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
+    from .catalog import task_info
+
+    return task_info(task).seed if seed is None else seed
+
+
+# Registered when this module is imported: Hydra resolves each job's output directory in the
+# launcher's worker process, and every worker imports this module (it holds the app and its callback).
+if not OmegaConf.has_resolver("cab.seed"):
+    OmegaConf.register_new_resolver("cab.seed", scene_seed)
 
 
 def normalise_overrides(argv: list[str]) -> list[str]:
