@@ -81,10 +81,11 @@ PHYSICS_DEFAULTS: dict[str, float] = {
     "rolling_friction_m": 0.001,
     # Torsional friction (m: resisting torque per newton of normal force about the contact
     # normal), on every surface. PhysX's friction patches resist twisting over their area; a
-    # Bullet contact point does not. About (2/3) mu r for a patch of radius r ~ 3 mm between hard
-    # surfaces. (Measured: 0.003 holds a block so stiffly in one gripper that the other arm's
-    # fingers shove it aside in handover_block; 0.0005 and 0.001 both hand it over.)
-    "spinning_friction_m": 0.001,
+    # Bullet contact point does not. About (2/3) mu r for a patch of radius r ~ 6 mm. Measured on
+    # the oracles: at 0.001 a small block carried in one gripper swings out of it
+    # (blocks_ranking_size); at 0.003 the block held for a handover resists the other hand's
+    # fingers so stiffly that they shove it aside (handover_block); 0.002 does both tasks.
+    "spinning_friction_m": 0.002,
     # Diffuse and specular coefficients of TinyRenderer's light (the ambient one comes from the scene).
     "light_diffuse": 0.6,
     "light_specular": 0.0,
