@@ -18,12 +18,14 @@ from pathlib import Path
 from .sweep import completed_results
 
 
-def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool, rnd: int = 1) -> dict:
+def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool, rnd: int = 1,
+              threads: str = "1") -> dict:
     """One timed sweep; returns its figures."""
     sweep_dir = out / f"round-{rnd}" / f"workers-{workers}"
     cab = os.path.join(os.path.dirname(sys.executable), "cab")
     cmd = [cab, "-m", f"task={task}", f"model={model}", f"attempt={','.join(str(a) for a in range(1, attempts + 1))}",
-           f"record.video={str(video).lower()}", f"hydra.sweep.dir={sweep_dir}", f"hydra.launcher.n_jobs={workers}"]
+           f"record.video={str(video).lower()}", f"hydra.sweep.dir={sweep_dir}", f"hydra.launcher.n_jobs={workers}",
+           f"sweep.threads_per_attempt={threads}"]
     load0 = os.getloadavg()[0]
     t0 = time.monotonic()
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=out)
@@ -49,6 +51,7 @@ def main() -> None:
     ap.add_argument("--attempts", type=int, default=6, help="attempts per sweep (same task, attempt=1..N)")
     ap.add_argument("--workers", default="1,2", help="comma-separated worker counts; the first is the baseline")
     ap.add_argument("--video", action="store_true", help="record the head-view video (off by default)")
+    ap.add_argument("--threads", default="1", help="sweep.threads_per_attempt (a number, or null: unlimited)")
     ap.add_argument("--rounds", type=int, default=1,
                     help="repeat, alternating the order of worker counts, so that all see the same background load")
     ap.add_argument("--json", help="also write the figures to this JSON file")
@@ -65,7 +68,7 @@ def main() -> None:
             print(f"cab-bench-sweep: round {rnd}: {a.attempts} x {a.task}/{a.model} with {w} worker(s)...",
                   file=sys.stderr, flush=True)
             try:
-                rows.append(run_sweep(out.resolve(), w, a.task, a.model, a.attempts, a.video, rnd))
+                rows.append(run_sweep(out.resolve(), w, a.task, a.model, a.attempts, a.video, rnd, a.threads))
             except RuntimeError as e:
                 print(f"cab-bench-sweep: {e}", file=sys.stderr)
                 sys.exit(1)
@@ -78,10 +81,11 @@ def main() -> None:
               f"{r['successes']}/{r['attempts']} | {r['mean_attempt_wall_s']} | {r['load_avg_1min']} |")
     for w in counts:
         print(f"{w} worker(s): {rate[w]:.1f} attempts/h over all rounds, speed-up {rate[w] / rate[counts[0]]:.2f}x")
-    print(f"cpu cores: {os.cpu_count()}; task {a.task}, model {a.model}, video {'on' if a.video else 'off'}")
+    print(f"cpu cores: {os.cpu_count()}; task {a.task}, model {a.model}, video {'on' if a.video else 'off'}, "
+          f"threads per attempt {a.threads}")
     if a.json:
         Path(a.json).write_text(json.dumps({"cpu_count": os.cpu_count(), "task": a.task, "model": a.model,
-                                            "video": a.video, "rows": rows,
+                                            "video": a.video, "threads_per_attempt": a.threads, "rows": rows,
                                             "attempts_per_hour": {str(w): round(v, 1) for w, v in rate.items()}},
                                            indent=2))
 

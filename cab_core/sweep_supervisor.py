@@ -26,6 +26,8 @@ from .sweep_records import (INFRA_TERMINATIONS, annotate_result, check_attempt, 
                             log_infrastructure_failure, set_aside, write_infrastructure_result)
 
 CHILD_LOG = "attempt.log"
+# Thread pools an attempt process may start: lavapipe's renderer (the largest), BLAS and OpenMP.
+THREAD_ENV = ("LP_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 class ChildConfigError(ConfigError):
@@ -35,10 +37,12 @@ class ChildConfigError(ConfigError):
 @dataclass
 class SupervisorConfig:
     """``sweep.*`` settings: how many retries, how long without progress is a hang, the pause
-    between tries, and how often the watchdog looks."""
+    between tries, how many threads each attempt's renderer and numeric libraries may use (None: as
+    many as they like), and how often the watchdog looks."""
     max_retries: int = 2
     hang_timeout_s: float = 900.0
     retry_backoff_s: float = 10.0
+    threads: int | None = 1
     poll_s: float = 0.5
 
     @classmethod
@@ -46,10 +50,13 @@ class SupervisorConfig:
         c = dict(cfg or {})
         out = cls(max_retries=int(c.get("max_infra_retries", cls.max_retries)),
                   hang_timeout_s=float(c.get("hang_timeout_s", cls.hang_timeout_s)),
-                  retry_backoff_s=float(c.get("retry_backoff_s", cls.retry_backoff_s)))
+                  retry_backoff_s=float(c.get("retry_backoff_s", cls.retry_backoff_s)),
+                  threads=c.get("threads_per_attempt", cls.threads))
         if out.max_retries < 0 or out.hang_timeout_s <= 0 or out.retry_backoff_s < 0:
             raise ConfigError("sweep.max_infra_retries and sweep.retry_backoff_s must be >= 0, "
                               "sweep.hang_timeout_s > 0")
+        if out.threads is not None and (not isinstance(out.threads, int) or out.threads < 1):
+            raise ConfigError(f"sweep.threads_per_attempt must be a positive integer or null, got {out.threads!r}")
         return out
 
 
@@ -97,6 +104,8 @@ class AttemptSupervisor:
         """One try; returns (exit status or None when killed as hung, whether it hung)."""
         self.dir.mkdir(parents=True, exist_ok=True)
         env = {**os.environ, PARENT_ENV: str(os.getpid())}
+        if self.settings.threads is not None:  # N workers on N cores: no attempt oversubscribes them
+            env.update({k: str(self.settings.threads) for k in THREAD_ENV})
         with open(self.dir / CHILD_LOG, "ab") as log:
             proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep_child"], stdin=subprocess.PIPE,
                                     stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)

@@ -258,9 +258,13 @@ class Saboteur:
     simulator crash) or SIGSTOP (a hang the watchdog must catch)."""
 
     def __init__(self, attempt_dir: Path, plan: dict[int, signal.Signals]):
-        self.dir, self.plan, self.threads = attempt_dir, plan, []
+        self.dir, self.plan, self.threads, self.environ = attempt_dir, plan, [], []
 
     def __call__(self, proc: subprocess.Popen, try_no: int) -> None:
+        environ, deadline = b"", time.monotonic() + 10
+        while not environ and time.monotonic() < deadline:  # empty until exec has set the new one up
+            environ = Path(f"/proc/{proc.pid}/environ").read_bytes()
+        self.environ.append(environ.split(b"\0"))
         if try_no in self.plan:
             t = threading.Thread(target=self._strike, args=(proc, self.plan[try_no]), daemon=True)
             t.start()
@@ -278,7 +282,7 @@ class Saboteur:
 def test_crash_and_hang_are_retried_and_recorded(tmp_path):
     d = tmp_path / "a"
     sab = Saboteur(d, {1: signal.SIGKILL, 2: signal.SIGSTOP})
-    settings = SupervisorConfig(max_retries=2, hang_timeout_s=30.0, retry_backoff_s=0.0)  # > set-up time
+    settings = SupervisorConfig.from_cfg({"max_infra_retries": 2, "hang_timeout_s": 30, "retry_backoff_s": 0})
     res = AttemptSupervisor(composed("model=idle", "record.video=false"), d, IDENTITY, settings, on_child=sab).run()
     assert not is_infrastructure_failure(res)
     assert res["verdict"]["success"] is False and res["termination"]["reason"] == "done"
@@ -290,6 +294,8 @@ def test_crash_and_hang_are_retried_and_recorded(tmp_path):
     for f in fails:
         assert (d / f["records"] / "events.jsonl").exists() and not (d / f["records"] / "result.json").exists()
     assert check_attempt(d, IDENTITY).state == "complete"
+    for env in sab.environ:  # one core's worth of renderer and BLAS threads per attempt (sweep default)
+        assert {b"LP_NUM_THREADS=1", b"OMP_NUM_THREADS=1", b"OPENBLAS_NUM_THREADS=1"} <= set(env)
 
 
 def _closed_port() -> int:
