@@ -316,3 +316,24 @@ def test_body_with_more_shapes_than_a_bullet_link_takes():
         assert sim.render(sc.HEAD_CAMERA).std() > 2.0
     finally:
         sim.close()
+
+
+def test_the_two_arms_collide_but_one_arm_never_with_itself():
+    """The aloha robot: its left arm swung across into the right one reports left-right link
+    pairs only (an arm's own links and the body never pair up)."""
+    from cab_core.plugins import create
+
+    emb = create("embodiments", "aloha_agilex", {})
+    sim = PybulletSimulator({"render": False})
+    sim.build(SceneSpec(), emb)
+    try:
+        sim.step(10)
+        assert not sim.get_contacts(), "the robot at home touches itself"
+        q = sim.get_qpos()
+        q[sim.joint_names.index("fl_joint1")], q[sim.joint_names.index("fl_joint2")] = -1.5, 1.5
+        sim.set_qpos(q)
+        sim.step(1)
+        pairs = {(c.a, c.b) for c in sim.get_contacts()}
+        assert pairs and all(a.startswith("robot/fl_") and b.startswith("robot/fr_") for a, b in pairs), pairs
+    finally:
+        sim.close()

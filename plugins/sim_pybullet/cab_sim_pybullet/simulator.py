@@ -189,7 +189,8 @@ class PybulletSimulator(Simulator):
         """Create the world: ground, bodies, articulated objects, the robot, cameras.
 
         - Ground: a static plane at ``scene.ground_z`` named ``"ground"``.
-        - Bodies: Bullet multibodies without joints; primitives and OBJ meshes (convex hulls;
+        - Bodies: one Bullet multibody each (of fixed-joint links when it has more shapes than a
+          PyBullet link takes); primitives and OBJ meshes (convex hulls;
           non-convex triangle meshes only on static and kinematic bodies). Static and kinematic
           bodies have no mass (kinematic ones move only when code teleports them). Mass, centre of
           mass and inertia come from the density over the exact shapes (:mod:`.massprops`);
