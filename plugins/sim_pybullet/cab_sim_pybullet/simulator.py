@@ -50,8 +50,8 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
 from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
-from cab_core.simsupport import (check_object_names, pack_state, pose_or_bad, start_joint_values, unpack_state,
-                                vector_or_bad)
+from cab_core.simsupport import (check_object_names, pack_state, pose_or_bad, start_joint_values,
+                                step_count_or_bad, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import massprops
@@ -536,14 +536,13 @@ class PybulletSimulator(Simulator):
         return self._timestep
 
     def step(self, n: int = 1) -> None:
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-            raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+        n = step_count_or_bad(n)
         c = self._live()
         if n == 0:
             return
-        for _ in range(int(n)):
+        for _ in range(n):
             c.stepSimulation()
-        self._steps += int(n)
+        self._steps += n
         self._contacts = None
 
     # -- poses --------------------------------------------------------------------------------
