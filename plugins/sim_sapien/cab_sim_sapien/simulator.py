@@ -46,7 +46,6 @@ is first called after that step, so stepping costs nothing extra.
 """
 from __future__ import annotations
 
-import io
 import json
 import logging
 import math
@@ -61,8 +60,9 @@ from sapien.wrapper.urdf_loader import URDFLoader
 from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, mat_to_quat
-from cab_core.scene import (Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere,
-                            as_pose)
+from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
+from cab_core.simsupport import (check_object_names, pack_state, pose_or_bad, start_joint_values,
+                                step_count_or_bad, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import renderer as _renderer
@@ -90,25 +90,6 @@ def _np(pose: sapien.Pose) -> np.ndarray:
     out[:3] = pose.p
     out[3:] = pose.q
     return out
-
-
-def _pose_or_bad(pose) -> tuple[float, ...]:
-    try:
-        return as_pose(pose)
-    except (ValueError, TypeError) as e:
-        raise BadCommand(str(e)) from None
-
-
-def _vector_or_bad(values, n: int, what: str) -> np.ndarray:
-    try:
-        a = np.asarray(values, dtype=np.float64)
-    except (ValueError, TypeError) as e:
-        raise BadCommand(f"{what}: expected {n} numbers, got {values!r} ({e})") from None
-    if a.shape != (n,):
-        raise BadCommand(f"{what}: expected shape ({n},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise BadCommand(f"{what}: non-finite value in {a.tolist()}")
-    return a
 
 
 # The Vulkan context and its compiled pipelines live as long as some render object does. Without a
@@ -263,12 +244,7 @@ class SapienSimulator(Simulator):
                 s.add_point_light(list(position), list(color), shadow=self._shadows,
                                   shadow_map_size=self._shadow_map_size)
 
-        seen: set[str] = set()
-        for name in scene.names():
-            if not name or "/" in name or name in (ROBOT, "ground") or name in seen:
-                raise BadCommand(f"invalid or duplicate object name {name!r} (names are unique, "
-                                 f"non-empty, without '/', and not 'robot' or 'ground')")
-            seen.add(name)
+        check_object_names(scene)
         for body in scene.bodies:
             self._build_body(body)
         for obj in scene.articulations:
@@ -306,7 +282,7 @@ class SapienSimulator(Simulator):
         n_collision = 0
         for shape in body.shapes:
             g = shape.geometry
-            pose = _sp(_pose_or_bad(shape.pose))
+            pose = _sp(pose_or_bad(shape.pose))
             if isinstance(g, Mesh) and not os.path.isfile(g.path):
                 raise BadCommand(f"body {body.name!r}: mesh file not found: {g.path}")
             if shape.collision:
@@ -345,7 +321,7 @@ class SapienSimulator(Simulator):
                     b.add_cylinder_visual(pose, radius=g.radius, half_length=g.half_length, material=rm)
                 elif isinstance(g, Mesh):
                     b.add_visual_from_file(g.path, pose, scale=tuple(g.scale), material=rm)
-        b.set_initial_pose(_sp(_pose_or_bad(body.pose)))
+        b.set_initial_pose(_sp(pose_or_bad(body.pose)))
         entity = b.build(name=body.name)
         cls = (sapien.physx.PhysxRigidStaticComponent if body.kind == "static"
                else sapien.physx.PhysxRigidDynamicComponent)
@@ -380,7 +356,7 @@ class SapienSimulator(Simulator):
             builder = loader.load_file_as_articulation_builder(urdf, srdf if srdf and os.path.isfile(srdf) else None)
         except Exception as e:  # the URDF parser raises plain Exceptions
             raise BadCommand(f"cannot load URDF {urdf}: {e}") from e
-        builder.set_initial_pose(_sp(_pose_or_bad(pose)))
+        builder.set_initial_pose(_sp(pose_or_bad(pose)))
         return builder.build()
 
     def _filter_self_collisions(self, emb: EmbodimentSpec) -> None:
@@ -413,7 +389,7 @@ class SapienSimulator(Simulator):
             if obj.joint_damping > 0:
                 j.set_drive_property(0.0, float(obj.joint_damping))
         if obj.qpos is not None:
-            q = _vector_or_bad(obj.qpos, art.dof, f"initial qpos of {obj.name!r}")
+            q = vector_or_bad(obj.qpos, art.dof, f"initial qpos of {obj.name!r}")
             art.set_qpos(q.astype(np.float32))
         links = {}
         for link in art.get_links():
@@ -450,17 +426,8 @@ class SapienSimulator(Simulator):
         q = art.get_qpos().astype(np.float64)
         start = q[self._qidx].copy()
         pos = {n: i for i, n in enumerate(order)}
-        for arm in emb.arms.values():
-            home = tuple(arm.home_qpos)
-            if len(home) == len(arm.joints):
-                values = list(home) + [arm.gripper.open_target] * len(arm.gripper.joints)
-            elif len(home) == len(arm.joints) + len(arm.gripper.joints):
-                values = list(home)
-            else:
-                raise BadCommand(f"arm {arm.name!r}: home_qpos has {len(home)} values for "
-                                 f"{len(arm.joints)} joints")
-            for n, v in zip(list(arm.joints) + list(arm.gripper.joints), values):
-                start[pos[n]] = v
+        for n, v in start_joint_values(emb).items():
+            start[pos[n]] = v
         q[self._qidx] = start
         art.set_qpos(q.astype(np.float32))
         # active joints outside joint_order (none in a well-formed embodiment) hold their start
@@ -481,7 +448,7 @@ class SapienSimulator(Simulator):
                 raise BadCommand(f"duplicate camera name {spec.name!r}")
             if spec.width <= 0 or spec.height <= 0 or not 0 < spec.fovy_deg < 180:
                 raise BadCommand(f"camera {spec.name!r}: bad size or field of view")
-            local = _sp(_pose_or_bad(spec.pose))
+            local = _sp(pose_or_bad(spec.pose))
             link = None
             if spec.mount_link is not None:
                 link = self._robot_links.get(spec.mount_link)
@@ -532,15 +499,14 @@ class SapienSimulator(Simulator):
         return self._timestep
 
     def step(self, n: int = 1) -> None:
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-            raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
+        n = step_count_or_bad(n)
         self._live()
         if n == 0:
             return
         step = self._px.step
-        for _ in range(int(n)):
+        for _ in range(n):
             step()
-        self._steps += int(n)
+        self._steps += n
         self._contacts = None  # computed lazily from the last step's PhysX contacts
         self._version += 1
 
@@ -560,7 +526,7 @@ class SapienSimulator(Simulator):
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         self._live()
-        q = _vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        q = vector_or_bad(qpos, len(self._joint_names), "robot qpos")
         full = self._robot.get_qpos()
         full[self._qidx] = q
         self._robot.set_qpos(full)
@@ -570,8 +536,8 @@ class SapienSimulator(Simulator):
 
     def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        t = _vector_or_bad(targets, len(self._joint_names), "drive targets")
-        v = None if velocities is None else _vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
+        t = vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
         self._apply_targets(t, v)
 
     def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
@@ -618,7 +584,7 @@ class SapienSimulator(Simulator):
     def set_object_pose(self, name: str, pose) -> None:
         """Teleport a body (or an articulated object's root) and zero its velocity."""
         body, art = self._object(name)
-        p = _sp(_pose_or_bad(pose))
+        p = _sp(pose_or_bad(pose))
         if body is not None:
             body.entity.set_pose(p)
             if body.kind == "dynamic":
@@ -649,7 +615,7 @@ class SapienSimulator(Simulator):
         body, art = self._object(name)
         if art is None:
             raise BadCommand(f"{name!r} is a rigid body; it has no joints")
-        q = _vector_or_bad(qpos, art.dof, f"qpos of {name!r}")
+        q = vector_or_bad(qpos, art.dof, f"qpos of {name!r}")
         art.set_qpos(q.astype(np.float32))
         art.set_qvel(np.zeros(art.dof, dtype=np.float32))
         self._touched()
@@ -785,36 +751,25 @@ class SapienSimulator(Simulator):
             root[i, 7:10], root[i, 10:] = a.get_root_linear_velocity(), a.get_root_angular_velocity()
         qpos = np.concatenate([a.get_qpos() for a in arts]).astype(np.float32)
         qvel = np.concatenate([a.get_qvel() for a in arts]).astype(np.float32)
-        contacts = json.dumps([[c.a, c.b, c.impulse, c.point] for c in self.get_contacts()])
-        d = dict(layout=np.array(self._layout()), body_pose=pose, body_vel=vel, body_asleep=asleep,
-                 root=root, qpos=qpos, qvel=qvel, targets=self._targets.copy(), vtargets=self._vtargets.copy(),
-                 steps=np.array(self._steps, np.int64), contacts=np.array(contacts))
+        d = dict(body_pose=pose, body_vel=vel, body_asleep=asleep, root=root, qpos=qpos, qvel=qvel,
+                 targets=self._targets.copy(), vtargets=self._vtargets.copy(),
+                 steps=np.array(self._steps, np.int64))
+        contacts = self.get_contacts()
         # Re-apply the snapshot to this world at once. PhysX keeps float32 internals that the API
         # does not expose (centre-of-mass frames, link spatial velocities); writing the state back
         # puts them in exactly the form a later restore produces, so "save, do anything, restore,
         # step" replays "save, step" bit for bit. The price: a snapshot perturbs the run it is taken
         # from by float32 rounding (about 1e-9 to 1e-6 m), identically on every run that takes it.
-        self._apply_state(d)
-        buf = io.BytesIO()
-        np.savez(buf, **d)
-        return SimState(backend=BACKEND, data=buf.getvalue())
+        self._apply_state(d, contacts)
+        return pack_state(BACKEND, self._layout(), d, contacts)
 
     def restore_state(self, state: SimState) -> None:
         """Restore a snapshot of this world (or of another build of the same scene and robot)."""
         self._live()
-        if not isinstance(state, SimState) or state.backend != BACKEND:
-            raise BadCommand(f"not a {BACKEND} state: {getattr(state, 'backend', type(state).__name__)!r}")
-        try:
-            with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-            layout = str(d["layout"])
-        except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
-            raise BadCommand(f"corrupt {BACKEND} state: {e}") from None
-        if layout != self._layout():
-            raise BadCommand("the state was saved from a different scene or robot")
-        self._apply_state(d)
+        d, contacts = unpack_state(state, BACKEND, self._layout())
+        self._apply_state(d, contacts)
 
-    def _apply_state(self, d: dict) -> None:
+    def _apply_state(self, d: dict, contacts: list[Contact]) -> None:
         for i, b in enumerate(self._bodies.values()):
             row = d["body_pose"][i]
             b.entity.set_pose(sapien.Pose(row[:3], row[3:]))
@@ -838,8 +793,7 @@ class SapienSimulator(Simulator):
         self._apply_targets(np.asarray(d["targets"], np.float64),
                             np.asarray(d["vtargets"], np.float64) if "vtargets" in d else None)
         self._steps = int(d["steps"])
-        self._contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
-                          for a, b, imp, pt in json.loads(str(d["contacts"]))]
+        self._contacts = list(contacts)
         self._touched()
 
     # -- provenance ---------------------------------------------------------------------------
