@@ -7,13 +7,17 @@ restating the rules (and drifting apart). Nothing here imports a simulator.
 from __future__ import annotations
 
 import json
+from typing import Mapping, TypeVar
 
 import numpy as np
 
 from .embodiment import EmbodimentSpec
 from .errors import BadCommand
-from .scene import SceneSpec, as_pose
+from .geometry import intrinsics
+from .scene import CameraSpec, SceneSpec, as_pose
 from .simulator import ROBOT, Contact, SimState
+
+T = TypeVar("T")
 
 
 def pose_or_bad(pose) -> tuple[float, ...]:
@@ -100,3 +104,98 @@ def step_count_or_bad(n) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise BadCommand(f"step count must be a non-negative integer, got {n!r}")
     return int(n)
+
+
+def check_camera_spec(spec: CameraSpec, taken) -> None:
+    """BadCommand if a camera's name is already in ``taken`` or its size or field of view is
+    impossible (sizes positive, vertical field of view strictly between 0 and 180 degrees)."""
+    if spec.name in taken:
+        raise BadCommand(f"duplicate camera name {spec.name!r}")
+    if spec.width <= 0 or spec.height <= 0 or not 0 < spec.fovy_deg < 180:
+        raise BadCommand(f"camera {spec.name!r}: bad size or field of view")
+
+
+def camera_mount(spec: CameraSpec, links: Mapping[str, T]) -> T | None:
+    """The robot link (from ``links``, by name) a camera is mounted on, None for a fixed camera,
+    or BadCommand if the camera names a link the robot does not have."""
+    if spec.mount_link is None:
+        return None
+    link = links.get(spec.mount_link)
+    if link is None:
+        raise BadCommand(f"camera {spec.name!r}: mount link {spec.mount_link!r} is not a robot link")
+    return link
+
+
+class CameraAccessors:
+    """The contract's camera look-ups, for a backend that keeps ``self._cameras`` (camera name ->
+    an object with the camera's ``spec``) and raises from ``self._live()`` once closed. Pose and
+    rendering stay with the backend: only they differ between simulators."""
+
+    _cameras: dict
+
+    def _camera(self, name: str):
+        """The backend's record of camera ``name``, or BadCommand."""
+        self._live()
+        cam = self._cameras.get(name) if isinstance(name, str) else None
+        if cam is None:
+            raise BadCommand(f"unknown camera {name!r}")
+        return cam
+
+    def camera_names(self) -> list[str]:
+        self._live()
+        return list(self._cameras)
+
+    def camera_intrinsics(self, name: str) -> np.ndarray:
+        s = self._camera(name).spec
+        return intrinsics(int(s.width), int(s.height), float(s.fovy_deg))
+
+    def camera_size(self, name: str) -> tuple[int, int]:
+        s = self._camera(name).spec
+        return int(s.height), int(s.width)
+
+
+class LastStepContacts:
+    """``get_contacts`` for a backend that reads its engine's contacts of the last step on the
+    first call after that step (``self._compute_contacts()``) and keeps them in ``self._contacts``
+    (None: not read yet), so that stepping costs nothing extra."""
+
+    _contacts: list[Contact] | None
+
+    def get_contacts(self) -> list[Contact]:
+        """One entry per body pair in contact during the last step, names sorted within the pair,
+        pairs sorted (see the backend's ``_compute_contacts`` for its impulse and point)."""
+        self._live()
+        if self._contacts is None:
+            self._contacts = self._compute_contacts()
+        return list(self._contacts)
+
+
+class PairContacts:
+    """Sums contact points per pair of named bodies: impulse, position sum and point count; the
+    result is one :class:`Contact` a pair at the mean position. A pair with an unnamed body
+    (None) or a body touching itself is left out."""
+
+    def __init__(self) -> None:
+        self._acc: dict[tuple[str, str], list] = {}
+
+    def add(self, n0: str | None, n1: str | None, impulse, x, y, z, k: int = 1) -> None:
+        """Add ``k`` points between ``n0`` and ``n1`` carrying ``impulse`` whose positions sum to
+        ``(x, y, z)``."""
+        if n0 is None or n1 is None or n0 == n1:
+            return
+        key = (n0, n1) if n0 <= n1 else (n1, n0)
+        e = self._acc.get(key)
+        if e is None:
+            self._acc[key] = [impulse, x, y, z, k]
+        else:
+            e[0] += impulse
+            e[1] += x
+            e[2] += y
+            e[3] += z
+            e[4] += k
+
+    def contacts(self, scale: float = 1.0) -> list[Contact]:
+        """The pairs, sorted, with their summed impulse times ``scale`` (a timestep where the sums
+        are forces) and their mean point."""
+        return [Contact(a, b, float(e[0] * scale), (float(e[1] / e[4]), float(e[2] / e[4]), float(e[3] / e[4])))
+                for (a, b), e in sorted(self._acc.items())]

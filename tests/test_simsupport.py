@@ -64,3 +64,34 @@ def test_step_counts():
     for bad in (-1, True, 1.5, "2", None):
         with pytest.raises(BadCommand, match="step count"):
             step_count_or_bad(bad)
+
+
+def test_pair_contacts_sum_per_sorted_pair_and_skip_unnamed_or_self():
+    from cab_core.simsupport import PairContacts
+    from cab_core.simulator import Contact
+
+    acc = PairContacts()
+    acc.add("table", "cube", 1.0, 0.2, 0.4, 1.0)
+    acc.add("cube", "table", 3.0, 0.6, 0.0, 2.0, k=3)
+    acc.add("a", None, 9.0, 0.0, 0.0, 0.0)
+    acc.add("cube", "cube", 9.0, 0.0, 0.0, 0.0)
+    acc.add("ball", "cube", 0.5, 0.1, 0.1, 0.1)
+    assert acc.contacts() == [Contact("ball", "cube", 0.5, (0.1, 0.1, 0.1)),
+                              Contact("cube", "table", 4.0, (0.2, 0.1, 0.75))]
+    assert acc.contacts(0.5)[1].impulse == 2.0
+
+
+def test_camera_spec_and_mount_refusals():
+    from cab_core.scene import CameraSpec
+    from cab_core.simsupport import camera_mount, check_camera_spec
+
+    spec = CameraSpec("head", 64, 48, 60.0, mount_link="link1")
+    check_camera_spec(spec, {})
+    with pytest.raises(BadCommand, match="duplicate camera name 'head'"):
+        check_camera_spec(spec, {"head": None})
+    with pytest.raises(BadCommand, match="bad size or field of view"):
+        check_camera_spec(replace(spec, fovy_deg=180.0), {})
+    assert camera_mount(spec, {"link1": 0}) == 0
+    assert camera_mount(replace(spec, mount_link=None), {}) is None
+    with pytest.raises(BadCommand, match="mount link 'link1' is not a robot link"):
+        camera_mount(spec, {})

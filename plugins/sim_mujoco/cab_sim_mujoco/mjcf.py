@@ -30,7 +30,7 @@ from cab_core.errors import BadCommand
 from cab_core.geometry import axis_angle_quat, euler_quat, quat_mul, quat_to_mat
 from cab_core.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
                             SceneSpec, Shape, Sphere)
-from cab_core.simsupport import check_object_names, pose_or_bad
+from cab_core.simsupport import camera_mount, check_camera_spec, check_object_names, pose_or_bad
 from cab_core.simulator import ROBOT
 
 from .physics import PhysicsParams
@@ -413,17 +413,10 @@ class MjcfWriter:
                     self._excludes.append((art.links[a], art.links[b]))
 
     def _camera(self, world, spec: CameraSpec, bodies: dict[str, ET.Element]) -> None:
-        if spec.name in self.plan.cameras:
-            raise BadCommand(f"duplicate camera name {spec.name!r}")
-        if spec.width <= 0 or spec.height <= 0 or not 0 < spec.fovy_deg < 180:
-            raise BadCommand(f"camera {spec.name!r}: bad size or field of view")
+        check_camera_spec(spec, self.plan.cameras)
         local = _pose_or_bad(spec.pose, f"camera {spec.name!r}: pose")
-        parent, body = world, None
-        if spec.mount_link is not None:
-            body = self.plan.robot.links.get(spec.mount_link) if self.plan.robot else None
-            if body is None:
-                raise BadCommand(f"camera {spec.name!r}: mount link {spec.mount_link!r} is not a robot link")
-            parent = bodies[body]
+        body = camera_mount(spec, self.plan.robot.links if self.plan.robot else {})
+        parent = world if body is None else bodies[body]
         ET.SubElement(parent, "camera", name=spec.name, mode="fixed", pos=_fmt(local[:3]),
                       quat=_fmt(quat_mul(local[3:], _MJ_CAM_FROM_CV)), fovy=repr(float(spec.fovy_deg)))
         self.plan.cameras[spec.name] = Camera(spec, body, local)

@@ -42,9 +42,10 @@ import mujoco  # noqa: E402
 
 from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
-from cab_core.geometry import intrinsics, pose_mul, quat_to_mat
+from cab_core.geometry import pose_mul, quat_to_mat
 from cab_core.scene import SceneSpec
-from cab_core.simsupport import pose_or_bad, start_joint_values, step_count_or_bad, vector_or_bad
+from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, pose_or_bad,
+                                start_joint_values, step_count_or_bad, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
@@ -104,7 +105,7 @@ class _Renderer:
             self.context.free()
 
 
-class MujocoSimulator(Simulator):
+class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
     """MuJoCo (CPU physics; OpenGL rendering through EGL or OSMesa). Not thread-safe: one owner."""
 
     name = BACKEND
@@ -416,18 +417,11 @@ class MujocoSimulator(Simulator):
         return self._body_pose(b)
 
     # -- contacts -----------------------------------------------------------------------------
-    def get_contacts(self) -> list[Contact]:
-        """One entry per body pair in contact during the last step, names sorted within the pair,
-        pairs sorted; impulse = sum over the pair's contact points of |force| x timestep (N*s),
-        force = normal plus friction; point = mean position of the points that carried force."""
-        self._live()
-        if self._contacts is None:
-            self._contacts = self._compute_contacts()
-        return list(self._contacts)
-
     def _compute_contacts(self) -> list[Contact]:
+        """Impulse = sum over the pair's contact points of |force| x timestep (N*s), force = normal
+        plus friction; point = mean position of the points that carried force."""
         m, d = self._model, self._data
-        acc: dict[tuple[str, str], list] = {}
+        acc = PairContacts()
         if d.ncon == 0:
             return []
         geom_body = m.geom_bodyid
@@ -441,50 +435,16 @@ class MujocoSimulator(Simulator):
             f = math.sqrt(force[0] * force[0] + force[1] * force[1] + force[2] * force[2])
             if f <= 0.0:
                 continue
-            n0 = names[geom_body[con.geom1[i]]]
-            n1 = names[geom_body[con.geom2[i]]]
-            if n0 == n1:
-                continue
-            key = (n0, n1) if n0 <= n1 else (n1, n0)
             x, y, z = con.pos[i]
-            e = acc.get(key)
-            if e is None:
-                acc[key] = [f, x, y, z, 1]
-            else:
-                e[0] += f
-                e[1] += x
-                e[2] += y
-                e[3] += z
-                e[4] += 1
-        dt = self._timestep
-        return [Contact(a, b, float(e[0] * dt), (float(e[1] / e[4]), float(e[2] / e[4]), float(e[3] / e[4])))
-                for (a, b), e in sorted(acc.items())]
+            acc.add(names[geom_body[con.geom1[i]]], names[geom_body[con.geom2[i]]], f, x, y, z)
+        return acc.contacts(self._timestep)
 
     # -- cameras ------------------------------------------------------------------------------
-    def _camera(self, name: str):
-        self._live()
-        cam = self._cameras.get(name) if isinstance(name, str) else None
-        if cam is None:
-            raise BadCommand(f"unknown camera {name!r}")
-        return cam
-
-    def camera_names(self) -> list[str]:
-        self._live()
-        return list(self._cameras)
-
     def camera_pose(self, name: str) -> np.ndarray:
         cam = self._camera(name)
         if cam.body is None:
             return np.asarray(cam.local, dtype=float)
         return pose_mul(self._body_pose(self._camera_bodies[name]), cam.local)
-
-    def camera_intrinsics(self, name: str) -> np.ndarray:
-        s = self._camera(name).spec
-        return intrinsics(int(s.width), int(s.height), float(s.fovy_deg))
-
-    def camera_size(self, name: str) -> tuple[int, int]:
-        s = self._camera(name).spec
-        return int(s.height), int(s.width)
 
     def render(self, name: str) -> np.ndarray:
         cam = self._camera(name)

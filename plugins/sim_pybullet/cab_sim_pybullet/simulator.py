@@ -50,8 +50,9 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
 from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
-from cab_core.simsupport import (check_object_names, pack_state, pose_or_bad, start_joint_values,
-                                step_count_or_bad, unpack_state, vector_or_bad)
+from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
+                                check_camera_spec, check_object_names, pack_state, pose_or_bad,
+                                start_joint_values, step_count_or_bad, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import massprops
@@ -150,13 +151,12 @@ class _MultiBody:
 @dataclass
 class _Camera:
     spec: CameraSpec
-    K: np.ndarray
     mount: int | None  # robot link index of a mounted camera, None for a fixed one
     local: np.ndarray  # cv pose: world pose (fixed) or pose in the mount link (mounted)
     projection: list[float]
 
 
-class PybulletSimulator(Simulator):
+class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
     """PyBullet 3 (Bullet multibodies, TinyRenderer or EGL). Not thread-safe: one owner thread."""
 
     name = BACKEND
@@ -501,18 +501,11 @@ class PybulletSimulator(Simulator):
     def _build_cameras(self, specs: list[CameraSpec]) -> None:
         self._cameras: dict[str, _Camera] = {}
         for spec in specs:
-            if spec.name in self._cameras:
-                raise BadCommand(f"duplicate camera name {spec.name!r}")
-            if spec.width <= 0 or spec.height <= 0 or not 0 < spec.fovy_deg < 180:
-                raise BadCommand(f"camera {spec.name!r}: bad size or field of view")
-            mount = None
-            if spec.mount_link is not None:
-                mount = self._robot.links.get(spec.mount_link)
-                if mount is None:
-                    raise BadCommand(f"camera {spec.name!r}: mount link {spec.mount_link!r} is not a robot link")
+            check_camera_spec(spec, self._cameras)
+            mount = camera_mount(spec, self._robot.links)
             K = intrinsics(int(spec.width), int(spec.height), float(spec.fovy_deg))
             proj = _renderer.projection_matrix(K, int(spec.width), int(spec.height), float(spec.near), float(spec.far))
-            self._cameras[spec.name] = _Camera(spec, K, mount, np.asarray(pose_or_bad(spec.pose)), proj)
+            self._cameras[spec.name] = _Camera(spec, mount, np.asarray(pose_or_bad(spec.pose)), proj)
 
     def close(self) -> None:
         """Disconnect the physics client. Idempotent."""
@@ -665,61 +658,27 @@ class PybulletSimulator(Simulator):
         return self._link_pose(mb, index)
 
     # -- contacts -----------------------------------------------------------------------------
-    def get_contacts(self) -> list[Contact]:
-        """One entry per body pair in contact during the last step, names sorted within the pair,
-        pairs sorted; impulse = sum over the pair's points of |normal + friction force| * timestep
-        (N*s); point = mean position of the points that carried force."""
-        self._live()
-        if self._contacts is None:
-            self._contacts = self._compute_contacts()
-        return list(self._contacts)
-
     def _compute_contacts(self) -> list[Contact]:
+        """Impulse = sum over the pair's points of |normal + friction force| * timestep (N*s);
+        point = mean position of the points that carried force."""
         names = self._names
-        acc: dict[tuple[str, str], list] = {}
+        acc = PairContacts()
         dt = self._timestep
         for pt in self._c.getContactPoints():
             f = math.sqrt(pt[9] * pt[9] + pt[10] * pt[10] + pt[12] * pt[12])
             if not f > 0.0:
                 continue
-            n0, n1 = names.get((pt[1], pt[3])), names.get((pt[2], pt[4]))
-            if n0 is None or n1 is None or n0 == n1:
-                continue
-            key = (n0, n1) if n0 <= n1 else (n1, n0)
             a, b = pt[5], pt[6]
-            e = acc.setdefault(key, [0.0, 0.0, 0.0, 0.0, 0])
-            e[0] += f * dt
-            e[1] += 0.5 * (a[0] + b[0])
-            e[2] += 0.5 * (a[1] + b[1])
-            e[3] += 0.5 * (a[2] + b[2])
-            e[4] += 1
-        return [Contact(a, b, e[0], (e[1] / e[4], e[2] / e[4], e[3] / e[4]))
-                for (a, b), e in sorted(acc.items())]
+            acc.add(names.get((pt[1], pt[3])), names.get((pt[2], pt[4])), f * dt,
+                    0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1]), 0.5 * (a[2] + b[2]))
+        return acc.contacts()
 
     # -- cameras ------------------------------------------------------------------------------
-    def _camera(self, name: str) -> _Camera:
-        self._live()
-        cam = self._cameras.get(name) if isinstance(name, str) else None
-        if cam is None:
-            raise BadCommand(f"unknown camera {name!r}")
-        return cam
-
-    def camera_names(self) -> list[str]:
-        self._live()
-        return list(self._cameras)
-
     def camera_pose(self, name: str) -> np.ndarray:
         cam = self._camera(name)
         if cam.mount is None:
             return cam.local.copy()
         return pose_mul(self._link_pose(self._robot, cam.mount), cam.local)
-
-    def camera_intrinsics(self, name: str) -> np.ndarray:
-        return self._camera(name).K.copy()
-
-    def camera_size(self, name: str) -> tuple[int, int]:
-        spec = self._camera(name).spec
-        return int(spec.height), int(spec.width)
 
     def render(self, name: str) -> np.ndarray:
         cam = self._camera(name)
