@@ -7,7 +7,8 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError  # noqa: E402
+import sim_backend_checks as checks  # noqa: E402
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.scene import Body, Mesh, SceneSpec, Shape  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_mujoco import gl  # noqa: E402
@@ -16,41 +17,32 @@ from cab_sim_mujoco.simulator import MujocoSimulator  # noqa: E402
 pytestmark = pytest.mark.sim
 
 
+def rendering():
+    return MujocoSimulator({"render": True})
+
+
+def physics_only():
+    return MujocoSimulator({"render": False})
+
+
 @pytest.fixture(scope="module")
 def render_available() -> str | None:
     """None if this machine can render with MuJoCo, else the diagnosis."""
-    sim = MujocoSimulator({"render": True})
-    try:
-        sim.build(SceneSpec(), sc.make_embodiment())
-    except RendererUnavailable as e:
-        return str(e)
-    finally:
-        sim.close()
-    return None
+    return checks.render_diagnosis(rendering)
 
 
 @pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
 def test_conformance(check, render_available):
-    if render_available is not None:
-        if check in sc.NEEDS_RENDERER:
-            pytest.skip(f"needs a renderer: {render_available}")
-        check(lambda: MujocoSimulator({"render": False}))
-    else:
-        check(lambda: MujocoSimulator({"render": True}))
+    checks.conformance(check, render_available, rendering, physics_only)
 
 
 def test_conformance_physics_only():
     """Everything but images also holds without a GL context."""
-    for check in sc.CHECKS:
-        if check not in sc.NEEDS_RENDERER:
-            check(lambda: MujocoSimulator({"render": False}))
+    checks.conformance_physics_only(physics_only)
 
 
 def test_registered_through_entry_point():
-    from cab_core.plugins import build_plugin_manager, registry
-
-    factory = registry("simulators", build_plugin_manager(autoload=True))["mujoco"]
-    assert isinstance(factory({"render": False, "name": "mujoco"}), MujocoSimulator)
+    checks.registered_through_entry_point("mujoco", MujocoSimulator)
 
 
 def test_hydra_config_builds_the_backend():
@@ -97,7 +89,7 @@ def test_mass_is_imposed():
     """A body's declared mass replaces the density-derived one (inertia scaled alike)."""
     import mujoco
 
-    sim = sc.build(lambda: MujocoSimulator({"render": False}))
+    sim = sc.build(physics_only)
     try:
         m = sim._model
         cube = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cube")
@@ -146,15 +138,7 @@ def test_versions_name_the_gl_renderer(render_available):
 
 
 def test_physics_only_build_keeps_camera_geometry():
-    sim = sc.build(lambda: MujocoSimulator({"render": False}))
-    try:
-        assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
-        assert sim.camera_size(sc.WRIST_CAMERA) == (120, 160)
-        with pytest.raises(RendererUnavailable, match="render: false"):
-            sim.render(sc.HEAD_CAMERA)
-        assert sim.versions()["render"] == "off"
-    finally:
-        sim.close()
+    checks.physics_only_build_keeps_camera_geometry(physics_only)
 
 
 def test_nonconvex_collision_mesh_is_rejected():
@@ -173,68 +157,22 @@ def test_nonconvex_collision_mesh_is_rejected():
 
 
 def test_snapshot_then_restore_replays_the_original_run():
-    """Stronger than the suite: save, run, restore, run again == the run right after the save,
-    bit for bit, in this instance and in a second build; taking the snapshot changes nothing."""
-    def run(sim):
-        sc._motion_script(sim, 200, phase=60)
-        return sc.world_state(sim)
-
-    sim = sc.build(lambda: MujocoSimulator({"render": False}))
-    other = sc.build(lambda: MujocoSimulator({"render": False}))
-    plain = sc.build(lambda: MujocoSimulator({"render": False}))
-    try:
-        sc._motion_script(sim, 60)
-        sc._motion_script(plain, 60)
-        snap = sim.save_state()
-        original = run(sim)
-        sc._assert_bit_equal(original, run(plain), "a run without the snapshot")
-        sim.restore_state(snap)
-        sc._assert_bit_equal(original, run(sim), "replay in the same instance")
-        other.restore_state(snap)
-        sc._assert_bit_equal(original, run(other), "replay in another build")
-        assert other.steps == sim.steps == 60 + 200
-    finally:
-        for s in (sim, other, plain):
-            s.close()
+    """Taking the snapshot changes nothing here: mj_getState reads the whole integration state."""
+    checks.snapshot_then_restore_replays_the_original_run(physics_only, snapshot_is_free=True)
 
 
 def test_contacts_survive_a_restore():
-    sim = sc.build(lambda: MujocoSimulator({"render": False}))
-    try:
-        sim.step(100)
-        snap = sim.save_state()
-        before = sim.get_contacts()
-        sim.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
-        sim.step(5)
-        assert not any("cube" in (c.a, c.b) for c in sim.get_contacts())
-        sim.restore_state(snap)
-        assert sim.get_contacts() == before
-    finally:
-        sim.close()
+    checks.contacts_survive_a_restore(physics_only)
 
 
 def test_physics_only_steps_like_a_rendering_build(render_available):
     if render_available is not None:
         pytest.skip(render_available)
-    a = sc.build(lambda: MujocoSimulator({"render": True}))
-    b = sc.build(lambda: MujocoSimulator({"render": False}))
-    try:
-        sc._motion_script(a, 200)
-        a.render(sc.HEAD_CAMERA)
-        sc._motion_script(b, 200)
-        sc._assert_bit_equal(sc.world_state(a), sc.world_state(b), "render on vs off")
-    finally:
-        a.close()
-        b.close()
+    checks.physics_only_steps_like_a_rendering_build(rendering, physics_only)
 
 
 def test_closed_simulator_refuses_calls():
-    sim = sc.build(lambda: MujocoSimulator({"render": False}))
-    sim.close()
-    with pytest.raises(SimulatorError):
-        sim.step(1)
-    with pytest.raises(SimulatorError):
-        sim.get_qpos()
+    checks.closed_simulator_refuses_calls(physics_only)
 
 
 def test_body_damping_decays_velocity_as_physx_does():
@@ -333,7 +271,7 @@ def test_any_thread_may_render(render_available):
 
     if render_available is not None:
         pytest.skip(render_available)
-    sim = sc.build(lambda: MujocoSimulator({"render": True}))
+    sim = sc.build(rendering)
     try:
         images, errors = [], []
 
@@ -361,7 +299,7 @@ def test_two_simulators_render_concurrently(render_available):
 
     if render_available is not None:
         pytest.skip(render_available)
-    sims = [sc.build(lambda: MujocoSimulator({"render": True})) for _ in range(2)]
+    sims = [sc.build(rendering) for _ in range(2)]
     try:
         reference = sims[0].render(sc.HEAD_CAMERA)
         results: list = []

@@ -8,7 +8,8 @@ import pytest
 
 pytest.importorskip("pybullet")
 
-from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError  # noqa: E402
+import sim_backend_checks as checks  # noqa: E402
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.geometry import pose_inv, transform_point  # noqa: E402
 from cab_core.scene import (Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Shape,  # noqa: E402
                             Sphere)
@@ -19,24 +20,27 @@ from cab_sim_pybullet.simulator import PybulletSimulator  # noqa: E402
 pytestmark = pytest.mark.sim
 
 
+def rendering():
+    """TinyRenderer: it renders on any machine, so every check runs."""
+    return PybulletSimulator({"render": True, "renderer": "tiny"})
+
+
+def physics_only():
+    return PybulletSimulator({"render": False})
+
+
 @pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
 def test_conformance(check):
-    check(lambda: PybulletSimulator({"render": True, "renderer": "tiny"}))
+    checks.conformance(check, None, rendering, physics_only)
 
 
 def test_conformance_physics_only():
     """Everything but images also holds without visual shapes."""
-    for check in sc.CHECKS:
-        if check not in sc.NEEDS_RENDERER:
-            check(lambda: PybulletSimulator({"render": False}))
+    checks.conformance_physics_only(physics_only)
 
 
 def test_registered_through_entry_point():
-    from cab_core.plugins import build_plugin_manager, registry
-
-    factory = registry("simulators", build_plugin_manager(autoload=True))["pybullet"]
-    sim = factory({"render": False, "name": "pybullet"})
-    assert isinstance(sim, PybulletSimulator)
+    checks.registered_through_entry_point("pybullet", PybulletSimulator)
 
 
 def test_bad_options_are_config_errors():
@@ -47,13 +51,7 @@ def test_bad_options_are_config_errors():
 
 
 def test_timestep_option_overrides_the_scene():
-    sim = PybulletSimulator({"render": False, "timestep": 0.002})
-    sim.build(sc.make_scene(), sc.make_embodiment())
-    try:
-        assert sim.timestep == 0.002
-        assert sim.versions()["timestep"] == "0.002"
-    finally:
-        sim.close()
+    checks.timestep_option_overrides_the_scene(PybulletSimulator)
 
 
 def test_projected_point_lands_on_its_pixel():
@@ -97,7 +95,7 @@ def test_egl_that_cannot_start_fails_fast(monkeypatch):
 
 
 def test_versions_name_the_renderer():
-    sim = sc.build(lambda: PybulletSimulator({"render": True, "renderer": "tiny"}))
+    sim = sc.build(rendering)
     try:
         v = sim.versions()
         assert v["pybullet"] == "3.2.7" and v["render"] == "on"
@@ -107,15 +105,7 @@ def test_versions_name_the_renderer():
 
 
 def test_physics_only_build_keeps_camera_geometry():
-    sim = sc.build(lambda: PybulletSimulator({"render": False}))
-    try:
-        assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
-        assert sim.camera_size(sc.WRIST_CAMERA) == (120, 160)
-        with pytest.raises(RendererUnavailable, match="render: false"):
-            sim.render(sc.HEAD_CAMERA)
-        assert sim.versions()["render"] == "off"
-    finally:
-        sim.close()
+    checks.physics_only_build_keeps_camera_geometry(physics_only)
 
 
 def test_dynamic_nonconvex_mesh_is_rejected():
@@ -177,56 +167,22 @@ def test_body_mass_and_centre_of_mass_reach_bullet():
 
 
 def test_snapshot_then_restore_replays_the_original_run():
-    """Stronger than the suite: save, run, restore, run again == the run right after the save,
-    bit for bit, in this instance and in a second build."""
-    def run(sim):
-        sc._motion_script(sim, 200, phase=60)
-        return sc.world_state(sim)
-
-    sim = sc.build(lambda: PybulletSimulator({"render": False}))
-    other = sc.build(lambda: PybulletSimulator({"render": False}))
-    try:
-        sc._motion_script(sim, 60)
-        snap = sim.save_state()
-        original = run(sim)
-        sim.restore_state(snap)
-        sc._assert_bit_equal(original, run(sim), "replay in the same instance")
-        other.restore_state(snap)
-        sc._assert_bit_equal(original, run(other), "replay in another build")
-        assert other.steps == sim.steps == 60 + 200
-    finally:
-        sim.close()
-        other.close()
+    """A snapshot is written back into the world it is taken from (see the module docstring), so
+    that run may differ from one without it; replays are exact."""
+    checks.snapshot_then_restore_replays_the_original_run(physics_only, snapshot_is_free=False)
 
 
 def test_closed_simulator_refuses_calls():
-    sim = sc.build(lambda: PybulletSimulator({"render": False}))
-    sim.close()
-    with pytest.raises(SimulatorError):
-        sim.step(1)
-    with pytest.raises(SimulatorError):
-        sim.get_qpos()
+    checks.closed_simulator_refuses_calls(physics_only)
 
 
 def test_contacts_survive_a_restore():
-    """get_contacts() after a restore gives the snapshot's last-step contacts, not stale ones."""
-    sim = sc.build(lambda: PybulletSimulator({"render": False}))
-    try:
-        sim.step(100)
-        snap = sim.save_state()
-        before = sim.get_contacts()
-        sim.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
-        sim.step(5)
-        assert not any("cube" in (c.a, c.b) for c in sim.get_contacts())
-        sim.restore_state(snap)
-        assert sim.get_contacts() == before
-    finally:
-        sim.close()
+    checks.contacts_survive_a_restore(physics_only)
 
 
 def test_two_simulators_in_one_process_are_independent():
-    a = sc.build(lambda: PybulletSimulator({"render": False}))
-    b = sc.build(lambda: PybulletSimulator({"render": False}))
+    a = sc.build(physics_only)
+    b = sc.build(physics_only)
     try:
         a.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
         a.step(10)
@@ -238,22 +194,14 @@ def test_two_simulators_in_one_process_are_independent():
 
 
 def test_physics_only_steps_like_a_rendering_build():
-    a = sc.build(lambda: PybulletSimulator({"render": True, "renderer": "tiny"}))
-    b = sc.build(lambda: PybulletSimulator({"render": False}))
-    try:
-        sc._motion_script(a, 200)
-        sc._motion_script(b, 200)
-        sc._assert_bit_equal(sc.world_state(a), sc.world_state(b), "render on vs off")
-    finally:
-        a.close()
-        b.close()
+    checks.physics_only_steps_like_a_rendering_build(rendering, physics_only)
 
 
 def test_agrees_with_sapien_on_the_conformance_world():
     """Same description, same calls: robot link and camera poses, intrinsics, resting contacts and
     drive tracking agree with the SAPIEN backend (the reference for conventions)."""
     sapien_sim = pytest.importorskip("cab_sim_sapien.simulator")
-    a = sc.build(lambda: PybulletSimulator({"render": False}))
+    a = sc.build(physics_only)
     b = sc.build(lambda: sapien_sim.SapienSimulator({"render": False}))
     try:
         for sim in (a, b):

@@ -8,6 +8,7 @@ import pytest
 
 pytest.importorskip("sapien")
 
+import sim_backend_checks as checks  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.geometry import intrinsics, pose_inv, pose_to_mat  # noqa: E402
 from cab_core.scene import Body, CameraSpec, Mesh, SceneSpec, Shape  # noqa: E402
@@ -18,43 +19,32 @@ from cab_sim_sapien.simulator import SapienSimulator  # noqa: E402
 pytestmark = pytest.mark.sim
 
 
+def rendering():
+    return SapienSimulator({"render": True})
+
+
+def physics_only():
+    return SapienSimulator({"render": False})
+
 
 @pytest.fixture(scope="module")
 def render_available() -> str | None:
     """None if this machine can render with SAPIEN, else the diagnosis."""
-    sim = SapienSimulator({"render": True})
-    try:
-        sim.build(SceneSpec(), sc.make_embodiment())
-    except RendererUnavailable as e:
-        return str(e)
-    finally:
-        sim.close()
-    return None
+    return checks.render_diagnosis(rendering)
 
 
 @pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
 def test_conformance(check, render_available):
-    if render_available is not None:
-        if check in sc.NEEDS_RENDERER:
-            pytest.skip(f"needs a renderer: {render_available}")
-        check(lambda: SapienSimulator({"render": False}))
-    else:
-        check(lambda: SapienSimulator({"render": True}))
+    checks.conformance(check, render_available, rendering, physics_only)
 
 
 def test_conformance_physics_only():
     """Everything but images also holds without a render system."""
-    for check in sc.CHECKS:
-        if check not in sc.NEEDS_RENDERER:
-            check(lambda: SapienSimulator({"render": False}))
+    checks.conformance_physics_only(physics_only)
 
 
 def test_registered_through_entry_point():
-    from cab_core.plugins import build_plugin_manager, registry
-
-    factory = registry("simulators", build_plugin_manager(autoload=True))["sapien"]
-    sim = factory({"render": False, "name": "sapien"})
-    assert isinstance(sim, SapienSimulator)
+    checks.registered_through_entry_point("sapien", SapienSimulator)
 
 
 def test_unknown_option_is_a_config_error():
@@ -69,20 +59,14 @@ def test_unknown_option_is_a_config_error():
 
 
 def test_timestep_option_overrides_the_scene():
-    sim = SapienSimulator({"render": False, "timestep": 0.002})
-    sim.build(sc.make_scene(), sc.make_embodiment())
-    try:
-        assert sim.timestep == 0.002
-        assert sim.versions()["timestep"] == "0.002"
-    finally:
-        sim.close()
+    checks.timestep_option_overrides_the_scene(SapienSimulator)
 
 
 def test_camera_conventions_match_sapien(render_available):
     """Our OpenCV pose and K agree with SAPIEN's own extrinsic and intrinsic matrices."""
     if render_available is not None:
         pytest.skip(render_available)
-    sim = sc.build(lambda: SapienSimulator({"render": True}))
+    sim = sc.build(rendering)
     try:
         sim.set_qpos([0.4, 0.3, 0.02, 0.03])
         sim.step(1)
@@ -119,16 +103,7 @@ def test_head_camera_reproduces_codeactionbench_record(render_available):
 
 
 def test_physics_only_build_keeps_camera_geometry():
-    sim = sc.build(lambda: SapienSimulator({"render": False}))
-    try:
-        assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
-        assert sim.camera_size(sc.WRIST_CAMERA) == (120, 160)
-        assert sim.camera_pose(sc.WRIST_CAMERA).shape == (7,)
-        with pytest.raises(RendererUnavailable, match="render: false"):
-            sim.render(sc.HEAD_CAMERA)
-        assert sim.versions()["render"] == "off"
-    finally:
-        sim.close()
+    checks.physics_only_build_keeps_camera_geometry(physics_only)
 
 
 def test_missing_render_device_is_diagnosed(monkeypatch):
@@ -183,37 +158,13 @@ def test_dynamic_nonconvex_mesh_is_rejected(tmp_path):
 
 
 def test_snapshot_then_restore_replays_the_original_run():
-    """Stronger than the suite: save, run, restore, run again == the run right after the save,
-    bit for bit, in this instance and in a second build."""
-    def run(sim):
-        sc._motion_script(sim, 200, phase=60)
-        return sc.world_state(sim)
-
-    sim = sc.build(lambda: SapienSimulator({"render": False}))
-    other = sc.build(lambda: SapienSimulator({"render": False}))
-    try:
-        sc._motion_script(sim, 60)
-        snap = sim.save_state()
-        original = run(sim)
-        sim.restore_state(snap)
-        sc._assert_bit_equal(original, run(sim), "replay in the same instance")
-        other.restore_state(snap)
-        sc._assert_bit_equal(original, run(other), "replay in another build")
-        assert other.steps == sim.steps == 60 + 200
-    finally:
-        sim.close()
-        other.close()
+    """A snapshot is written back into the world it is taken from (see the module docstring), so
+    that run may differ from one without it; replays are exact."""
+    checks.snapshot_then_restore_replays_the_original_run(physics_only, snapshot_is_free=False)
 
 
 def test_closed_simulator_refuses_calls():
-    from cab_core.errors import SimulatorError
-
-    sim = sc.build(lambda: SapienSimulator({"render": False}))
-    sim.close()
-    with pytest.raises(SimulatorError):
-        sim.step(1)
-    with pytest.raises(SimulatorError):
-        sim.get_qpos()
+    checks.closed_simulator_refuses_calls(physics_only)
 
 
 def test_shadows_option_changes_the_image(render_available):
@@ -231,31 +182,10 @@ def test_shadows_option_changes_the_image(render_available):
 
 
 def test_contacts_survive_a_restore():
-    """get_contacts() after a restore gives the snapshot's last-step contacts, not stale ones."""
-    sim = sc.build(lambda: SapienSimulator({"render": False}))
-    try:
-        sim.step(100)
-        snap = sim.save_state()
-        before = sim.get_contacts()
-        sim.set_object_pose("cube", (0.1, 0.0, 1.2, 1, 0, 0, 0))
-        sim.step(5)  # the cube is in the air now
-        assert not any("cube" in (c.a, c.b) for c in sim.get_contacts())
-        sim.restore_state(snap)
-        assert sim.get_contacts() == before
-    finally:
-        sim.close()
+    checks.contacts_survive_a_restore(physics_only)
 
 
 def test_physics_only_steps_like_a_rendering_build(render_available):
-    """Visual shapes and cameras do not touch the physics: both builds step bit-identically."""
     if render_available is not None:
         pytest.skip(render_available)
-    a = sc.build(lambda: SapienSimulator({"render": True}))
-    b = sc.build(lambda: SapienSimulator({"render": False}))
-    try:
-        sc._motion_script(a, 200)
-        sc._motion_script(b, 200)
-        sc._assert_bit_equal(sc.world_state(a), sc.world_state(b), "render on vs off")
-    finally:
-        a.close()
-        b.close()
+    checks.physics_only_steps_like_a_rendering_build(rendering, physics_only)
