@@ -4,10 +4,7 @@ from __future__ import annotations
 
 import base64
 import json
-import random
 import sys
-import threading
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -19,59 +16,11 @@ try:
 except ImportError:  # the plugin is not installed in this environment: use the source tree
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
+from fake_json_api import PNG, FakeServer, TopOfRange  # noqa: E402
 from cab_core.errors import ConfigError  # noqa: E402
 from cab_harness_reference.openai_compatible_provider import OpenAICompatibleProvider  # noqa: E402
 from cab_harness_reference.types import (Image, Message, ProviderError, Text, Thinking,  # noqa: E402
                                          ToolCall, ToolResult, ToolSpec)
-
-PNG = base64.b64decode(
-    "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR4nGNgYGD4DwABBAEAwS2OUAAAAABJRU5ErkJggg==")
-
-
-class TopOfRange(random.Random):
-    """Jitter that always draws the top of its range, so backoff delays are predictable."""
-
-    def uniform(self, a, b):
-        return b
-
-
-class FakeServer:
-    """A scripted HTTP server: each POST pops the next (status, body) reply and records the
-    request path and JSON body."""
-
-    def __init__(self, replies):
-        self.replies = list(replies)
-        self.requests: list[tuple[str, dict, dict]] = []
-        outer = self
-
-        class H(BaseHTTPRequestHandler):
-            def log_message(self, *a):  # quiet
-                pass
-
-            def do_POST(self):
-                n = int(self.headers.get("content-length") or 0)
-                body = json.loads(self.rfile.read(n) or b"{}")
-                outer.requests.append((self.path, body, dict(self.headers)))
-                status, payload = outer.replies.pop(0) if len(outer.replies) > 1 else outer.replies[0]
-                data = json.dumps(payload).encode()
-                self.send_response(status)
-                self.send_header("content-type", "application/json")
-                self.send_header("x-request-id", f"req_{len(outer.requests)}")
-                self.send_header("content-length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), H)
-        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.httpd.shutdown()
-        self.httpd.server_close()
 
 
 def completion(message, finish="tool_calls", usage=None):
