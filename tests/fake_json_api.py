@@ -61,3 +61,10 @@ class FakeServer:
     def __exit__(self, *exc):
         self.httpd.shutdown()
         self.httpd.server_close()
+
+
+def offline_provider(cls, config: dict, overrides: dict, sleeps: list | None = None):
+    """A ``cls`` provider built from ``config`` updated with ``overrides``, whose backoff waits are
+    appended to ``sleeps`` instead of slept, with jitter at the top of its range (:class:`TopOfRange`)."""
+    rec = sleeps if sleeps is not None else []
+    return cls(dict(config, **overrides), sleep=rec.append, rng=TopOfRange())

@@ -16,7 +16,7 @@ try:
 except ImportError:  # the plugin is not installed in this environment: use the source tree
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
-from fake_json_api import PNG, FakeServer, TopOfRange  # noqa: E402
+from fake_json_api import PNG, FakeServer, offline_provider  # noqa: E402
 from cab_core.errors import ConfigError  # noqa: E402
 from cab_harness_reference.openai_provider import OpenAIProvider  # noqa: E402
 from cab_harness_reference.types import (Image, Message, ProviderError, Text, Thinking,  # noqa: E402
@@ -59,9 +59,7 @@ def make(url, sleeps=None, **cfg):
     base = {"model": "gpt-5.6", "base_url": url, "reasoning_effort": "high",
             "max_output_tokens": 128000,
             "retry": {"max_attempts": 3, "base_delay_s": {"rate_limit": 5.0, "server": 2.0}}}
-    base.update(cfg)
-    rec = sleeps if sleeps is not None else []
-    return OpenAIProvider(base, sleep=rec.append, rng=TopOfRange())
+    return offline_provider(OpenAIProvider, base, cfg, sleeps)
 
 
 def test_missing_key_is_one_line_naming_the_variable(monkeypatch):

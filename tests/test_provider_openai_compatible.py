@@ -16,7 +16,7 @@ try:
 except ImportError:  # the plugin is not installed in this environment: use the source tree
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
-from fake_json_api import PNG, FakeServer, TopOfRange  # noqa: E402
+from fake_json_api import PNG, FakeServer, offline_provider  # noqa: E402
 from cab_core.errors import ConfigError  # noqa: E402
 from cab_harness_reference.openai_compatible_provider import OpenAICompatibleProvider  # noqa: E402
 from cab_harness_reference.types import (Image, Message, ProviderError, Text, Thinking,  # noqa: E402
@@ -53,9 +53,7 @@ def make(url, sleeps=None, **cfg):
     base = {"model": "qwen3.8-max", "base_url": url, "api_key_env": "DASHSCOPE_API_KEY",
             "max_output_tokens": 131072, "extra_body": {"enable_thinking": True},
             "retry": {"max_attempts": 3, "base_delay_s": {"rate_limit": 5.0, "server": 2.0}}}
-    base.update(cfg)
-    rec = sleeps if sleeps is not None else []
-    return OpenAICompatibleProvider(base, sleep=rec.append, rng=TopOfRange())
+    return offline_provider(OpenAICompatibleProvider, base, cfg, sleeps)
 
 
 def test_missing_key_names_the_configured_variable(monkeypatch):
