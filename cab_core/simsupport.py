@@ -1,8 +1,10 @@
-"""Validation and start-up rules that every simulator backend applies alike, written once.
+"""Validation, start-up rules and accessors that every simulator backend applies alike, written once.
 
-The :class:`cab_core.simulator.Simulator` contract says what a bad command raises, which object
-names a scene may use, where the robot starts and what a snapshot must refuse; backends import these helpers instead of each
-restating the rules (and drifting apart). Nothing here imports a simulator.
+The :class:`cab_core.simulator.Simulator` contract says what a bad command or option raises, which
+object names a scene may use, where the robot starts, what a snapshot must refuse, how cameras are
+looked up and how contacts are summed per body pair; backends import these helpers (and the two
+small mixins :class:`CameraAccessors` and :class:`LastStepContacts`) instead of each restating the
+rules and drifting apart. Nothing here imports a simulator.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from typing import Mapping, TypeVar
 import numpy as np
 
 from .embodiment import EmbodimentSpec
-from .errors import BadCommand
+from .errors import BadCommand, ConfigError, SimulatorError
 from .geometry import intrinsics
 from .scene import CameraSpec, SceneSpec, as_pose
 from .simulator import ROBOT, Contact, SimState
@@ -199,3 +201,30 @@ class PairContacts:
         are forces) and their mean point."""
         return [Contact(a, b, float(e[0] * scale), (float(e[1] / e[4]), float(e[2] / e[4]), float(e[3] / e[4])))
                 for (a, b), e in sorted(self._acc.items())]
+
+
+def simulator_options(cfg, known: set[str], backend: str) -> dict:
+    """A backend's option dict (None: no options), or ConfigError naming the options it does not
+    know; keys starting with ``_`` are the caller's private ones and pass."""
+    cfg = dict(cfg or {})
+    unknown = sorted(k for k in cfg if k not in known and not str(k).startswith("_"))
+    if unknown:
+        raise ConfigError(f"unknown {backend} simulator option(s) {unknown}; known: {sorted(known)}")
+    return cfg
+
+
+def timestep_option(cfg: dict, backend: str) -> float | None:
+    """The ``timestep`` option in seconds (None: the scene's), or ConfigError unless it is a
+    positive number (bools refused)."""
+    ts = cfg.get("timestep")
+    if ts is not None and (isinstance(ts, bool) or not isinstance(ts, (int, float)) or not ts > 0):
+        raise ConfigError(f"{backend} timestep must be a positive number, got {ts!r}")
+    return None if ts is None else float(ts)
+
+
+def live_or_error(handle: T | None, closed: bool) -> T:
+    """A backend's engine handle while its world exists, else SimulatorError saying whether the
+    simulator was closed or never built."""
+    if handle is None:
+        raise SimulatorError("the simulator is closed" if closed else "build() was not called")
+    return handle

@@ -95,3 +95,29 @@ def test_camera_spec_and_mount_refusals():
     assert camera_mount(replace(spec, mount_link=None), {}) is None
     with pytest.raises(BadCommand, match="mount link 'link1' is not a robot link"):
         camera_mount(spec, {})
+
+
+def test_options_and_timestep():
+    from cab_core.errors import ConfigError
+    from cab_core.simsupport import simulator_options, timestep_option
+
+    assert simulator_options(None, {"render"}, "toy") == {}
+    assert simulator_options({"render": False, "_private": 1}, {"render"}, "toy") == {"render": False, "_private": 1}
+    with pytest.raises(ConfigError, match=r"unknown toy simulator option\(s\) \['rendr'\]; known: \['render'\]"):
+        simulator_options({"rendr": True}, {"render"}, "toy")
+    assert timestep_option({}, "toy") is None and timestep_option({"timestep": 1}, "toy") == 1.0
+    for bad in (0, -0.1, True, "0.002"):
+        with pytest.raises(ConfigError, match="toy timestep must be a positive number"):
+            timestep_option({"timestep": bad}, "toy")
+
+
+def test_live_or_error_says_closed_or_never_built():
+    from cab_core.errors import SimulatorError
+    from cab_core.simsupport import live_or_error
+
+    handle = object()
+    assert live_or_error(handle, False) is handle
+    with pytest.raises(SimulatorError, match="closed"):
+        live_or_error(None, True)
+    with pytest.raises(SimulatorError, match=r"build\(\) was not called"):
+        live_or_error(None, False)

@@ -44,8 +44,9 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import pose_mul, quat_to_mat
 from cab_core.scene import SceneSpec
-from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, pose_or_bad,
-                                start_joint_values, step_count_or_bad, vector_or_bad)
+from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, pose_or_bad,
+                                simulator_options, start_joint_values, step_count_or_bad, timestep_option,
+                                vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
@@ -111,15 +112,9 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
     name = BACKEND
 
     def __init__(self, cfg: dict | None = None):
-        cfg = dict(cfg or {})
-        unknown = sorted(k for k in cfg if k not in _KNOWN_OPTIONS and not str(k).startswith("_"))
-        if unknown:
-            raise ConfigError(f"unknown mujoco simulator option(s) {unknown}; known: {sorted(_KNOWN_OPTIONS)}")
+        cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._render_enabled = bool(cfg.get("render", True))
-        ts = cfg.get("timestep")
-        if ts is not None and (isinstance(ts, bool) or not isinstance(ts, (int, float)) or not ts > 0):
-            raise ConfigError(f"mujoco timestep must be a positive number, got {ts!r}")
-        self._timestep_override = None if ts is None else float(ts)
+        self._timestep_override = timestep_option(cfg, BACKEND)
         physics = cfg.get("physics") or {}
         if not hasattr(physics, "items"):
             raise ConfigError(f"mujoco physics must be a mapping of parameter overrides, got {physics!r}")
@@ -256,9 +251,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._model = self._data = None
 
     def _live(self):
-        if self._model is None:
-            raise SimulatorError("the simulator is closed" if self._closed else "build() was not called")
-        return self._model
+        return live_or_error(self._model, self._closed)
 
     @property
     def timestep(self) -> float:

@@ -51,8 +51,9 @@ from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, Simula
 from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
 from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
 from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
-                                check_camera_spec, check_object_names, pack_state, pose_or_bad,
-                                start_joint_values, step_count_or_bad, unpack_state, vector_or_bad)
+                                check_camera_spec, check_object_names, live_or_error, pack_state, pose_or_bad,
+                                simulator_options, start_joint_values, step_count_or_bad, timestep_option,
+                                unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import massprops
@@ -162,16 +163,10 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
     name = BACKEND
 
     def __init__(self, cfg: dict | None = None):
-        cfg = dict(cfg or {})
-        unknown = sorted(k for k in cfg if k not in _KNOWN_OPTIONS and not str(k).startswith("_"))
-        if unknown:
-            raise ConfigError(f"unknown pybullet simulator option(s) {unknown}; known: {sorted(_KNOWN_OPTIONS)}")
+        cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._render_enabled = bool(cfg.get("render", True))
         self._renderer = _renderer.choose(str(cfg.get("renderer", "auto"))) if self._render_enabled else None
-        ts = cfg.get("timestep")
-        if ts is not None and (isinstance(ts, bool) or not isinstance(ts, (int, float)) or not ts > 0):
-            raise ConfigError(f"pybullet timestep must be a positive number, got {ts!r}")
-        self._timestep_override = None if ts is None else float(ts)
+        self._timestep_override = timestep_option(cfg, BACKEND)
         physics = dict(cfg.get("physics") or {})
         bad = sorted(k for k in physics if k not in PHYSICS_DEFAULTS)
         if bad:
@@ -519,9 +514,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             log.debug("disconnect failed during close", exc_info=True)
 
     def _live(self) -> BulletClient:
-        if self._c is None:
-            raise SimulatorError("the simulator is closed" if self._closed else "build() was not called")
-        return self._c
+        return live_or_error(self._c, self._closed)
 
     @property
     def timestep(self) -> float:

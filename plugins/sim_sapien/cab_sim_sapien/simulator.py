@@ -62,8 +62,9 @@ from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, Simula
 from cab_core.geometry import mat_to_quat
 from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
 from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
-                                check_camera_spec, check_object_names, pack_state, pose_or_bad,
-                                start_joint_values, step_count_or_bad, unpack_state, vector_or_bad)
+                                check_camera_spec, check_object_names, live_or_error, pack_state, pose_or_bad,
+                                simulator_options, start_joint_values, step_count_or_bad, unpack_state,
+                                vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import renderer as _renderer
@@ -143,10 +144,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
     name = BACKEND
 
     def __init__(self, cfg: dict | None = None):
-        cfg = dict(cfg or {})
-        unknown = sorted(k for k in cfg if k not in _KNOWN_OPTIONS and not str(k).startswith("_"))
-        if unknown:
-            raise ConfigError(f"unknown sapien simulator option(s) {unknown}; known: {sorted(_KNOWN_OPTIONS)}")
+        cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._render_enabled = bool(cfg.get("render", True))
         ts = cfg.get("timestep")
         if ts is not None and (not isinstance(ts, (int, float)) or not ts > 0):
@@ -481,9 +479,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         del scene
 
     def _live(self):
-        if self._scene is None:
-            raise SimulatorError("the simulator is closed" if self._closed else "build() was not called")
-        return self._scene
+        return live_or_error(self._scene, self._closed)
 
     @property
     def timestep(self) -> float:
