@@ -27,7 +27,6 @@ Contacts are those the last step solved, read lazily from ``MjData`` when first 
 """
 from __future__ import annotations
 
-import io
 import json
 import logging
 import math
@@ -44,9 +43,9 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import pose_mul, quat_to_mat
 from cab_core.scene import SceneSpec
-from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, pose_or_bad,
-                                simulator_options, start_joint_values, step_count_or_bad, timestep_option,
-                                vector_or_bad)
+from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, pack_state,
+                                pose_or_bad, simulator_options, start_joint_values, step_count_or_bad,
+                                timestep_option, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
@@ -461,27 +460,15 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         m = self._live()
         state = np.empty(mujoco.mj_stateSize(m, _STATE_SPEC))
         mujoco.mj_getState(m, self._data, state, _STATE_SPEC)
-        contacts = json.dumps([[c.a, c.b, c.impulse, c.point] for c in self.get_contacts()])
-        buf = io.BytesIO()
-        np.savez(buf, layout=np.array(self._layout()), state=state, targets=self._targets.copy(),
-                 vtargets=self._vtargets.copy(), steps=np.array(self._steps, np.int64),
-                 contacts=np.array(contacts))
-        return SimState(backend=BACKEND, data=buf.getvalue())
+        d = dict(state=state, targets=self._targets.copy(), vtargets=self._vtargets.copy(),
+                 steps=np.array(self._steps, np.int64))
+        return pack_state(BACKEND, self._layout(), d, self.get_contacts())
 
     def restore_state(self, state: SimState) -> None:
         """Restore a snapshot of this world (or of another build of the same scene and robot)."""
         m = self._live()
-        if not isinstance(state, SimState) or state.backend != BACKEND:
-            raise BadCommand(f"not a {BACKEND} state: {getattr(state, 'backend', type(state).__name__)!r}")
-        try:
-            with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-            layout = str(d["layout"])
-            contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
-                        for a, b, imp, pt in json.loads(str(d["contacts"]))]
-        except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
-            raise BadCommand(f"corrupt {BACKEND} state: {e}") from None
-        if layout != self._layout() or d["state"].shape != (mujoco.mj_stateSize(m, _STATE_SPEC),):
+        d, contacts = unpack_state(state, BACKEND, self._layout())
+        if d["state"].shape != (mujoco.mj_stateSize(m, _STATE_SPEC),):
             raise BadCommand("the state was saved from a different scene or robot")
         mujoco.mj_setState(m, self._data, d["state"], _STATE_SPEC)
         self._targets[:] = d["targets"]
