@@ -228,3 +228,22 @@ def live_or_error(handle: T | None, closed: bool) -> T:
     if handle is None:
         raise SimulatorError("the simulator is closed" if closed else "build() was not called")
     return handle
+
+
+def robot_link_or_bad(links: Mapping[str, T], link) -> T:
+    """The robot link named ``link`` in ``links``, by its own name or as ``robot/<link>`` (the
+    form contact reports use), or BadCommand."""
+    found = links.get(link) if isinstance(link, str) else None
+    if found is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
+        found = links.get(link[len(ROBOT) + 1:])
+    if found is None:
+        raise BadCommand(f"unknown robot link {link!r}")
+    return found
+
+
+def object_link_or_bad(links: Mapping[str, T], name: str, link) -> T:
+    """Link ``link`` of object ``name`` from that object's ``links``, or BadCommand."""
+    found = links.get(link) if isinstance(link, str) else None
+    if found is None:
+        raise BadCommand(f"unknown link {link!r} of object {name!r}")
+    return found

@@ -121,3 +121,16 @@ def test_live_or_error_says_closed_or_never_built():
         live_or_error(None, True)
     with pytest.raises(SimulatorError, match=r"build\(\) was not called"):
         live_or_error(None, False)
+
+
+def test_link_lookups_accept_the_contact_form_and_refuse_unknown_links():
+    from cab_core.simsupport import object_link_or_bad, robot_link_or_bad
+
+    links = {"base": -1, "tcp_link": 3}
+    assert robot_link_or_bad(links, "base") == -1 and robot_link_or_bad(links, "robot/tcp_link") == 3
+    for bad in ("robot/", "lidbox/tcp_link", None, 3):
+        with pytest.raises(BadCommand, match="unknown robot link"):
+            robot_link_or_bad(links, bad)
+    assert object_link_or_bad({"lid": 1}, "lidbox", "lid") == 1
+    with pytest.raises(BadCommand, match="unknown link 'robot/lid' of object 'lidbox'"):
+        object_link_or_bad({"lid": 1}, "lidbox", "robot/lid")

@@ -43,9 +43,9 @@ from cab_core.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import pose_mul, quat_to_mat
 from cab_core.scene import SceneSpec
-from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, pack_state,
-                                pose_or_bad, simulator_options, start_joint_values, step_count_or_bad,
-                                timestep_option, unpack_state, vector_or_bad)
+from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, object_link_or_bad,
+                                pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
+                                step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
@@ -327,12 +327,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_link_pose(self, link: str) -> np.ndarray:
         self._live()
-        b = self._robot_links.get(link) if isinstance(link, str) else None
-        if b is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
-            b = self._robot_links.get(link[len(ROBOT) + 1:])
-        if b is None:
-            raise BadCommand(f"unknown robot link {link!r}")
-        return self._body_pose(b)
+        return self._body_pose(robot_link_or_bad(self._robot_links, link))
 
     # -- objects ------------------------------------------------------------------------------
     def object_names(self) -> list[str]:
@@ -403,10 +398,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         t = self._thing(name)
-        b = (t.links or {}).get(link) if isinstance(link, str) else None
-        if b is None:
-            raise BadCommand(f"unknown link {link!r} of object {name!r}")
-        return self._body_pose(b)
+        return self._body_pose(object_link_or_bad(t.links or {}, name, link))
 
     # -- contacts -----------------------------------------------------------------------------
     def _compute_contacts(self) -> list[Contact]:

@@ -51,9 +51,9 @@ from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, Simula
 from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
 from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
 from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
-                                check_camera_spec, check_object_names, live_or_error, pack_state, pose_or_bad,
-                                simulator_options, start_joint_values, step_count_or_bad, timestep_option,
-                                unpack_state, vector_or_bad)
+                                check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
+                                pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
+                                step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import massprops
@@ -585,13 +585,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_link_pose(self, link: str) -> np.ndarray:
         self._live()
-        links = self._robot.links
-        index = links.get(link) if isinstance(link, str) else None
-        if index is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
-            index = links.get(link[len(ROBOT) + 1:])
-        if index is None:
-            raise BadCommand(f"unknown robot link {link!r}")
-        return self._link_pose(self._robot, index)
+        return self._link_pose(self._robot, robot_link_or_bad(self._robot.links, link))
 
     # -- objects ------------------------------------------------------------------------------
     def object_names(self) -> list[str]:
@@ -645,10 +639,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         mb = self._object(name)
-        index = mb.links.get(link) if isinstance(link, str) else None
-        if index is None:
-            raise BadCommand(f"unknown link {link!r} of object {name!r}")
-        return self._link_pose(mb, index)
+        return self._link_pose(mb, object_link_or_bad(mb.links, name, link))
 
     # -- contacts -----------------------------------------------------------------------------
     def _compute_contacts(self) -> list[Contact]:

@@ -62,9 +62,9 @@ from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, Simula
 from cab_core.geometry import mat_to_quat
 from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
 from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
-                                check_camera_spec, check_object_names, live_or_error, pack_state, pose_or_bad,
-                                simulator_options, start_joint_values, step_count_or_bad, unpack_state,
-                                vector_or_bad)
+                                check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
+                                pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
+                                step_count_or_bad, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import renderer as _renderer
@@ -542,12 +542,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_link_pose(self, link: str) -> np.ndarray:
         self._live()
-        comp = self._robot_links.get(link) if isinstance(link, str) else None
-        if comp is None and isinstance(link, str) and link.startswith(ROBOT + "/"):
-            comp = self._robot_links.get(link[len(ROBOT) + 1:])
-        if comp is None:
-            raise BadCommand(f"unknown robot link {link!r}")
-        return _np(comp.entity_pose)
+        return _np(robot_link_or_bad(self._robot_links, link).entity_pose)
 
     # -- objects ------------------------------------------------------------------------------
     def object_names(self) -> list[str]:
@@ -613,12 +608,8 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         return list(self._art_links.get(name, {}))
 
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
-        body, art = self._object(name)
-        links = self._art_links.get(name, {})
-        comp = links.get(link) if isinstance(link, str) else None
-        if comp is None:
-            raise BadCommand(f"unknown link {link!r} of object {name!r}")
-        return _np(comp.entity_pose)
+        self._object(name)
+        return _np(object_link_or_bad(self._art_links.get(name, {}), name, link).entity_pose)
 
     def _touched(self) -> None:
         """State changed without a step: images must be re-rendered; contacts keep the last step's."""
