@@ -76,8 +76,8 @@ def pack_state(backend: str, layout: str, arrays: dict[str, np.ndarray], contact
     import io
 
     buf = io.BytesIO()
-    np.savez(buf, layout=np.array(layout), contacts=np.array(json.dumps([[c.a, c.b, c.impulse, c.point]
-                                                                          for c in contacts])), **arrays)
+    np.savez(buf, layout=np.array(layout), keys=np.array(json.dumps(sorted(arrays))),
+             contacts=np.array(json.dumps([[c.a, c.b, c.impulse, c.point] for c in contacts])), **arrays)
     return SimState(backend=backend, data=buf.getvalue())
 
 
@@ -92,10 +92,14 @@ def unpack_state(state, backend: str, layout: str) -> tuple[dict[str, np.ndarray
         with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
         saved_layout = str(d.pop("layout"))
+        keys = json.loads(str(d.pop("keys")))
         contacts = [Contact(a, b, imp, None if pt is None else tuple(pt))
                     for a, b, imp, pt in json.loads(str(d.pop("contacts")))]
     except Exception as e:  # noqa: BLE001 (any decoding failure is a bad state)
-        raise BadCommand(f"corrupt {backend} state: {e}") from None
+        raise BadCommand(f"corrupt {backend} state: {e!r}") from None
+    missing = sorted(set(keys) - set(d))
+    if missing:
+        raise BadCommand(f"corrupt {backend} state: missing {missing}")
     if saved_layout != layout:
         raise BadCommand("the state was saved from a different scene or robot")
     return d, contacts

@@ -52,6 +52,8 @@ def test_unknown_option_is_a_config_error():
         SapienSimulator({"rendr": True})
     with pytest.raises(ConfigError):
         SapienSimulator({"timestep": -1})
+    with pytest.raises(ConfigError, match="timestep must be a positive number"):
+        SapienSimulator({"timestep": True})  # a bool is not a duration
     with pytest.raises(ConfigError, match="shader"):
         SapienSimulator({"shader": "no_such_shader"})
     with pytest.raises(ConfigError):

@@ -57,6 +57,15 @@ def test_snapshot_pack_round_trip_and_refusals():
             unpack_state(bad, "toy", "layout-1")
     with pytest.raises(BadCommand, match="different scene"):
         unpack_state(state, "toy", "layout-2")
+    # an archive that lost one of its arrays is refused by name, not with a KeyError later
+    import io
+
+    with np.load(io.BytesIO(state.data), allow_pickle=False) as z:
+        kept = {k: z[k] for k in z.files if k != "qpos"}
+    buf = io.BytesIO()
+    np.savez(buf, **kept)
+    with pytest.raises(BadCommand, match=r"missing \['qpos'\]"):
+        unpack_state(SimState("toy", buf.getvalue()), "toy", "layout-1")
 
 
 def test_step_counts():

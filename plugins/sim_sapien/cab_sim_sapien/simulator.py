@@ -64,7 +64,7 @@ from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, S
 from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
                                 check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
                                 pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
-                                step_count_or_bad, unpack_state, vector_or_bad)
+                                step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
 from cab_core.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import renderer as _renderer
@@ -146,10 +146,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
     def __init__(self, cfg: dict | None = None):
         cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._render_enabled = bool(cfg.get("render", True))
-        ts = cfg.get("timestep")
-        if ts is not None and (not isinstance(ts, (int, float)) or not ts > 0):
-            raise ConfigError(f"sapien timestep must be a positive number, got {ts!r}")
-        self._timestep_override = None if ts is None else float(ts)
+        self._timestep_override = timestep_option(cfg, BACKEND)
         self._shader = str(cfg.get("shader", "default"))
         self._shader_path = _shader_dir(self._shader)
         self._shadows = bool(cfg.get("shadows", False))
