@@ -28,6 +28,8 @@ from pathlib import Path
 from cab_core import stdio
 from cab_core.errors import AttemptEnded, ConfigError
 
+from cab_harness_reference.loop import result_images, run_code_limits
+
 from .bridge import CallBridge, Job
 from .server import build_server, instructions_text, tool_list, tool_result
 from .transport import HttpServerThread, ServerThread, StdioServerThread
@@ -78,10 +80,11 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _png(image) -> bytes:
-    from cab_harness_reference.loop import png_bytes
-
-    return png_bytes(image)
+def write_private_json(path: Path, obj) -> None:
+    """A JSON file only its owner can read (it holds the attempt's bearer token)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        json.dump(obj, f, indent=2)
 
 
 def _version() -> str:
@@ -143,15 +146,12 @@ class McpHarness:
 
         from cab_core.catalog import task_info
 
-        budget = {"tool_calls_remaining": spec.budget_tool_calls, "tool_calls_limit": spec.budget_tool_calls,
-                  "sim_seconds_remaining": spec.budget_sim_seconds, "sim_seconds_limit": spec.budget_sim_seconds}
-        rc = dict(spec.sandbox or {})
-        rc["max_internal_calls"] = spec.run_code_max_internal_calls
-        self.task_prompt = instructions_text(system_prompt(budget, run_code=rc),
+        budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
+        self.task_prompt = instructions_text(system_prompt(budget, run_code=run_code_limits(spec)),
                                              first_user_message(task_info(spec.task).instruction))
         self.tools = tool_list()
         self.bridge = CallBridge()
-        server = build_server(self.tools, self.bridge, self.task_prompt, _version(), self.task_prompt)
+        server = build_server(self.tools, self.bridge, self.task_prompt, _version())
         if s.transport == "stdio":
             self.transport = StdioServerThread(server, self._stdio)
         else:
@@ -194,9 +194,7 @@ class McpHarness:
             out = Path(spec.output_dir)
             out.mkdir(parents=True, exist_ok=True)
             path = out / ENDPOINT_FILE
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-            with os.fdopen(fd, "w") as f:
-                json.dump(endpoint, f, indent=2)
+            write_private_json(path, endpoint)
             print(f"cab: attempt {spec.task} served over MCP at {transport.url} (endpoint and token: {path})",
                   file=sys.stderr, flush=True)
 
@@ -255,16 +253,7 @@ class McpHarness:
             job.future.set_result(tool_result({"error": f"internal error: {e!r}", "attempt_ended": episode.ended}))
             raise
         payload = dict(r.payload)
-        ids = list(dict.fromkeys(r.obs_ids))
-        keep = min(len(ids), max(0, self.settings.max_images_per_result))
-        shown, withheld = ids[len(ids) - keep:], ids[:len(ids) - keep]
-        images = []
-        for oid in shown:
-            try:
-                images.append((oid, _png(episode.image(oid))))
-            except Exception as e:  # an unreadable observation is reported, not fatal
-                log.warning("observation %s unavailable: %r", oid, e)
-                withheld.append(oid)
+        images, withheld = result_images(episode, r.obs_ids, self.settings.max_images_per_result)
         if withheld:
             payload.setdefault("images_not_attached", withheld)
         return tool_result(payload, images)

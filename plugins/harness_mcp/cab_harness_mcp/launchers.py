@@ -59,7 +59,7 @@ from pathlib import Path
 
 from cab_core.errors import ConfigError, MissingDependency
 
-from .harness import McpHarness
+from .harness import McpHarness, write_private_json
 from .transport import HttpServerThread
 
 TRANSCRIPT = "vendor_transcript.jsonl"
@@ -246,9 +246,7 @@ class ClaudeCodeLauncher(VendorLauncher):
         headers = {"Authorization": f"Bearer {transport.token}"} if transport.token else {}
         config = {"mcpServers": {"cab": {"type": "http", "url": transport.url, "headers": headers}}}
         path = self._out / "vendor_mcp_config.json"
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w") as f:
-            json.dump(config, f, indent=2)
+        write_private_json(path, config)
         v = self.vcfg
         argv = [shutil.which(v["command"]) or v["command"], "-p", self.task_prompt,
                 "--output-format", "stream-json", "--verbose",

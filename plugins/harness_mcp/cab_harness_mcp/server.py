@@ -69,10 +69,10 @@ def instructions_text(system: str, instruction: str) -> str:
     return f"{system}\n\n# Task\n{instruction}\n"
 
 
-def build_server(tools: list[types.Tool], bridge: CallBridge, instructions: str, version: str,
-                 task_prompt: str) -> Server:
+def build_server(tools: list[types.Tool], bridge: CallBridge, task_prompt: str, version: str) -> Server:
     """A low-level MCP server whose tool calls go through ``bridge`` to the attempt's owner thread.
-    It also offers the task as the prompt ``attempt`` (clients show prompts as commands)."""
+    The task prompt is both its ``instructions`` and the prompt ``attempt`` (clients show prompts
+    as commands)."""
     by_name = {t.name: t for t in tools}
 
     async def list_tools(ctx, params) -> types.ListToolsResult:
@@ -98,7 +98,7 @@ def build_server(tools: list[types.Tool], bridge: CallBridge, instructions: str,
             types.PromptMessage(role="user", content=types.TextContent(type="text", text=task_prompt))])
 
     server = Server(SERVER_NAME, version=version, title="cab robot API (one attempt)",
-                    instructions=instructions, on_list_tools=list_tools, on_call_tool=call_tool,
+                    instructions=task_prompt, on_list_tools=list_tools, on_call_tool=call_tool,
                     on_list_prompts=list_prompts, on_get_prompt=get_prompt,
                     get_tool_input_schema=lambda name: by_name[name].input_schema if name in by_name else None)
     return server

@@ -35,6 +35,31 @@ def png_bytes(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def result_images(episode, obs_ids: list[str], cap: int) -> tuple[list[tuple[str, bytes]], list[str]]:
+    """The images one tool result carries: the last ``cap`` distinct observations as PNG, and the
+    ids withheld (over the cap, or unreadable: reported, never fatal). Shared by every harness
+    that shows a model its observations (this loop, the MCP server)."""
+    ids = list(dict.fromkeys(obs_ids))
+    keep = min(len(ids), max(0, int(cap or 0)))
+    withheld = ids[:len(ids) - keep]
+    shown = []
+    for oid in ids[len(ids) - keep:]:
+        try:
+            shown.append((oid, png_bytes(episode.image(oid))))
+        except Exception as e:  # an observation that cannot be read is reported, not fatal
+            withheld.append(oid)
+            log.warning("observation %s unavailable: %r", oid, e)
+    return shown, withheld
+
+
+def run_code_limits(spec) -> dict:
+    """The run_code limits the system prompt states, from an attempt's spec."""
+    rc = dict(getattr(spec, "sandbox", None) or {})
+    if spec is not None:
+        rc["max_internal_calls"] = spec.run_code_max_internal_calls
+    return rc
+
+
 def _provider_name(model_cfg: dict) -> str:
     name = model_cfg.get("provider")
     if not name:
@@ -97,17 +122,8 @@ class ReferenceHarness:
             return ReferenceContextPolicy.from_cfg(cfg)  # the plugin is not installed (tests from source)
 
     def _images(self, episode, obs_ids: list[str], cap: int, call: ToolCall) -> tuple[list[Image], list[str]]:
-        ids = list(dict.fromkeys(obs_ids))
-        withheld = ids[:-cap] if cap and len(ids) > cap else []
-        ids = ids[-cap:] if cap else []
-        out = []
-        for oid in ids:
-            try:
-                out.append(Image(png_bytes(episode.image(oid)), oid, f"{oid} from {call.name} ({call.call_id})"))
-            except Exception as e:  # an observation that cannot be read is reported, not fatal
-                withheld.append(oid)
-                log.warning("observation %s unavailable: %r", oid, e)
-        return out, withheld
+        shown, withheld = result_images(episode, obs_ids, cap)
+        return [Image(png, oid, f"{oid} from {call.name} ({call.call_id})") for oid, png in shown], withheld
 
     # -- the loop -----------------------------------------------------------------------------
     def run(self, episode, model_cfg: dict) -> None:
@@ -121,9 +137,7 @@ class ReferenceHarness:
         limit = int(limit) if limit else None
         max_images = int(getattr(policy, "max_images_per_result", 6))  # per tool result (FACTS A.7/A.10)
         tools = self._tools(episode)
-        rc = dict(getattr(getattr(episode, "spec", None), "sandbox", None) or {})
-        if hasattr(episode, "spec"):
-            rc["max_internal_calls"] = episode.spec.run_code_max_internal_calls
+        rc = run_code_limits(getattr(episode, "spec", None))
         system = system_prompt(episode.ledger.remaining(), run_code=rc)
         fixed = int((len(system) + len(json.dumps([t.__dict__ for t in tools]))) / 4)
         history: list[Message] = [Message("user", [Text(first_user_message(episode.instruction))])]
