@@ -15,6 +15,7 @@ import numpy as np
 from . import __version__
 from .budget import BudgetLedger
 from .errors import AttemptEnded, BudgetExhausted, CabError, ObservationUnavailable, ToolArgumentError
+from .faults import is_infrastructure_fault, tool_error_payload
 from .recording import RECORD_VERSION, Recorder
 from .robot.context import ObservationStore, RobotContext
 from .scene import CameraSpec
@@ -144,6 +145,7 @@ class Episode:
         self.result: dict | None = None
         self._t_start = time.monotonic()
         self._calls = 0
+        self.tool_errors = 0  # exceptions raised while serving the agent's calls (cab_core.faults)
         self._setup()
 
     # -- set-up -------------------------------------------------------------------------------
@@ -229,7 +231,7 @@ class Episode:
         """One direct tool call by the agent (charged, except ``done``)."""
         if self.ended:
             raise AttemptEnded(f"the attempt has ended ({self.termination['reason']})")
-        args = dict(args or {})
+        args = {} if args is None else (dict(args) if isinstance(args, dict) else args)  # a non-object is refused below
         t0 = time.monotonic()
         steps0 = self.clock.steps
         if name == "done":
@@ -247,10 +249,10 @@ class Episode:
         status = None
         try:
             payload, out_obs, status = self._invoke(name, args, direct=True)
-        except Exception as e:  # a fault of the host, not the agent's
-            self.recorder.event("tool_fault", tool=name, arguments=args, error=repr(e), traceback=traceback.format_exc())
-            self._end("error", f"{name}: {e!r}")
-            payload = {"error": "internal error; the attempt has ended", "attempt_ended": True}
+        except Exception as e:  # only an infrastructure fault gets here (cab_core.faults)
+            self.recorder.event("host_fault", tool=name, arguments=args, error=repr(e), traceback=traceback.format_exc())
+            self._end("host_fault", f"{name}: {e!r}")
+            payload = {"error": "the host failed (not your doing); the attempt has ended", "attempt_ended": True}
             return ToolResponse(name, payload, [], ended=True)
         payload["budget"] = self.ledger.remaining()
         reason = self.ledger.exhausted_reason()
@@ -268,10 +270,21 @@ class Episode:
             ended = True
         return ToolResponse(name, payload, out_obs, ended=ended, status=status)
 
-    def _invoke(self, name: str, args: dict, direct: bool) -> tuple[dict, list[str], str | None]:
-        """Validate and run one tool. Argument errors become the typed error payload the agent
-        sees; any other exception propagates (a host fault). Inside programs, run_code and done
-        do not exist."""
+    def _invoke(self, name: str, args: Any, direct: bool) -> tuple[dict, list[str], str | None]:
+        """Validate and run one tool; the fault rule of :mod:`cab_core.faults` applies. Argument
+        errors and any other exception raised while serving the call become the typed error payload
+        the agent sees (recorded, the attempt goes on); only an infrastructure fault propagates.
+        Inside programs, run_code and done do not exist."""
+        try:
+            return self._serve(name, args, direct)
+        except Exception as e:
+            if is_infrastructure_fault(e):
+                raise
+            self.tool_errors += 1
+            self.recorder.event("tool_error", tool=name, direct=direct, error=repr(e), traceback=traceback.format_exc())
+            return tool_error_payload(name, e), [], None
+
+    def _serve(self, name: str, args: Any, direct: bool) -> tuple[dict, list[str], str | None]:
         from .tools import validate_args
 
         try:
@@ -290,15 +303,16 @@ class Episode:
             return ({"error": f"observation unavailable: {e}", "code": "observation_unavailable", "available": False},
                     [], None)
 
-    def _done(self, args: dict, t0: float) -> ToolResponse:
-        report = args.get("report")
-        claim = args.get("success_claim")
-        if not isinstance(report, str) or (claim is not None and not isinstance(claim, bool)) or set(args) - {"report", "success_claim"}:
-            payload = {"error": "bad arguments: done takes report (string, required) and success_claim (boolean, optional)",
-                       "code": "invalid_tool_arguments"}
+    def _done(self, args: Any, t0: float) -> ToolResponse:
+        from .tools import validate_args
+
+        try:
+            model = validate_args("done", args)
+        except ToolArgumentError as e:
+            payload = {"error": str(e), "code": "invalid_tool_arguments"}
             self.recorder.event("call", tool="done", arguments=args, result=payload, charged=False)
             return ToolResponse("done", payload, [])
-        self.claim = {"success_claim": claim, "report": report}
+        self.claim = {"success_claim": model.success_claim, "report": model.report}
         payload = {"ok": True, "note": "episode ended; attempt recorded."}
         self.recorder.event("call", tool="done", arguments=args, result=payload, charged=False,
                             wall_seconds=round(time.monotonic() - t0, 4))
@@ -377,7 +391,8 @@ class Episode:
             "budget": self.ledger.summary(),
             "timing": {"wall_seconds": round(time.monotonic() - self._t_start, 3),
                        "setup_seconds": round(self.setup_seconds, 3)},
-            "counts": {"charged_calls": self._calls, "observations": len(self.obs._obs)},
+            "counts": {"charged_calls": self._calls, "observations": len(self.obs._obs),
+                       "tool_errors": self.tool_errors},
             "sandbox": {"confinement": getattr(self.sandbox, "confinement", None),
                         "layers": getattr(self.sandbox, "confinement_layers", None),
                         "note": getattr(self.sandbox, "confinement_note", None)},

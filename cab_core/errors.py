@@ -26,6 +26,12 @@ class SimulatorError(CabError):
     """The simulator failed."""
 
 
+class InfrastructureFault(CabError):
+    """The host itself is broken (a simulator or renderer process died or stopped answering, a device
+    was lost): not the agent's doing. A sweep retries the attempt and reports exclude it
+    (:mod:`cab_core.faults`)."""
+
+
 class BadCommand(SimulatorError):
     """A command to the simulator is malformed (wrong shape, unknown name, non-finite value)."""
 

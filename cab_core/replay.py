@@ -27,10 +27,10 @@ from .analysis.records import Attempt
 from .errors import AttemptEnded, CabError, RecordError
 
 TOLERANCE_M = 0.005
-CALL_KINDS = ("call", "internal_call", "call_refused", "tool_fault")
+CALL_KINDS = ("call", "internal_call", "call_refused", "host_fault", "tool_fault")  # tool_fault: older records
 # terminations the replayed calls decide by themselves; any other (the wall clock, which a replay
 # does not reproduce, or a harness's decision) is mirrored once the recorded calls are made
-EPISODE_ENDINGS = ("done", "tool_budget", "sim_budget", "no_done", "error")
+EPISODE_ENDINGS = ("done", "tool_budget", "sim_budget", "no_done", "error")  # error: older records
 MAX_LISTED = 25
 
 

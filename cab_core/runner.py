@@ -7,6 +7,7 @@ from typing import Any
 
 from .episode import AttemptSpec, Episode
 from .errors import ConfigError
+from .faults import is_infrastructure_fault
 
 log = logging.getLogger("cab")
 
@@ -87,9 +88,9 @@ def run_attempt(spec: AttemptSpec) -> dict:
     try:
         try:
             harness.run(episode, spec.model_cfg)
-        except Exception as e:
+        except Exception as e:  # the fault rule (cab_core.faults): only a broken host is not scored
             log.exception("harness failed")
-            episode.end("error", f"harness: {e!r}")
+            episode.end("host_fault" if is_infrastructure_fault(e) else "harness_error", f"harness: {e!r}")
         return episode.finish()
     finally:
         episode.close()

@@ -14,14 +14,14 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .faults import INFRASTRUCTURE_TERMINATIONS
 from .recording import RECORD_VERSION, write_json_atomic
 
 SET_ASIDE = "set_aside"
 INFRA_LOG = "infrastructure.jsonl"
 INFRA_REASON = "infrastructure_failure"
-# Terminations that are failures of the infrastructure, not of the model: a provider outage that
-# outlived the harness's own retries, and a host fault (simulator or harness exception).
-INFRA_TERMINATIONS = {"provider_failure": "provider outage", "error": "host fault"}
+# Terminations that are failures of the infrastructure, not of the model (the fault rule).
+INFRA_TERMINATIONS = INFRASTRUCTURE_TERMINATIONS
 _RESULT_KEYS = ("task", "seed", "attempt", "sim", "model", "verdict", "termination", "claim", "budget", "timing",
                 "versions")
 _IDENTITY = ("task", "seed", "attempt", "sim", "model")
