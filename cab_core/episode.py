@@ -143,6 +143,7 @@ class Episode:
         self.claim: dict = {"success_claim": None, "report": None}
         self.sandbox = None
         self.result: dict | None = None
+        self.agent: dict | None = None  # who played, when the harness knows (cab_core.agent_record)
         self._t_start = time.monotonic()
         self._calls = 0
         self.tool_errors = 0  # exceptions raised while serving the agent's calls (cab_core.faults)
@@ -383,6 +384,7 @@ class Episode:
             "record_version": RECORD_VERSION,
             "task": s.task, "seed": s.seed, "attempt": s.attempt, "sim": s.sim, "embodiment": s.embodiment,
             "planner": s.planner, "model": s.model, "harness": s.harness,
+            **({"agent": self.agent} if self.agent is not None else {}),
             "instruction": self.task.info.instruction,
             "scoring": self.verifier.scoring,
             "verdict": verdict,
