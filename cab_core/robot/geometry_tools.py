@@ -130,10 +130,31 @@ def project_points(K: np.ndarray, E: np.ndarray, pts: np.ndarray) -> tuple[np.nd
 
 
 def pixel_ray(K: np.ndarray, E: np.ndarray, px: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-    """World origin (camera centre) and unit direction of the viewing ray through pixel ``px``."""
-    d_cam = np.linalg.solve(np.asarray(K, float), np.array([px[0], px[1], 1.0]))
-    d = np.asarray(E, float)[:, :3].T @ d_cam
-    return camera_centre(E), d / np.linalg.norm(d)
+    """World origin (camera centre) and unit direction of the viewing ray through pixel ``px``. A
+    ray without a usable direction (non-finite, or no length) has the direction [0, 0, 0]: check it
+    with :func:`degenerate_direction`."""
+    with np.errstate(all="ignore"):
+        d_cam = np.linalg.solve(np.asarray(K, float), np.array([px[0], px[1], 1.0]))
+        d = np.asarray(E, float)[:, :3].T @ d_cam
+        n = float(np.linalg.norm(d))
+    if not (math.isfinite(n) and n > 1e-12):
+        return camera_centre(E), np.zeros(3)
+    return camera_centre(E), d / n
+
+
+def degenerate_direction(d: np.ndarray) -> bool:
+    """Whether a direction from :func:`pixel_ray` is unusable (not finite, not of unit length)."""
+    return not (np.all(np.isfinite(d)) and abs(float(np.linalg.norm(d)) - 1.0) < 1e-6)
+
+
+def outside_workspace(X: np.ndarray) -> str | None:
+    """Why a world point lies outside the declared workspace envelope (None when inside)."""
+    out = [f"{ax}={float(X[i]):.3g}" for i, ax in enumerate("xyz")
+           if not WORKSPACE[ax][0] <= float(X[i]) <= WORKSPACE[ax][1]]
+    if not out:
+        return None
+    return (f"the point lies outside the workspace envelope (x, y in [-0.8, 0.8] m, z in [0.4, 1.5] m): "
+            f"{', '.join(out)}; nothing on the table is there")
 
 
 def _frame_of(obs: Observation) -> str:
@@ -202,8 +223,9 @@ def ray(ctx: RobotContext, args) -> ToolOutput:
     prov = {**_obs_prov(obs), "px": rnd(args.px, 3), "pixel_in_frame": in_frame(args.px, obs.size_hw),
             "method": "back-projection d = R^T K^-1 [u, v, 1]; origin = camera centre",
             "note": "direction only: an RGB pixel carries no depth"}
-    return ToolOutput(payload=estimate({"origin": rnd(origin), "dir": rnd(d, 8)}, "ray", frame="world", units="m",
-                                       provenance=prov, uncertainty=None))
+    bad = ("DEGENERATE_GEOMETRY", "this pixel gives no usable ray direction") if degenerate_direction(d) else None
+    return ToolOutput(payload=estimate(None if bad else {"origin": rnd(origin), "dir": rnd(d, 8)}, "ray",
+                                       frame="world", units="m", provenance=prov, uncertainty=None, failure=bad))
 
 
 def _ray_plane(C, d, p0, n) -> float:
@@ -227,6 +249,8 @@ def plane_intersect(ctx: RobotContext, args) -> ToolOutput:
         return ToolOutput(payload=estimate(None, "world_point", frame="world", units="m", provenance=prov,
                                            coarse=True, failure=(code, msg)))
 
+    if degenerate_direction(d):
+        return fail("DEGENERATE_GEOMETRY", "this pixel gives no usable ray direction")
     if abs(cos) < _PAR_TOL:
         return fail("RAY_PARALLEL_TO_PLANE", "the viewing ray is parallel to the plane")
     s = _ray_plane(C, d, p0, n)
@@ -270,8 +294,10 @@ def plane_intersect(ctx: RobotContext, args) -> ToolOutput:
     })
     if amp > 5:
         prov["warning"] = "grazing view: small plane or pixel errors move the point a lot"
+    far = outside_workspace(X)
     return ToolOutput(payload=estimate(rnd(X), "world_point", frame="world", units="m", provenance=prov,
-                                       uncertainty=unc, coarse=True))
+                                       uncertainty=unc, coarse=True,
+                                       failure=("OUTSIDE_WORKSPACE", far) if far else None))
 
 
 # ==============================================================================================
@@ -364,8 +390,9 @@ def triangulate_correspondence(ctx: RobotContext, args) -> ToolOutput:
     if warnings:
         prov["warnings"] = warnings
     ok = all(v is not False for v in validity.values())
+    far = outside_workspace(X)
     return ToolOutput(payload=estimate(rnd(X), "world_point", frame="world", units="m", provenance=prov,
-                                       uncertainty=unc, valid=ok))
+                                       uncertainty=unc, valid=ok, failure=("OUTSIDE_WORKSPACE", far) if far else None))
 
 
 # ==============================================================================================

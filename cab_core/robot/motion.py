@@ -323,11 +323,18 @@ def _legs(ctx: RobotContext, deltas: dict[str, np.ndarray], *, stop_on_contact_c
 
 
 def _clamp(delta: np.ndarray) -> tuple[np.ndarray, bool]:
-    n = float(np.linalg.norm(delta))
+    """The displacement with its norm clamped to MAX_STEP_M, direction kept, for any finite input:
+    the norm is taken of the delta scaled by its largest component, so it cannot overflow."""
+    delta = np.asarray(delta, float)
     if not np.all(np.isfinite(delta)):
         raise ToolArgumentError("bad arguments: displacement must be finite")
-    if n > MAX_STEP_M:
-        return delta / n * MAX_STEP_M, True
+    big = float(np.max(np.abs(delta))) if delta.size else 0.0
+    if big == 0.0:
+        return delta, False
+    unit_dir = delta / big
+    unit_dir = unit_dir / float(np.linalg.norm(unit_dir))
+    if big * float(np.linalg.norm(delta / big)) > MAX_STEP_M:
+        return unit_dir * MAX_STEP_M, True
     return delta, False
 
 

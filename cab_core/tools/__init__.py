@@ -93,7 +93,8 @@ _SPECS: list[tuple[str, str, type[BaseModel], str, str, str, type[BaseModel] | N
      "Intersects a pixel's viewing ray with a plane you specify (point and normal, world m) and returns the 3D point "
      "with propagated 1-sigma uncertainty from your pixel and plane-offset sigmas, amplified by obliquity (1/|cos| of "
      "the ray-normal angle) and range. Always coarse: it is only as good as your plane. Fails with value null when "
-     "the ray is parallel to the plane or the hit is behind the camera.", m.Estimate),
+     "the ray is parallel to the plane or the hit is behind the camera; a hit outside the workspace envelope is "
+     "returned with valid=false (OUTSIDE_WORKSPACE).", m.Estimate),
     ("capture_motion_pair", "geometry", m.CaptureMotionPairArgs, _MOTION, "act",
      "Moves one arm by a small world-frame displacement (dx, dy, dz in m) as a real guarded motion, capturing its "
      "wrist RGB before and after. Returns both observations, the motion's ActionResult, the measured camera "

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal, Optional
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
 
 # -- shared vocabularies ------------------------------------------------------------------------
 Arm = Literal["left", "right"]
@@ -28,6 +28,13 @@ EvidenceView = Literal["overview", "left_wrist", "right_wrist"]
 ORTHOGONALITY_TOL = 1e-6  # |dot| of the normalised approach and opening axes
 FINGER_GAP_RANGE_M = (0.048, 0.142)  # FK distance between finger-link origins
 MAX_MARKS = 12
+
+# Declared ranges of every numeric argument (the schema shows them as minimum/maximum). They are far
+# wider than any useful value, so they refuse only nonsense (1e308, overflow), never a real request.
+COORD_LIMIT_M = 10.0  # world coordinates of points, metres (the table scene spans about 1.6 m)
+DELTA_LIMIT_M = 10.0  # components of displacements, metres (motion tools clamp the norm to 0.30 m)
+PIXEL_LIMIT_PX = 10_000.0  # pixel coordinates: points well outside the image are still meaningful
+AXIS_LIMIT = 1_000.0  # components of directions and quaternions, which are normalised internally
 
 
 def _norm(v: list[float]) -> float:
@@ -53,11 +60,24 @@ def _unit(v: list[float]) -> list[float]:
     return [x / n for x in v]
 
 
-Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
-Direction3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3), AfterValidator(_nonzero_vector)]
-QuatWXYZ = Annotated[list[FiniteFloat], Field(min_length=4, max_length=4), AfterValidator(_unit_quaternion)]
-Pixel = Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)]
-ObsId = Annotated[str, Field(min_length=1, max_length=64)]
+def Num(lo: float, hi: float, *, lo_open: bool = False) -> Any:
+    """A finite number within [lo, hi] (or (lo, hi] with ``lo_open``): a JSON integer is accepted,
+    a string, a boolean or null is refused (strict, never coerced)."""
+    low = {"gt": lo} if lo_open else {"ge": lo}
+    return Annotated[float, Strict(), Field(allow_inf_nan=False, le=hi, **low)]
+
+
+Coord = Num(-COORD_LIMIT_M, COORD_LIMIT_M)
+Delta = Num(-DELTA_LIMIT_M, DELTA_LIMIT_M)
+PixelCoord = Num(-PIXEL_LIMIT_PX, PIXEL_LIMIT_PX)
+AxisComponent = Num(-AXIS_LIMIT, AXIS_LIMIT)
+
+Vec3 = Annotated[list[Coord], Field(min_length=3, max_length=3)]
+Delta3 = Annotated[list[Delta], Field(min_length=3, max_length=3)]
+Direction3 = Annotated[list[AxisComponent], Field(min_length=3, max_length=3), AfterValidator(_nonzero_vector)]
+QuatWXYZ = Annotated[list[AxisComponent], Field(min_length=4, max_length=4), AfterValidator(_unit_quaternion)]
+Pixel = Annotated[list[PixelCoord], Field(min_length=2, max_length=2)]
+ObsId = Annotated[str, Strict(), Field(min_length=1, max_length=64)]
 
 _D_GAP = "Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap."
 _D_QUAT = "Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."
@@ -148,7 +168,7 @@ class DrawMarksArgs(Args):
     pixels: list[Pixel] = Field(
         min_length=1, max_length=MAX_MARKS,
         description="1-12 pixel points [u, v] in that observation's image (u right, v down, zero-based).")
-    labels: list[Annotated[str, Field(max_length=40)]] = Field(
+    labels: list[Annotated[str, Strict(), Field(max_length=40)]] = Field(
         min_length=1, max_length=MAX_MARKS,
         description="One short text label per pixel (same count as pixels, at most 40 characters each).")
 
@@ -177,41 +197,40 @@ class PlaneIntersectArgs(Args):
     plane_point_xyz: Vec3 = Field(description="Any world point on the plane [x, y, z], metres.")
     plane_normal_xyz: Direction3 = Field(
         description="Plane normal in world coordinates (non-zero; normalised internally).")
-    plane_offset_sigma_m: FiniteFloat = Field(
-        ge=0, le=10.0,
+    plane_offset_sigma_m: Num(0.0, 10.0) = Field(
         description="Your 1-sigma uncertainty of the plane's position along its normal, metres (>= 0).")
-    pixel_sigma_px: FiniteFloat = Field(
-        default=2.0, ge=0, le=100.0,
+    pixel_sigma_px: Num(0.0, 100.0) = Field(
+        default=2.0,
         description="Your 1-sigma uncertainty of the pixel location, pixels (default 2.0).")
 
 
 class CaptureMotionPairArgs(Args):
     arm: Arm = Field(description="Arm to move; its wrist camera takes the before/after images.")
-    dx: FiniteFloat = Field(description="World-frame displacement along +x (robot right), metres.")
-    dy: FiniteFloat = Field(description="World-frame displacement along +y (forward), metres.")
-    dz: FiniteFloat = Field(description="World-frame displacement along +z (up), metres.")
+    dx: Delta = Field(description="World-frame displacement along +x (robot right), metres.")
+    dy: Delta = Field(description="World-frame displacement along +y (forward), metres.")
+    dz: Delta = Field(description="World-frame displacement along +z (up), metres.")
 
 
 class TriangulateCorrespondenceArgs(Args):
-    pair_id: Annotated[str, Field(min_length=1, max_length=64)] = Field(
+    pair_id: Annotated[str, Strict(), Field(min_length=1, max_length=64)] = Field(
         description="pair_id returned by capture_motion_pair.")
     px_before: Pixel = Field(description="Pixel [u, v] of the scene point in the pair's 'before' image.")
     px_after: Pixel = Field(description="Pixel [u, v] of the same scene point in the pair's 'after' image.")
-    pixel_sigma_px: FiniteFloat = Field(
-        default=2.0, ge=0, le=100.0,
+    pixel_sigma_px: Num(0.0, 100.0) = Field(
+        default=2.0,
         description="Your 1-sigma pixel uncertainty for both points, pixels (default 2.0).")
 
 
 class ScaleFromObjectSizeArgs(Args):
     obs_id: ObsId = Field(description="Observation in which the object's bounding box was read.")
-    bbox: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = Field(
+    bbox: Annotated[list[PixelCoord], Field(min_length=4, max_length=4)] = Field(
         description="Object bounding box [x1, y1, x2, y2] in pixels of that image (x1 < x2, y1 < y2).")
     extent_axis: Literal["width", "height", "diagonal"] = Field(
         description="Which box extent matches the known size: 'width' (u), 'height' (v) or 'diagonal'.")
-    known_extent_m: FiniteFloat = Field(
-        ge=1e-6, le=10.0, description="Your prior for the object's physical extent along that axis, metres.")
-    known_extent_sigma_m: Optional[FiniteFloat] = Field(
-        default=None, ge=0, le=10.0,
+    known_extent_m: Num(1e-6, 10.0) = Field(
+        description="Your prior for the object's physical extent along that axis, metres.")
+    known_extent_sigma_m: Optional[Num(0.0, 10.0)] = Field(
+        default=None,
         description="Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null.")
 
     @model_validator(mode="after")
@@ -249,12 +268,12 @@ class CameraAimPoseArgs(Args):
     camera: WristCamera = Field(
         description="Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm).")
     target_xyz: Vec3 = Field(description="World point [x, y, z] (metres) the camera should look at.")
-    pitch: FiniteFloat = Field(
-        default=80.0, ge=60.0, le=90.0,
+    pitch: Num(60.0, 90.0) = Field(
+        default=80.0,
         description="Approach tilt below horizontal, degrees (60-90, default 80; 90 = approach straight down, "
                     "the top-down family); a rotation about world Y applied before the heading.")
-    standoff: FiniteFloat = Field(
-        default=0.28, ge=0.05, le=1.0,
+    standoff: Num(0.05, 1.0) = Field(
+        default=0.28,
         description="Height of the TCP above the target's z, metres (default 0.28).")
 
 
@@ -262,8 +281,7 @@ class TcpCandidate(Args):
     arm: Arm = Field(description="Arm this TCP pose is for.")
     tcp_xyz: Vec3 = Field(description=_D_TCP)
     quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
-    finger_gap_m: Optional[FiniteFloat] = Field(
-        default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1], description=_D_GAP)
+    finger_gap_m: Optional[Num(*FINGER_GAP_RANGE_M)] = Field(default=None, description=_D_GAP)
 
 
 class PreviewTcpPoseArgs(Args):
@@ -273,8 +291,7 @@ class PreviewTcpPoseArgs(Args):
     arm: Arm = Field(description="Arm whose gripper geometry to draw.")
     tcp_xyz: Vec3 = Field(description=_D_TCP)
     quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
-    finger_gap_m: Optional[FiniteFloat] = Field(
-        default=None, ge=FINGER_GAP_RANGE_M[0], le=FINGER_GAP_RANGE_M[1], description=_D_GAP)
+    finger_gap_m: Optional[Num(*FINGER_GAP_RANGE_M)] = Field(default=None, description=_D_GAP)
     reference_px: Optional[Pixel] = Field(
         default=None, description="Optional pixel [u, v] to report offsets to; exclusive with reference_xyz_world.")
     reference_xyz_world: Optional[Vec3] = Field(
@@ -305,9 +322,9 @@ class CheckTcpPoseReachabilityArgs(Args):
 # -- motion ------------------------------------------------------------------------------------
 class MoveDeltaArgs(Args):
     arm: Arm = Field(description="Arm to move.")
-    dx: FiniteFloat = Field(default=0.0, description="TCP displacement along world +x (robot right), metres.")
-    dy: FiniteFloat = Field(default=0.0, description="TCP displacement along world +y (forward), metres.")
-    dz: FiniteFloat = Field(default=0.0, description="TCP displacement along world +z (up), metres.")
+    dx: Delta = Field(default=0.0, description="TCP displacement along world +x (robot right), metres.")
+    dy: Delta = Field(default=0.0, description="TCP displacement along world +y (forward), metres.")
+    dz: Delta = Field(default=0.0, description="TCP displacement along world +z (up), metres.")
     path: Literal["waypoint_legs", "single_plan"] = Field(
         default="waypoint_legs",
         description="'waypoint_legs': guarded legs of at most contact_leg_m (0.03 m), each re-aimed from the "
@@ -315,8 +332,8 @@ class MoveDeltaArgs(Args):
 
 
 class MoveBothDeltaArgs(Args):
-    left_delta: Vec3 = Field(description="Left TCP displacement [dx, dy, dz], world metres.")
-    right_delta: Vec3 = Field(description="Right TCP displacement [dx, dy, dz], world metres.")
+    left_delta: Delta3 = Field(description="Left TCP displacement [dx, dy, dz], world metres.")
+    right_delta: Delta3 = Field(description="Right TCP displacement [dx, dy, dz], world metres.")
 
 
 class ReachTcpArgs(Args):
@@ -340,28 +357,30 @@ class ReachBothTcpArgs(Args):
 class ProbeContactAlongArgs(Args):
     arm: Arm = Field(description="Arm to move.")
     direction_xyz: Direction3 = Field(description="World direction of travel (non-zero; normalised internally).")
-    distance_m: FiniteFloat = Field(gt=0, description="Maximum travel, metres (> 0; clamped to 0.30).")
-    step_m: FiniteFloat = Field(
-        ge=0.002, description="Step between contact checks, metres (>= 0.002; clamped to 0.03).")
+    distance_m: Num(0.0, DELTA_LIMIT_M, lo_open=True) = Field(
+        description="Maximum travel, metres (> 0; clamped to 0.30).")
+    step_m: Num(0.002, DELTA_LIMIT_M) = Field(
+        description="Step between contact checks, metres (>= 0.002; clamped to 0.03).")
 
 
 class SetGripperArgs(Args):
     arm: Arm = Field(description="Arm whose gripper to actuate.")
-    pos: FiniteFloat = Field(
-        ge=0.0, le=1.0, description="Normalised opening command: 1 = fully open, 0 = fully closed.")
+    pos: Num(0.0, 1.0) = Field(
+        description="Normalised opening command: 1 = fully open, 0 = fully closed.")
 
 
 # -- composition and control -------------------------------------------------------------------
 class RunCodeArgs(Args):
-    code: str = Field(
+    code: Annotated[str, Strict()] = Field(
         min_length=1, max_length=200_000,
         description="Python source run in the persistent sandbox (numpy as np, math, load_image and every "
                     "robot tool as a keyword-only function); assign `result` to return a value.")
 
 
 class DoneArgs(Args):
-    report: str = Field(max_length=20_000, description="Your account of what you did and the final state.")
-    success_claim: Optional[bool] = Field(
+    report: Annotated[str, Strict()] = Field(
+        max_length=20_000, description="Your account of what you did and the final state.")
+    success_claim: Optional[Annotated[bool, Strict()]] = Field(
         default=None, description="Whether you judge the task accomplished (true/false).")
 
 
@@ -416,8 +435,10 @@ class ActionResult(Result):
 
 
 class EstimateFailure(Result):
-    code: Literal["RAY_PARALLEL_TO_PLANE", "BEHIND_CAMERA", "DEGENERATE_GEOMETRY", "ESTIMATE_UNAVAILABLE"] = Field(
-        description="Failure code.")
+    code: Literal["RAY_PARALLEL_TO_PLANE", "BEHIND_CAMERA", "DEGENERATE_GEOMETRY", "OUTSIDE_WORKSPACE",
+                  "ESTIMATE_UNAVAILABLE"] = Field(
+        description="Failure code. OUTSIDE_WORKSPACE: a point was computed (value kept) but lies outside the "
+                    "workspace envelope, so it cannot be on the table.")
     message: str = Field(description="What went wrong.")
 
 
