@@ -12,9 +12,13 @@ Layers, outermost first (each must hold on its own):
    or abstract sockets beyond the sandbox. Without bubblewrap it is what keeps files private.
 4. rlimits: address space (``memory_mb``), CPU seconds, file size, open files, no core dumps; the
    host enforces the wall-clock timeout by killing the process group.
-5. The Python layer (FACTS A.7): an AST policy (imports of numpy and math only, no dunders,
-   frames, classes or async; no eval/exec/open/getattr/...), restricted builtins, a numpy namespace
-   without file I/O or ctypes.
+5. The Python layer (FACTS A.7): an AST policy (imports of numpy and math only, no classes or
+   async; no eval/exec/open/getattr/...; no name starting with ``__``, however it is bound; no
+   attribute starting with ``_`` or leading to frames, code or files, by any route: ``.attr``,
+   ``match`` class-pattern keywords, or ``{0.attr}``/``{0[_key]}`` fields of ``str.format`` and
+   ``format_map``, checked before the run for literal templates and, through a hook the AST rewrite
+   puts on every ``.format``/``.format_map``, at run time for built ones), restricted builtins, a
+   numpy namespace without file I/O or ctypes. ``runner.py``'s docstring lists the routes.
 
 Use ``python -m cab_core.sandbox`` to see which layers this machine provides and how fast they are.
 """

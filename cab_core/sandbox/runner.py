@@ -15,9 +15,39 @@ Start-up order, so that nothing the program can do runs before the confinement i
 rlimits -> parent-death signal -> import numpy -> build the namespace -> Landlock -> seccomp ->
 ``ready``. Every layer that could not be applied is reported in ``ready`` (the host decides whether
 that is acceptable: ``mode="required"`` refuses to run without bubblewrap and seccomp).
+
+The Python layer (``check_tree`` before a program runs, restricted builtins and numpy while it runs)
+means: no program reaches an attribute whose name starts with ``_`` (or is in ``BANNED_ATTRS``), and
+no name starting with ``__`` is used or bound. The routes to an attribute by name, and how each is
+held:
+
+* ``obj.attr`` (``ast.Attribute``), including inside f-strings, whose fields and nested format specs
+  are ordinary expressions in the AST;
+* ``case C(attr=p)``: class-pattern keywords (``MatchClass.kwd_attrs``) pass the same test. Positional
+  class patterns read the names in a class's ``__match_args__``; no class the program can name has one
+  (the tests check the whole reachable namespace), and the program cannot define classes;
+* ``getattr``/``vars``/``dir``/``type``/``object`` are not available;
+* ``str.format`` and ``str.format_map`` resolve ``{0.attr}`` and ``{0[key]}`` fields themselves (and
+  those nested in a spec, ``{0:{1.attr}}``). A literal template is checked before the program runs.
+  A template can also be built at run time, so every load of an attribute named ``format`` or
+  ``format_map`` is rewritten into ``__cab_format_attr__(obj, name)`` (a builtin the program cannot
+  name): where that is ``str.format``/``format_map``, bound or not, on a ``str`` or a subclass, the
+  program gets a wrapper that parses the template with the interpreter's own parser (``_string``,
+  behind ``string.Formatter``) and raises ``SandboxPolicyError`` before anything is formatted if a
+  field steps to a refused attribute or to an item whose key starts with ``_``; otherwise it is the
+  real method and formatting is unchanged. A plain first part (``{name}``) is an argument or mapping
+  key, not a step, and is allowed. The only ways to the raw method without such a load (a class
+  pattern keyword, an augmented assignment ``x.format += ...``) are refused by the policy, and no
+  public object in reach is a raw format method under another name (checked by the tests). ``%``
+  formatting and ``format(value, spec)`` resolve no fields and are not affected;
+* names bound without an ``ast.Name`` node (``except E as n``, ``case ... as n``, ``*n``, ``**n``,
+  ``global``/``nonlocal``) follow the ``__`` rule: ``except E as __builtins__`` ends with an implicit
+  ``del __builtins__``, and exec fills a missing ``__builtins__`` with the real builtins. Each run also
+  starts from the safe builtins again.
 """
 from __future__ import annotations
 
+import _string  # str.format's own field parser (string.Formatter's too)
 import ast
 import json
 import linecache
@@ -94,6 +124,87 @@ _BANNED_NODES = {
 }
 
 
+def attr_refused(name: str) -> bool:
+    """Whether the Python layer refuses the attribute ``name``, however the program names it."""
+    return name.startswith("_") or name in BANNED_ATTRS
+
+
+# ``str.format`` and ``str.format_map`` resolve ``{0.attr}`` and ``{0[key]}`` fields by name, out of
+# the AST's sight; every load of an attribute with one of these names goes through this hook.
+FORMAT_METHODS = ("format", "format_map")
+FORMAT_HOOK = "__cab_format_attr__"  # a name the program cannot write: it starts with "__"
+# str.format expands a spec's fields two levels deep and refuses ("Max string recursion exceeded")
+# before parsing a third; the check looks one level further and no deeper.
+_FORMAT_LEVELS = 3
+
+
+def _field_problem(field: str) -> str | None:
+    """Why a replacement field's ``.attr``/``[key]`` steps are refused, or None. May raise ValueError
+    part-way (a malformed field), after every step before the error passed."""
+    _first, steps = _string.formatter_field_name_split(field)  # the first part is an argument
+    for is_attr, key in steps:
+        if is_attr and attr_refused(key):
+            return f"format field '{{{field}}}' reaches attribute '.{key}'"
+        if not is_attr and isinstance(key, str) and key.startswith("_"):
+            return f"format field '{{{field}}}' looks up item '[{key}]'"
+    return None
+
+
+def format_problems(template: str, level: int = 0) -> list[str]:
+    """The fields of ``template`` that ``str.format``/``format_map`` would traverse to a refused
+    attribute or ``_`` item, in the order it resolves them, those in format specs included.
+
+    Uses the interpreter's own parser (``_string``, behind ``string.Formatter``), so it reads fields
+    exactly as ``str.format`` does. Where the template stops parsing, the check stops: ``str.format``
+    raises its ValueError there, having resolved only the fields before, which were checked."""
+    problems = []
+    try:
+        for _literal, field, spec, _conversion in _string.formatter_parser(template):
+            if field is None:
+                continue
+            problem = _field_problem(field)
+            if problem:
+                problems.append(problem)
+            if spec and "{" in spec and level + 1 < _FORMAT_LEVELS:
+                problems += format_problems(spec, level + 1)
+    except ValueError:
+        pass
+    return problems
+
+
+def _literal_template(node: ast.AST) -> str | None:
+    """The literal template of ``'...'.format``/``format_map`` or ``str.format('...', ...)``."""
+    if isinstance(node, ast.Attribute) and node.attr in FORMAT_METHODS:
+        if isinstance(node.value, ast.Constant) and isinstance(node.value.value, str):
+            return node.value.value
+    if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in FORMAT_METHODS
+            and isinstance(node.func.value, ast.Name) and node.func.value.id == "str" and node.args
+            and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+        return node.args[0].value
+    return None
+
+
+def _bound_identifiers(node: ast.AST) -> list[str]:
+    """Names a node binds or declares without an ``ast.Name`` node. ``except E as __builtins__`` is
+    one: the handler ends with an implicit ``del``, and exec gives globals without ``__builtins__``
+    the interpreter's real builtins."""
+    if isinstance(node, (ast.FunctionDef, ast.ExceptHandler, ast.MatchAs, ast.MatchStar)):
+        names = [node.name]
+    elif isinstance(node, ast.MatchMapping):
+        names = [node.rest]
+    elif isinstance(node, (ast.Global, ast.Nonlocal)):
+        names = list(node.names)
+    elif isinstance(node, ast.arg):
+        names = [node.arg]
+    elif isinstance(node, ast.alias):
+        names = [node.asname]
+    elif type(node).__name__ in ("TypeVar", "ParamSpec", "TypeVarTuple"):  # 3.12: def f[T]()
+        names = [node.name]
+    else:
+        names = []
+    return [n for n in names if n]
+
+
 def check_tree(tree: ast.AST) -> list[str]:
     """Return the policy violations in ``tree`` (empty when the program may run)."""
     problems: list[str] = []
@@ -108,19 +219,106 @@ def check_tree(tree: ast.AST) -> list[str]:
                     problems.append(f"line {line}: import of '{alias.name}' is not allowed "
                                     "(only numpy and math can be imported)")
         elif isinstance(node, ast.Attribute):
-            if node.attr.startswith("_") or node.attr in BANNED_ATTRS:
+            if attr_refused(node.attr):
                 problems.append(f"line {line}: access to attribute '.{node.attr}' is not allowed")
         elif isinstance(node, ast.Name):
             if node.id in BANNED_NAMES or node.id.startswith("__"):
                 problems.append(f"line {line}: name '{node.id}' is not allowed")
-        elif isinstance(node, (ast.FunctionDef, ast.Lambda, ast.arg)):
-            name = getattr(node, "name", None) or getattr(node, "arg", None)
-            if name and name.startswith("__"):
+        elif isinstance(node, ast.MatchClass):
+            # ``case C(attr=p)`` reads ``subject.attr`` by name, with no ast.Attribute node
+            for attr in node.kwd_attrs:
+                if attr_refused(attr):
+                    problems.append(f"line {line}: access to attribute '.{attr}' is not allowed")
+                elif attr in FORMAT_METHODS:  # would bind the raw method, past the format hook
+                    problems.append(f"line {line}: class pattern keyword '{attr}' is not allowed; "
+                                    f"call .{attr}() on the string instead")
+        elif (isinstance(node, ast.AugAssign) and isinstance(node.target, ast.Attribute)
+              and node.target.attr in FORMAT_METHODS):  # loads the raw method, past the hook
+            problems.append(f"line {line}: augmented assignment to '.{node.target.attr}' is not allowed")
+        for name in _bound_identifiers(node):
+            if name.startswith("__"):
                 problems.append(f"line {line}: name '{name}' is not allowed")
-        elif isinstance(node, ast.alias) and node.asname and node.asname.startswith("__"):
-            problems.append(f"line {line}: name '{node.asname}' is not allowed")
+        template = _literal_template(node)
+        if template is not None:  # refused now; templates built at run time are checked by the hook
+            problems += [f"line {line}: {p}, which is not allowed" for p in format_problems(template)]
     seen: set[str] = set()
     return [p for p in problems if not (p in seen or seen.add(p))]
+
+
+# ---------------------------------------------------------------------- format hook (run time)
+class SandboxPolicyError(Exception):
+    """Raised into a program that does at run time what the Python layer refuses."""
+
+
+def check_format_template(template: str) -> None:
+    problems = format_problems(template)
+    if problems:
+        raise SandboxPolicyError(f"{problems[0]}, which is not allowed")
+
+
+def _checked_bound(method, template: str):
+    """``template.format`` (or ``format_map``) that checks the template before formatting."""
+
+    def checked(*args, **kwargs):
+        check_format_template(template)
+        return method(*args, **kwargs)
+
+    checked.__name__ = checked.__qualname__ = method.__name__
+    checked.__doc__ = method.__doc__
+    return checked  # no functools.wraps: its __wrapped__ would hand back the raw method
+
+
+def _checked_unbound(descriptor):
+    """``str.format`` (or ``format_map``) that checks its first argument before formatting."""
+
+    def checked(*args, **kwargs):
+        if args and isinstance(args[0], str):
+            check_format_template(args[0])
+        return descriptor(*args, **kwargs)  # a non-string first argument: str's own TypeError
+
+    checked.__name__ = checked.__qualname__ = descriptor.__name__
+    checked.__doc__ = descriptor.__doc__
+    return checked
+
+
+def format_attr(obj, name: str):
+    """What the program gets for ``obj.format`` / ``obj.format_map`` (the AST is rewritten to call
+    this). String formatting methods come back checked; anything else is the attribute itself."""
+    value = getattr(obj, name)
+    if value is str.format or value is str.format_map:  # str.format, np.str_.format, ...
+        return _checked_unbound(value)
+    if (isinstance(value, types.BuiltinMethodType) and isinstance(getattr(value, "__self__", None), str)
+            and value.__name__ in FORMAT_METHODS):  # 'x'.format, np.str_('x').format, ...
+        return _checked_bound(value, value.__self__)
+    if isinstance(obj, str) or (isinstance(obj, type) and issubclass(obj, str)):
+        # a string type that overrides the method: nothing in reach does; refuse rather than guess
+        raise SandboxPolicyError(f"'.{name}' of this string type is not allowed")
+    return value
+
+
+class _FormatHook(ast.NodeTransformer):
+    """Rewrites every load of ``X.format`` / ``X.format_map`` to ``__cab_format_attr__(X, 'format')``.
+
+    Patterns are left alone: a value pattern (``case str.format:``) only compares, and a class
+    pattern keyword of these names is refused by the policy."""
+
+    def visit_Attribute(self, node: ast.Attribute):
+        self.generic_visit(node)
+        if node.attr not in FORMAT_METHODS or not isinstance(node.ctx, ast.Load):
+            return node
+        call = ast.Call(func=ast.Name(FORMAT_HOOK, ast.Load()), args=[node.value, ast.Constant(node.attr)],
+                        keywords=[])
+        return ast.copy_location(call, node)
+
+    def visit_match_case(self, node: ast.match_case):
+        if node.guard is not None:
+            node.guard = self.visit(node.guard)
+        node.body = [self.visit(stmt) for stmt in node.body]
+        return node
+
+
+def hook_format(tree: ast.Module) -> ast.Module:
+    return ast.fix_missing_locations(_FormatHook().visit(tree))
 
 
 # ------------------------------------------------------------------------------------ safe numpy
@@ -508,6 +706,7 @@ class Runner:
             safe["__import__"] = self._restricted_import
             safe["print"] = self._print
             safe["None"] = None
+            safe[FORMAT_HOOK] = format_attr
             np_mod = self.safe_np
         else:  # test-only: the OS layer alone must hold
             import builtins
@@ -515,6 +714,7 @@ class Runner:
             safe = dict(vars(builtins))
             safe["print"] = self._print
             np_mod = self.np
+        self.builtins = safe
         ns = {"__builtins__": safe, "__name__": "__main__", "np": np_mod, "math": math,
               "print": self._print, "load_image": self._load_image}
         for name in self.tools:
@@ -603,6 +803,10 @@ class Runner:
             if problems:
                 reply.update(ok=False, error="code rejected by the sandbox policy:\n" + "\n".join(problems[:20]))
                 return reply
+            tree = hook_format(tree)
+            # The policy admits no way to rebind or delete __builtins__; were one found, exec would
+            # fill a missing one with the real builtins, so every run starts from the safe ones.
+            self.ns["__builtins__"] = self.builtins
         lines = code.splitlines(True)
         linecache.cache[filename] = (len(code), None, lines, filename)
         old = linecache.cache.pop(f"<run_code:{self.run_id - 64}>", None)  # keep the last 64 programs
