@@ -62,7 +62,7 @@ def test_full_oracle_attempt_over_stdio(oracle_run, tmp_path):
     seen = {}
 
     async def go():
-        async with connect(serve_cmd(out)) as session:
+        async with connect(serve_cmd(out), client_info=("oracle-replay", "7.0")) as session:
             run = await run_script(session, calls)
             # result.json is written when done returns, before the client lets go
             seen["result_before_disconnect"] = (out / "result.json").exists()
@@ -97,14 +97,116 @@ def test_full_oracle_attempt_over_stdio(oracle_run, tmp_path):
     r, d = result(out), result(direct)
     assert r["verdict"]["success"] is True
     assert r["termination"]["reason"] == "done"
-    assert r["harness"] == "mcp" and r["model"] == "mcp_client"
+    assert r["harness"] == "mcp" and r["model"] == "mcp:oracle-replay"  # unnamed: after its client
     assert r["budget"]["tool_calls_used"] == d["budget"]["tool_calls_used"]
     assert r["budget"]["sim_seconds_used"] == pytest.approx(d["budget"]["sim_seconds_used"])
     kinds = [e["kind"] for e in events(out)]
     assert kinds.count("call") == len(calls)
     assert "mcp_server_start" in kinds and "mcp_client" in kinds and "mcp_attempt_ended" in kinds
     client = next(e for e in events(out) if e["kind"] == "mcp_client")
-    assert client["client"] and client["client"].startswith("mcp")
+    assert (client["client"], client["name"], client["version"]) == ("oracle-replay/7.0", "oracle-replay", "7.0")
+
+
+# -- who played: client identity and configuration name ----------------------------------------
+
+def compose_model(*overrides: str) -> dict:
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from cab_core.cli import normalise_overrides
+
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        cfg = compose(config_name="config", overrides=normalise_overrides([f"task={TASK}", *overrides]))
+    return {"model": OmegaConf.to_container(cfg.model), "harness": cfg.harness.name}
+
+
+def test_model_config_of_a_served_attempt():
+    """harness=mcp selects the mcp_client placeholder (not the oracle, which plays no part);
+    model.name names the configuration; the vendor launchers keep their own names."""
+    from cab_harness_mcp.harness import attempt_model_name, configured_name
+
+    from cab_core.agent_record import ClientInfo
+
+    assert compose_model("+harness=mcp") == {"model": {"name": "mcp_client", "harness": "mcp"}, "harness": "mcp"}
+    assert compose_model("+harness=mcp", "model.name=my-agent")["model"] == {"name": "my-agent", "harness": "mcp"}
+    assert compose_model()["model"]["name"] == "oracle"  # other attempts are unchanged
+    for vendor in ("opus5_claude_code", "astra_codex"):
+        assert compose_model(f"model={vendor}")["model"]["name"] == vendor
+        assert configured_name(compose_model(f"model={vendor}")["model"]) == vendor
+
+    client = ClientInfo("Claude Code/α", "2.1.212")
+    assert attempt_model_name({"name": "mcp_client", "harness": "mcp"}, client) == ("mcp:Claude-Code", "client")
+    assert attempt_model_name({"name": "mcp_client", "harness": "mcp"}, None) == ("mcp_client", "placeholder")
+    assert attempt_model_name({"name": "mcp_client"}, ClientInfo("///", "1")) == ("mcp_client", "placeholder")
+    assert attempt_model_name({"name": "my-agent", "harness": "mcp"}, client) == ("my-agent", "config")
+    # an in-process agent's own config (model=oracle +harness=mcp) is unnamed; renamed, it is named
+    assert attempt_model_name({"name": "oracle", "agent": "oracle", "harness": "direct"}, client) == ("mcp:Claude-Code", "client")
+    assert attempt_model_name({"name": "mine", "agent": "oracle", "harness": "direct"}, client) == ("mine", "config")
+    assert attempt_model_name({"name": "opus5_claude_code", "harness": "claude_code"}, client) == ("opus5_claude_code", "config")
+
+
+def test_unnamed_attempt_is_attributed_to_its_client(tmp_path):
+    """No model.name: the folder keeps the placeholder (named before any client connects), the
+    record has mcp:<client name> and the client's name and version from its handshake."""
+    async def go():
+        # no hydra.run.dir: the default output folder, below the directory the server starts in
+        async with connect([*CAB, "+harness=mcp", f"task={TASK}", "sim=mujoco"], cwd=str(tmp_path),
+                           client_info=("Test Agent/α", "0.9.1")) as session:
+            return await session.call_tool("done", {"report": "named by the client", "success_claim": False})
+
+    done = anyio.run(go)
+    assert not done.is_error
+    [path] = list((tmp_path / "outputs").rglob("result.json"))
+    out = path.parent
+    rel = out.relative_to(tmp_path / "outputs").parts
+    assert rel[0] == TASK and "mcp_client" in rel and "oracle" not in rel
+    r = result(out)
+    assert (r["model"], r["harness"], r["sim"]) == ("mcp:Test-Agent", "mcp", "mujoco")
+    me = {"name": "Test Agent/α", "version": "0.9.1", "session": 1}
+    assert r["agent"] == {"kind": "mcp_client", "named_by": "client", "client": me, "clients": [me]}
+    ev = events(out)
+    start = next(e for e in ev if e["kind"] == "attempt_start")
+    assert start["config"]["model"] == "mcp_client"  # what was configured; result.json has the attribution
+    clients = [e for e in ev if e["kind"] == "mcp_client"]
+    assert [{k: e[k] for k in ("client", "name", "version", "session")} for e in clients] == [
+        {"client": "Test Agent/α/0.9.1", "name": "Test Agent/α", "version": "0.9.1", "session": 1}]
+    assert [e["kind"] for e in ev].index("mcp_client") < [e["kind"] for e in ev].index("call")
+
+
+def test_named_attempt_over_http_records_every_client(tmp_path):
+    """model.name names the configuration whoever connects; two clients in turn over HTTP (two
+    MCP sessions) are both recorded, each before its first call."""
+    out = tmp_path / "named"
+    server = subprocess.Popen(serve_cmd(out, "sim=mujoco", "harness.transport=http", "harness.linger_s=0.5",
+                                        "model.name=my-agent"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        ep_file = out / "mcp_endpoint.json"
+        deadline = time.monotonic() + 300
+        while not ep_file.exists():
+            assert server.poll() is None and time.monotonic() < deadline, "the server did not come up"
+            time.sleep(0.1)
+        time.sleep(0.2)
+        ep = json.loads(ep_file.read_text())
+
+        async def session_of(name: str, version: str, tool: str, args: dict):
+            async with connect(url=ep["url"], headers=ep["headers"], client_info=(name, version)) as session:
+                return await session.call_tool(tool, args)
+
+        first = anyio.run(session_of, "agent-a", "1.0", "get_arm_pose", {"arm": "left"})
+        last = anyio.run(session_of, "agent-b", "2.5", "done", {"report": "second client", "success_claim": False})
+        assert not first.is_error and not last.is_error
+        assert server.wait(timeout=120) == 0
+    finally:
+        if server.poll() is None:
+            server.kill()
+    r = result(out)
+    a = {"name": "agent-a", "version": "1.0", "session": 1}
+    b = {"name": "agent-b", "version": "2.5", "session": 2}
+    assert (r["model"], r["termination"]["reason"]) == ("my-agent", "done")
+    assert r["agent"] == {"kind": "mcp_client", "named_by": "config", "client": a, "clients": [a, b]}
+    seq = [(e["kind"], e.get("name") or e.get("tool")) for e in events(out) if e["kind"] in ("mcp_client", "call")]
+    assert seq == [("mcp_client", "agent-a"), ("call", "get_arm_pose"), ("mcp_client", "agent-b"), ("call", "done")]
+    assert out.name == "named"  # hydra.run.dir as given
 
 
 def test_structured_content_never_sent(oracle_run, tmp_path):

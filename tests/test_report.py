@@ -275,3 +275,44 @@ def test_transport_loss_needs_release_and_drift():
     assert transport_lost([held, snap((0.0, 0.2, 1.0), (0.0, 0.05, 0.75), grip=1.0)], grip)  # opened, fell
     assert not transport_lost([held, snap((0.0, 0.2, 1.0), (0.0, 0.2, 0.9), BOTH, grip=0.0)], grip)  # still held
     assert not transport_lost([held, snap((0.0, 0.05, 1.0), (0.0, 0.05, 0.9), grip=1.0)], grip)  # opened in place
+
+
+def test_attempts_served_over_mcp_group_by_their_configuration_name(sweep, tmp_path):
+    """Attempts served over MCP are configurations by the name they were served under (given, or
+    mcp:<client> from the handshake), each showing its clients; records from before clients were
+    recorded (model mcp_client, no agent block) still load; a malformed agent block is a problem."""
+    def client(name, version, session=1):
+        return {"name": name, "version": version, "session": session}
+
+    def served(d: str, model: str, agent: dict | None):
+        shutil.copytree(attempt_dir(sweep, TASKS[0], "idle", 1), tmp_path / d,
+                        ignore=shutil.ignore_patterns("*.mp4", "view.html", "observations"))
+        res = json.loads((tmp_path / d / "result.json").read_text())
+        res.update(model=model, harness="mcp")
+        if agent is not None:
+            res["agent"] = agent
+        (tmp_path / d / "result.json").write_text(json.dumps(res))
+
+    a, b, c = client("agent-a", "1.0"), client("agent-b", "2.5"), client("agent-c", "0.1", 2)
+    served("a1", "mcp:agent-a", {"kind": "mcp_client", "named_by": "client", "client": a, "clients": [a]})
+    served("a2", "mcp:agent-a", {"kind": "mcp_client", "named_by": "client", "client": a, "clients": [a, a | {"session": 2}]})
+    served("b1", "my-agent", {"kind": "mcp_client", "named_by": "config", "client": b, "clients": [b, c]})
+    served("old", "mcp_client", None)
+    served("bad", "mcp:agent-d", {"kind": "mcp_client", "named_by": "client", "client": {"name": "agent-d", "version": 3},
+                                  "clients": []})
+    r = rep.write(tmp_path, views=False)
+    by = {x["config"]: x for x in r["configs"]}
+    assert sorted(by) == ["mcp:agent-a (mcp, sapien)", "mcp_client (mcp, sapien)", "my-agent (mcp, sapien)"]
+    assert {k: (v["attempts"], v["clients"]) for k, v in by.items()} == {
+        "mcp:agent-a (mcp, sapien)": (2, ["agent-a/1.0"]),
+        "my-agent (mcp, sapien)": (1, ["agent-b/2.5", "agent-c/0.1"]),
+        "mcp_client (mcp, sapien)": (1, [])}
+    assert {m["rel"]: m["clients"] for m in r["attempt_rows"]} == {
+        "a1": ["agent-a/1.0"], "a2": ["agent-a/1.0"], "b1": ["agent-b/2.5", "agent-c/0.1"], "old": []}
+    assert r["problems"] == [{"dir": "bad", "problem": "result.json agent.client.version should be a string, got 3"}]
+    title, header, rows = rep.tables(r)[0]
+    assert header[:3] == ["Configuration", "MCP client", "Success"]
+    assert sorted(row[:3] for row in rows) == [["mcp:agent-a (mcp, sapien)", "agent-a/1.0", "0/2"],
+                                               ["mcp_client (mcp, sapien)", "–", "0/1"],
+                                               ["my-agent (mcp, sapien)", "agent-b/2.5, agent-c/0.1", "0/1"]]
+    assert "| mcp:agent-a (mcp, sapien) | agent-a/1.0 | 0/2 |" in (tmp_path / "report.md").read_text()

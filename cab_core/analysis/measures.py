@@ -13,6 +13,8 @@ motion outcomes, termination, checkpoints and failure analysis):
 * non-completed robot actions (direct and inside programs), by planner refusal, stall, trajectory
   deviation and motion allowance (leg budget, probe travel), and how many of them advanced the
   simulation (a stopped action can still change the scene);
+* the MCP clients that played a configuration's attempts (name/version, from ``result.json``
+  ``agent``; none for other harnesses);
 * calls (mean), simulated, wall and provider-wait time (medians); cost (total, median, IQR);
   infrastructure retries (tries a sweep redid for simulator or provider faults, not counted as failures);
 * subgoal and spatial checkpoint coverage: per attempt the attained fraction, averaged over a
@@ -96,6 +98,12 @@ def _provider(events: list[dict]) -> tuple[float | None, float | None]:
     return wait, (sum(u for u in usd if u is not None) if any(u is not None for u in usd) else None)
 
 
+def _client_labels(a: Attempt) -> list[str]:
+    """``name/version`` of each distinct client recorded in the attempt's ``agent`` block."""
+    agent = a.agent
+    return list(dict.fromkeys(c.label for c in agent.clients)) if agent is not None else []
+
+
 @dataclass
 class AttemptMeasures:
     """Everything the report needs from one attempt."""
@@ -123,6 +131,7 @@ class AttemptMeasures:
     spatial_match_calls: list  # charged-call index of each spatial checkpoint's first match (None: never)
     tools: list
     infra_retries: int = 0  # tries before this one that failed for reasons not the model's
+    clients: list = field(default_factory=list)  # MCP clients that played it, "name/version", in order seen
     failure_stage: str | None = None
     failure_detail: str = ""
 
@@ -156,6 +165,7 @@ class AttemptMeasures:
             spatial_match_calls=[(s.get("first") or {}).get("calls") if s.get("attained") else None for s in spatial],
             tools=sorted({e.get("tool") for e in ev if e.get("kind") in ("call", "internal_call")} - {None, "done"}),
             infra_retries=len((r.get("infrastructure") or {}).get("failures") or []),
+            clients=_client_labels(a),
         )
 
     def spatial_at(self, k: int) -> float | None:
@@ -221,6 +231,7 @@ class ConfigSummary:
     failure_stages: dict
     infra_retries: int = 0
     tool_use: dict = field(default_factory=dict)
+    clients: list = field(default_factory=list)  # distinct MCP clients ("name/version") over its attempts, sorted
 
     @classmethod
     def of(cls, config: str, ms: list[AttemptMeasures], max_calls: int) -> "ConfigSummary":
@@ -267,6 +278,7 @@ class ConfigSummary:
             infra_retries=sum(m.infra_retries for m in ms),
             tool_use={t: {"attempts": sum(t in m.tools for m in ms), "successes": sum(t in m.tools and m.success for m in ms)}
                       for t in tools},
+            clients=sorted({c for m in ms for c in m.clients}),
         )
 
     def as_dict(self) -> dict:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+from ..agent_record import AgentRecord
 from ..errors import RecordError
 from ..sweep_records import SET_ASIDE
 
@@ -74,6 +75,7 @@ def check_result(result: dict) -> None:
         raise RecordError("result.json verdict.success should be true or false")
     if not isinstance(result["termination"].get("reason"), str):
         raise RecordError("result.json termination.reason is missing")
+    AgentRecord.of_result(result)  # optional; when present, of the documented shape
 
 
 @dataclass
@@ -101,9 +103,16 @@ class Attempt:
 
     @property
     def config(self) -> str:
-        """The configuration this attempt belongs to, as in the paper: model, harness, simulator."""
+        """The configuration this attempt belongs to, as in the paper: model, harness, simulator.
+        An attempt served over MCP has the name given when it was served, else ``mcp:<client>``
+        (records written before clients were recorded: ``mcp_client``)."""
         r = self.result
         return f"{r['model']} ({r['harness']}, {r['sim']})"
+
+    @property
+    def agent(self) -> AgentRecord | None:
+        """Who played, when the harness recorded it (``result.json`` ``agent``; MCP clients)."""
+        return AgentRecord.of_result(self.result)
 
     @property
     def success(self) -> bool:

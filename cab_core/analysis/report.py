@@ -97,9 +97,12 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
     cs = r["configs"]
     ns = sorted({int(k.split("/")[1]) for c in cs for k in c["consistency"]})
     ks = [f"{k}/{n}" for n in ns for k in range(n + 1)]  # every consistency bucket, 0/n..n/n
+    # the MCP clients that played each configuration, when any attempt was served over MCP
+    with_clients = any(c.get("clients") for c in cs)
+    client_col = (lambda c: [", ".join(c.get("clients") or []) or "–"]) if with_clients else (lambda c: [])  # noqa: E731
     out = [("Success and task coverage",
-            ["Configuration", "Success", "Rate", "Wilson 95%", "Coverage", *ks],
-            [[c["config"], f"{c['successes']}/{c['attempts']}", pct(c["success_rate"]),
+            ["Configuration", *(["MCP client"] if with_clients else []), "Success", "Rate", "Wilson 95%", "Coverage", *ks],
+            [[c["config"], *client_col(c), f"{c['successes']}/{c['attempts']}", pct(c["success_rate"]),
               f"{pct(c['wilson95'][0])}–{pct(c['wilson95'][1])}", f"{c['coverage']}/{c['tasks']}",
               *[str(c["consistency"].get(k, 0)) for k in ks]] for c in cs]),
            ("Stopping conditions and completion claims",

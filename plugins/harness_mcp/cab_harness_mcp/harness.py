@@ -12,12 +12,22 @@ budgets, which the episode itself enforces:
 Whatever the ending, ``result.json`` is written at once; the server then keeps answering for
 ``linger_s`` (every call gets "the attempt has ended") so the client can read the last result, and
 stops. The attempt's records are the same as under the reference harness, plus ``mcp_*`` events.
+
+Who played: every client identity of the MCP handshake (``clientInfo`` name and version, per MCP
+session) is recorded as an ``mcp_client`` event when first seen and in ``result.json``'s ``agent``
+block (:mod:`cab_core.agent_record`). The attempt's configuration name (``model``) is the one the
+user gave (``model.name=my-agent``, or a model config of its own such as a vendor launcher's);
+unnamed (the ``mcp_client`` placeholder that ``harness=mcp`` selects, or an in-process agent's
+config, e.g. ``model=oracle``, that plays no part here) it is ``mcp:<client name>`` after the first
+client that identified itself, and stays ``mcp_client`` when none did (:func:`attempt_model_name`).
+The output directory is named before any client connects, so it keeps the configured name.
 """
 from __future__ import annotations
 
 import json
 import logging
 import os
+import re
 import signal
 import sys
 import threading
@@ -26,6 +36,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from cab_core import stdio
+from cab_core.agent_record import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
 
 from cab_harness_reference.loop import result_images, run_code_limits
@@ -37,6 +48,34 @@ from .transport import HttpServerThread, ServerThread, StdioServerThread
 log = logging.getLogger(__name__)
 
 ENDPOINT_FILE = "mcp_endpoint.json"
+PLACEHOLDER = "mcp_client"  # the model config harness=mcp selects (conf/model/mcp_client.yaml): no name given
+
+
+def configured_name(model_cfg: dict) -> str | None:
+    """The configuration name the user gave, None for an unnamed attempt: the ``mcp_client``
+    placeholder, or an in-process agent's own config (``oracle``, ``idle``, ``scripted``: its
+    ``name`` is its ``agent``), which plays no part in an attempt served over MCP. A renamed one
+    (``model=oracle model.name=my-agent``) is named."""
+    name = model_cfg.get("name")
+    if not name or name == PLACEHOLDER or (model_cfg.get("agent") and name == model_cfg["agent"]):
+        return None
+    return str(name)
+
+
+def client_model_name(client_name: str) -> str | None:
+    """``mcp:<client name>``, the name made safe for paths and tables (letters, digits, ``._-``;
+    anything else becomes ``-``; at most 64 characters); None when nothing is left."""
+    token = re.sub(r"[^A-Za-z0-9._-]+", "-", client_name).strip("-.")[:64]
+    return f"mcp:{token}" if token else None
+
+
+def attempt_model_name(model_cfg: dict, client: ClientInfo | None) -> tuple[str, str]:
+    """(``model`` of the attempt, how it was named: ``config`` | ``client`` | ``placeholder``)."""
+    named = configured_name(model_cfg)
+    if named is not None:
+        return named, "config"
+    derived = client_model_name(client.name) if client is not None else None
+    return (derived, "client") if derived else (PLACEHOLDER, "placeholder")
 
 
 @dataclass
@@ -103,7 +142,9 @@ class McpHarness:
     def __init__(self, cfg: dict | None = None, **overrides):
         self.settings = McpSettings.from_cfg(cfg, **overrides)
         self._stdio = None
-        self._clients: set[str | None] = set()
+        self._clients: list[ClientInfo] = []           # every client identity recorded, in order
+        self._sessions: dict[str | None, int] = {}     # transport session -> its number (1, 2, ...)
+        self._model_cfg: dict = {}
         self.transport: ServerThread | None = None
         self.bridge: CallBridge | None = None
         self.tools: list = []
@@ -166,11 +207,14 @@ class McpHarness:
         self.on_stop()
 
     # -- the attempt --------------------------------------------------------------------------
+    agent_kind = "mcp_client"  # the ``kind`` of result.json's ``agent`` block
+
     def run(self, episode, model_cfg: dict) -> None:
-        if model_cfg.get("agent"):  # an in-process agent's config (the default, oracle) plays no part here
-            episode.spec.model = "mcp_client"
+        self._model_cfg = dict(model_cfg or {})
         self.before_build(episode.spec)  # when the runner did not call it
         episode.recorder.event("mcp_server_start", **self._info)
+        self._attribute(episode)
+        self._note_clients(episode)  # those that connected while the world was built
         # a stdio client that lets go stops its server with SIGTERM: the attempt is recorded first
         previous = signal.signal(signal.SIGTERM, _interrupt) if _main_thread() else None
         try:
@@ -204,6 +248,7 @@ class McpHarness:
         finished_at = 0.0
         while True:
             job = bridge.next(timeout=0.05)
+            self._note_clients(episode)  # before the call: a client is recorded before its first call
             answer = self._execute(episode, job) if job is not None else None
             if not episode.ended:
                 reason = self._ending(episode, bridge, transport)
@@ -240,11 +285,30 @@ class McpHarness:
             return "client_idle", f"no request from the MCP client for {s.idle_timeout_s:g} s"
         return None
 
+    def _note_clients(self, episode) -> None:
+        """Record the client identities the server has seen since the last look (an ``mcp_client``
+        event each) and re-attribute the attempt. Once result.json is written the records are
+        closed: a client that comes later is answered "the attempt has ended" and not recorded."""
+        new = self.bridge.new_clients() if self.bridge is not None else []
+        if not new or episode.result is not None:
+            return
+        for seen in new:
+            session = self._sessions.setdefault(seen.session, len(self._sessions) + 1)
+            client = ClientInfo(seen.name, seen.version, session)
+            self._clients.append(client)
+            episode.recorder.event("mcp_client", client=client.label, name=client.name, version=client.version,
+                                   session=session)
+        self._attribute(episode)
+
+    def _attribute(self, episode) -> None:
+        """The attempt's configuration name and ``agent`` block, from the config and the clients
+        recorded so far (kept current, so that whoever writes result.json writes them)."""
+        first = self._clients[0] if self._clients else None
+        episode.spec.model, named_by = attempt_model_name(self._model_cfg, first)
+        episode.agent = AgentRecord(self.agent_kind, named_by, first, list(self._clients)).as_dict()
+
     def _execute(self, episode, job: Job):
         """Run one queued call; returns its MCP result (the caller delivers it)."""
-        if job.client not in self._clients and not episode.ended:
-            self._clients.add(job.client)
-            episode.recorder.event("mcp_client", client=job.client)
         try:
             r = episode.call(job.name, job.arguments)
         except AttemptEnded as e:

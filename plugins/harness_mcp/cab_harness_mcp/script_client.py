@@ -58,9 +58,11 @@ def calls_from_events(events_path: str | Path) -> list[dict]:
 
 @asynccontextmanager
 async def connect(command: list[str] | None = None, url: str | None = None, headers: dict | None = None,
-                  env: dict | None = None, cwd: str | None = None):
-    """An initialised ``ClientSession`` over stdio (spawning ``command``) or streamable HTTP."""
+                  env: dict | None = None, cwd: str | None = None, client_info: tuple[str, str] | None = None):
+    """An initialised ``ClientSession`` over stdio (spawning ``command``) or streamable HTTP;
+    ``client_info``: the (name, version) it gives in its handshake (default: the SDK's own)."""
     from mcp import ClientSession
+    from mcp_types import Implementation
 
     if command:
         from mcp.client.stdio import StdioServerParameters, stdio_client
@@ -74,7 +76,8 @@ async def connect(command: list[str] | None = None, url: str | None = None, head
         transport = streamable_http_client(url, http_client=create_mcp_http_client(headers=headers or {}))
     async with transport as streams:
         read, write = streams[0], streams[1]
-        async with ClientSession(read, write) as session:
+        info = Implementation(name=client_info[0], version=client_info[1]) if client_info else None
+        async with ClientSession(read, write, client_info=info) as session:
             await session.initialize()
             yield session
 

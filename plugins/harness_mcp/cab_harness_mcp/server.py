@@ -15,7 +15,7 @@ import mcp_types as types
 from mcp.server.lowlevel import Server
 from mcp.shared.exceptions import MCPError
 
-from .bridge import CallBridge
+from .bridge import CallBridge, SeenClient
 
 SERVER_NAME = "cab"
 # Claude Code loads MCP tool definitions lazily (ToolSearch) unless a tool asks to be always loaded;
@@ -55,13 +55,21 @@ def tool_result(payload: dict, images: list[tuple[str, bytes]] = ()) -> types.Ca
     return types.CallToolResult(content=content, is_error=bool(payload.get("error")))
 
 
-def client_identity(ctx) -> str | None:
-    """``name/version`` of the client, from its initialisation, when it gave one."""
+def client_of(ctx) -> SeenClient | None:
+    """The client's ``clientInfo`` (name, version) from its ``initialize`` handshake (or, on the
+    handshake-less protocol, from the request's envelope), with the HTTP session it came in;
+    None when the client gave none."""
     try:
-        info = ctx.session.client_params.client_info
-        return f"{info.name}/{info.version}"
+        params = ctx.session.client_params
+        info = params.client_info if params is not None else None
     except AttributeError:
         return None
+    if info is None or not isinstance(getattr(info, "name", None), str):
+        return None
+    request = getattr(ctx, "request", None)  # the HTTP request (streamable HTTP); None on stdio
+    headers = getattr(request, "headers", None)
+    session = headers.get("mcp-session-id") if headers is not None else None
+    return SeenClient(info.name, str(getattr(info, "version", "") or ""), session)
 
 
 def instructions_text(system: str, instruction: str) -> str:
@@ -72,10 +80,17 @@ def instructions_text(system: str, instruction: str) -> str:
 def build_server(tools: list[types.Tool], bridge: CallBridge, task_prompt: str, version: str) -> Server:
     """A low-level MCP server whose tool calls go through ``bridge`` to the attempt's owner thread.
     The task prompt is both its ``instructions`` and the prompt ``attempt`` (clients show prompts
-    as commands)."""
+    as commands). Each client identity is reported to the bridge when its handshake completes
+    (``notifications/initialized``) and again with its requests (a client that skips the
+    notification, or a handshake-less one, is still seen before its first call)."""
     by_name = {t.name: t for t in tools}
 
+    async def initialized(ctx, params) -> None:  # the handshake is complete: note who the client is
+        bridge.saw(client_of(ctx))
+        bridge.touch()
+
     async def list_tools(ctx, params) -> types.ListToolsResult:
+        bridge.saw(client_of(ctx))
         bridge.touch()
         return types.ListToolsResult(tools=tools)
 
@@ -83,14 +98,16 @@ def build_server(tools: list[types.Tool], bridge: CallBridge, task_prompt: str, 
         # An unknown name is still dispatched: the episode charges and records it like any invalid
         # call, as the reference harness does, and answers with a typed error payload.
         args = params.arguments if isinstance(params.arguments, dict) else {}
-        return await bridge.call(params.name, dict(args), client_identity(ctx))
+        return await bridge.call(params.name, dict(args), client_of(ctx))
 
     async def list_prompts(ctx, params) -> types.ListPromptsResult:
+        bridge.saw(client_of(ctx))
         bridge.touch()
         return types.ListPromptsResult(prompts=[types.Prompt(
             name="attempt", description="The benchmark task of this attempt, with its rules and budgets")])
 
     async def get_prompt(ctx, params: types.GetPromptRequestParams) -> types.GetPromptResult:
+        bridge.saw(client_of(ctx))
         bridge.touch()
         if params.name != "attempt":
             raise MCPError(code=types.INVALID_PARAMS, message=f"unknown prompt {params.name!r}; the only prompt is 'attempt'")
@@ -101,4 +118,5 @@ def build_server(tools: list[types.Tool], bridge: CallBridge, task_prompt: str, 
                     instructions=task_prompt, on_list_tools=list_tools, on_call_tool=call_tool,
                     on_list_prompts=list_prompts, on_get_prompt=get_prompt,
                     get_tool_input_schema=lambda name: by_name[name].input_schema if name in by_name else None)
+    server.add_notification_handler("notifications/initialized", types.NotificationParams, initialized)
     return server
