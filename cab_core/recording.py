@@ -128,7 +128,7 @@ class Recorder:
     def save_program(self, code: str) -> str:
         self._programs += 1
         rel = f"programs/prog_{self._programs:03d}.py"
-        (self.root / rel).write_text(code)
+        (self.root / rel).write_text(code, encoding="utf-8", errors="backslashreplace")  # lone surrogates kept visible
         return rel
 
     def open_video(self, fps: float, size_wh: tuple[int, int]) -> None:

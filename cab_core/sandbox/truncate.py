@@ -15,7 +15,10 @@ _LEVELS = ((256, 4096), (64, 1024), (16, 256), (4, 64), (1, 16), (0, 0))
 
 
 def json_size(obj) -> int:
-    return len(json.dumps(obj, ensure_ascii=False, separators=(",", ":"), default=str).encode("utf-8"))
+    """Bytes of ``obj`` as UTF-8 JSON; a lone surrogate (valid in a Python str, not in UTF-8) counts
+    as the bytes it would take, instead of failing."""
+    return len(json.dumps(obj, ensure_ascii=False, separators=(",", ":"), default=str)
+               .encode("utf-8", "surrogatepass"))
 
 
 def cut_str(s: str, n: int) -> str:
