@@ -15,11 +15,19 @@ class DirectHarness:
 
     def __init__(self, cfg: dict):
         self.cfg = cfg
+        self._agent = None
 
-    def run(self, episode, model_cfg: dict) -> None:
+    def preflight(self, model_cfg: dict) -> None:
+        """Create the agent before any simulator starts: a bad agent config (a scripted agent's
+        missing or malformed script) is a ConfigError in one line, not an attempt ended by an error."""
         from .plugins import create
 
-        agent = create("agents", model_cfg.get("agent", model_cfg.get("name")), model_cfg)
+        self._agent = create("agents", model_cfg.get("agent", model_cfg.get("name")), model_cfg)
+
+    def run(self, episode, model_cfg: dict) -> None:
+        if self._agent is None:
+            self.preflight(model_cfg)
+        agent, self._agent = self._agent, None
         try:
             agent.run(episode)
         except AttemptEnded:
@@ -55,7 +63,10 @@ class OracleAgent:
 
 
 class ScriptedAgent:
-    """Replays tool calls from a JSON or JSONL file of ``{"tool": name, "args": {...}}`` items."""
+    """Replays tool calls from a JSON or JSONL file of ``{"tool": name, "args": {...}}`` items
+    (``"arguments"`` is accepted for ``"args"``; any other key is refused, never ignored)."""
+
+    ITEM_KEYS = ("tool", "args", "arguments")
 
     def __init__(self, cfg: dict):
         path = cfg.get("script")
@@ -69,14 +80,26 @@ class ScriptedAgent:
             items = json.loads(text) if text.lstrip().startswith("[") else [json.loads(l) for l in text.splitlines() if l.strip()]
         except json.JSONDecodeError as e:
             raise ConfigError(f"script {path} is not valid JSON/JSONL: {e}") from e
+        if not isinstance(items, list):
+            raise ConfigError(f"script {path} must hold a list of tool calls")
+        valid = ", ".join(self.ITEM_KEYS)
         for i, it in enumerate(items):
             if not isinstance(it, dict) or "tool" not in it:
-                raise ConfigError(f"script item {i} must be an object with a 'tool' key")
+                raise ConfigError(f"script item {i} must be an object with a 'tool' key (valid keys: {valid})")
+            unknown = [k for k in it if k not in self.ITEM_KEYS]
+            if unknown:
+                from .cmdline import closest
+
+                near = closest(unknown[0], self.ITEM_KEYS)
+                hint = f"did you mean {' or '.join(near)}? " if near else ""
+                raise ConfigError(f"script item {i} has unknown key {unknown[0]!r}; {hint}valid keys: {valid}")
+            if "args" in it and "arguments" in it:
+                raise ConfigError(f"script item {i} has both 'args' and 'arguments'; give one")
         self.items = items
 
     def run(self, episode) -> None:
         for it in self.items:
-            r = episode.call(it["tool"], it.get("args") or {})
+            r = episode.call(it["tool"], (it["args"] if "args" in it else it.get("arguments")) or {})
             if r.ended:
                 return
 

@@ -49,13 +49,81 @@ def wants_stdio_protocol(argv: list[str]) -> bool:
     return bool(sel) and sel[-1] == "mcp" and (not transport or transport[-1] == "stdio")
 
 
+# Set while Hydra prepares a single run: HYDRA_FULL_ERROR makes Hydra raise what fails before the
+# task function starts (e.g. an output folder that cannot be created) instead of printing its
+# traceback, so that main() can say it in one line. The task function restores the variable (the
+# attempt's child processes see the user's value) first thing.
+_HYDRA_FULL_ERROR_BY_CAB = False
+_HYDRA_FULL_ERROR_BEFORE: str | None = None
+_TASK_STARTED = False
+
+
+def _refuse(message: str, status: int = 2) -> None:
+    print(f"cab: {message}", file=sys.stderr)
+    sys.exit(status)
+
+
+def _before_task(e: Exception) -> str | None:
+    """One line for an exception Hydra raised before the task function started, or None for one
+    that is a bug (its traceback is shown)."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from .cmdline import _one_line
+
+    if isinstance(e, OSError) and e.filename:
+        return f"cannot create the output folder {e.filename} (hydra.run.dir): {e.strerror or e}"
+    if isinstance(e, (HydraException, OmegaConfBaseException)):
+        return _one_line(e)
+    return None
+
+
 def main() -> None:
+    """``cab``: a command-line mistake is one line on stderr and exit status 2, before Hydra
+    composes, creates a folder or starts anything (cab_core.cmdline)."""
+    global _HYDRA_FULL_ERROR_BY_CAB, _HYDRA_FULL_ERROR_BEFORE
+    import os
+
+    from .cmdline import check_command_line
+    from .errors import ConfigError
+
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
+    try:
+        args = check_command_line(sys.argv[1:])
+    except ConfigError as e:
+        _refuse(str(e))
+    single = args is not None and not (args.multirun or args.cfg)
     if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:
         from . import stdio
 
         stdio.claim()
-    _hydra_entry()
+    if not single or os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's tracebacks
+        _hydra_entry()
+        return
+    _HYDRA_FULL_ERROR_BEFORE = os.environ.get("HYDRA_FULL_ERROR")
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    _HYDRA_FULL_ERROR_BY_CAB = True
+    try:
+        _hydra_entry()
+    except Exception as e:
+        line = None if _TASK_STARTED else _before_task(e)
+        if line is None:
+            raise
+        _refuse(line)
+    finally:
+        _restore_hydra_full_error()
+
+
+def _restore_hydra_full_error() -> None:
+    global _HYDRA_FULL_ERROR_BY_CAB
+    import os
+
+    if _HYDRA_FULL_ERROR_BY_CAB:
+        if _HYDRA_FULL_ERROR_BEFORE is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = _HYDRA_FULL_ERROR_BEFORE
+        _HYDRA_FULL_ERROR_BY_CAB = False
 
 
 def _hydra_entry() -> None:
@@ -63,6 +131,11 @@ def _hydra_entry() -> None:
 
     @hydra.main(version_base=None, config_path="conf", config_name="config")
     def _app(cfg) -> None:
+        global _TASK_STARTED
+
+        _TASK_STARTED = True
+        _restore_hydra_full_error()  # from here on, Hydra reports failures itself; children see the user's value
+
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
 
@@ -164,6 +237,11 @@ def schemas_main() -> None:
     if a.tool:
         rows = [r for r in rows if r["name"] == a.tool]
         if not rows:
-            print(f"cab-schemas: unknown tool {a.tool!r}", file=sys.stderr)
+            from .cmdline import closest
+
+            names = [r["name"] for r in schemas()]
+            near = closest(a.tool, names, cutoff=0.5)  # tool names share words: a looser match still helps
+            hint = f"did you mean {' or '.join(near)}? " if near else ""
+            print(f"cab-schemas: unknown tool {a.tool!r}; {hint}valid: {', '.join(names)}", file=sys.stderr)
             sys.exit(2)
     print(json.dumps(rows, indent=2))

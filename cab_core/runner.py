@@ -5,6 +5,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from .cmdline import BUDGET_KEYS, check_budget_value
 from .episode import AttemptSpec, Episode
 from .errors import ConfigError
 from .faults import is_infrastructure_fault
@@ -43,17 +44,20 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
     harness = c["harness"]["name"]
     if harness == "auto":
         harness = c["model"].get("harness") or "reference"
-    tool_calls = b.get("tool_calls") or info.budget_tool_calls
-    sim_s = b.get("sim_seconds") or info.budget_sim_s
-    wall_s = b.get("wall_seconds") or info.budget_wall_s
-    for k, v in (("budget.tool_calls", tool_calls), ("budget.sim_seconds", sim_s), ("budget.wall_seconds", wall_s)):
-        if not isinstance(v, (int, float)) or v <= 0:
-            raise ConfigError(f"{k} must be positive, got {v!r}")
+    unknown = sorted(set(b) - set(BUDGET_KEYS))
+    if unknown:
+        raise ConfigError(f"unknown budget key(s) {', '.join(unknown)}; valid: {', '.join(BUDGET_KEYS)}")
+    for k in BUDGET_KEYS:  # null: the catalog's (0 is no budget: refused, never the catalog's)
+        check_budget_value(k, b.get(k))
+    tool_calls = info.budget_tool_calls if b.get("tool_calls") is None else b["tool_calls"]
+    sim_s = info.budget_sim_s if b.get("sim_seconds") is None else b["sim_seconds"]
+    wall_s = info.budget_wall_s if b.get("wall_seconds") is None else b["wall_seconds"]
+    max_internal = 500 if b.get("run_code_max_internal_calls") is None else b["run_code_max_internal_calls"]
     return AttemptSpec(
         task=info.name, seed=int(seed), attempt=int(attempt), sim=c["sim"]["name"], embodiment=c["embodiment"]["name"],
         planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
         budget_tool_calls=int(tool_calls), budget_sim_seconds=float(sim_s), budget_wall_seconds=float(wall_s),
-        run_code_max_internal_calls=int(b.get("run_code_max_internal_calls") or 500),
+        run_code_max_internal_calls=int(max_internal),
         sandbox=dict(c.get("sandbox") or {}), record=dict(c.get("record") or {}),
         sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
         harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},

@@ -15,7 +15,7 @@ from html import escape
 from pathlib import Path
 
 from .analysis.records import Attempt, read_jsonl
-from .errors import CabError
+from .errors import CabError, RecordError
 
 CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}
 td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}th{background:#f3f3f3}
@@ -210,9 +210,45 @@ def render_unfinished(d: Path) -> str:
                  f"<h2>Timeline so far</h2>{timeline(d, events)}")
 
 
+def attempts_below(root: Path) -> list[str]:
+    """The attempt directories below ``root`` (those holding result.json or events.jsonl), relative
+    to it, sorted; hidden ones and those a sweep set aside are skipped, as cab-report does."""
+    import os
+
+    from .sweep_records import SET_ASIDE
+
+    found = []
+    for d, dirs, files in os.walk(root):
+        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != SET_ASIDE)
+        if "result.json" in files or "events.jsonl" in files:
+            dirs[:] = []
+            found.append(os.path.relpath(d, root).replace(os.sep, "/"))
+    return sorted(found)
+
+
+def check_attempt_dir(d: Path, show: int = 5) -> None:
+    """RecordError, in one line, unless ``d`` is an attempt directory (result.json or
+    events.jsonl): it does not exist, is a file, or is a sweep or tree whose attempts are named."""
+    if not d.exists():
+        raise RecordError(f"{d} does not exist")
+    if not d.is_dir():
+        raise RecordError(f"{d} is not a directory")
+    if (d / "result.json").exists() or (d / "events.jsonl").exists():
+        return
+    below = attempts_below(d)
+    if not below and (d / "sweep.json").exists():
+        raise RecordError(f"{d} is a sweep directory, not an attempt, and none of its attempts has records yet")
+    if not below:
+        raise RecordError(f"{d}: result.json is missing: it is not an attempt directory, and no attempt is below it")
+    names = ", ".join(below[:show]) + (f", ... ({len(below)} in all)" if len(below) > show else "")
+    what = "is a sweep directory" if (d / "sweep.json").exists() else "holds attempt directories"
+    raise RecordError(f"{d} {what}, not an attempt (no result.json); attempts: {names}")
+
+
 def write_view(attempt_dir: Path) -> Path:
     """Write ``view.html`` into the attempt directory (finished or not); returns its path."""
     d = Path(attempt_dir)
+    check_attempt_dir(d)
     if (d / "result.json").exists() or not (d / "events.jsonl").exists():
         html_text = render(Attempt.load(d))
     else:

@@ -45,6 +45,19 @@ def test_seed_and_budget_overrides(tmp_path):
     assert (spec.seed, spec.budget_tool_calls, spec.attempt) == (7, 5, 3)
 
 
+@pytest.mark.parametrize("key", ["tool_calls", "sim_seconds", "wall_seconds", "run_code_max_internal_calls"])
+def test_zero_budget_is_refused_never_the_catalogs(key, tmp_path):
+    with pytest.raises(ConfigError, match=f"budget.{key} must be a positive .* got 0$"):
+        attempt_spec(_compose([f"budget.{key}=0"]), tmp_path)
+    spec = attempt_spec(_compose([f"budget.{key}=null"]), tmp_path)  # null: the catalog's (500 internal calls)
+    assert (spec.budget_tool_calls, spec.budget_sim_seconds, spec.run_code_max_internal_calls) == (42, 60, 500)
+
+
+def test_unknown_budget_key_added_with_plus_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match="unknown budget key.s. tool_calsl; valid: tool_calls, sim_seconds"):
+        attempt_spec(_compose(["+budget.tool_calsl=5"]), tmp_path)
+
+
 def test_bad_seed_is_a_typed_error(tmp_path):
     with pytest.raises(ConfigError, match="seed"):
         attempt_spec(_compose(["seed=-1"]), tmp_path)

@@ -17,7 +17,7 @@ import sys
 from html import escape
 from pathlib import Path
 
-from ..errors import CabError
+from ..errors import CabError, RecordError
 from . import svg
 from .failure import LABELS, STAGES, Classifier
 from .measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
@@ -262,6 +262,8 @@ def write(root: Path, out: Path | None = None, views: bool = True) -> dict:
     root = Path(root)
     out = Path(out) if out is not None else root
     r = build(root)
+    if not (r["attempts"] or r["problems"] or r["excluded"] or r["in_flight"]):
+        raise RecordError(f"no attempt found under {root} (no result.json or events.jsonl below it); nothing written")
     out.mkdir(parents=True, exist_ok=True)
     links = {}
     if views:
@@ -277,11 +279,17 @@ def write(root: Path, out: Path | None = None, views: bool = True) -> dict:
 def main(argv: list[str] | None = None) -> None:
     import argparse
 
-    ap = argparse.ArgumentParser(prog="cab-report", description="The paper's measures for every attempt below a directory.")
+    ap = argparse.ArgumentParser(
+        prog="cab-report", description="The paper's measures for every attempt below a directory.",
+        epilog="Exit status: 0 report written; 1 written, but no finished attempt to measure (only unfinished "
+               "or unreadable ones); 2 nothing written: the directory does not exist or holds no attempt.")
     ap.add_argument("dir", help="a sweep directory (or any tree of attempt directories)")
     ap.add_argument("--out", help="where report.md/.html/.json go (default: the directory itself)")
     ap.add_argument("--no-views", action="store_true", help="do not write each attempt's view.html")
     a = ap.parse_args(argv)
+    if not Path(a.dir).exists():
+        print(f"cab-report: {a.dir} does not exist", file=sys.stderr)
+        sys.exit(2)
     try:
         r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views)
     except CabError as e:
@@ -294,3 +302,6 @@ def main(argv: list[str] | None = None) -> None:
     if r["in_flight"]:
         print(f"cab-report: {len(r['in_flight'])} unfinished attempt(s) not counted", file=sys.stderr)
     print(f"cab-report: wrote report.md, report.html, report.json to {a.out or a.dir}", file=sys.stderr)
+    if not r["attempts"]:  # only unfinished, unreadable or excluded attempts: the tables are empty
+        print(f"cab-report: no finished attempt to measure under {a.dir}", file=sys.stderr)
+        sys.exit(1)
