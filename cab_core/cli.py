@@ -23,6 +23,7 @@ def scene_seed(seed, task: str) -> int:
 # launcher's worker process, and every worker imports this module (it holds the app and its callback).
 if not OmegaConf.has_resolver("cab.seed"):
     OmegaConf.register_new_resolver("cab.seed", scene_seed)
+from . import sweep_layout  # noqa: E402,F401  (registers cab.swept: the swept keys' folder of an attempt)
 
 
 def normalise_overrides(argv: list[str]) -> list[str]:
@@ -188,10 +189,11 @@ class SweepManifestCallback(Callback):
 
     def on_multirun_start(self, config, **kwargs) -> None:
         from .sweep import SweepConfigChanged, SweepManifest
+        from .sweep_layout import SweepJobsCollide
 
         try:
             SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
-        except SweepConfigChanged as e:
+        except (SweepConfigChanged, SweepJobsCollide) as e:
             print(f"cab: refused: {e}", file=sys.stderr)
             sys.exit(2)
         except Exception as e:  # a sweep without its manifest cannot be resumed safely: stop

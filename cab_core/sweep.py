@@ -3,8 +3,12 @@
 A sweep directory holds ``sweep.json``: the resolved configuration (without Hydra's own settings
 and the ``sweep.*`` infrastructure settings, which may legitimately differ between sessions: the
 launcher, its worker count, output directories, retries), the list of jobs the sweep expands to,
-and a fingerprint of both. Running a sweep into a directory that already has a manifest resumes
-it, provided the fingerprint is the same; otherwise it is refused, naming what changed.
+and a fingerprint of both, the keys the attempt folders name besides task, model, simulator, seed
+and attempt (``path_keys``, read back by each job: ``cab_core.sweep_layout``) and each job's folder.
+A sweep two of whose jobs would write to the same folder is refused before anything runs. Running a
+sweep into a directory that already has a manifest resumes it, provided the fingerprint is the same;
+otherwise it is refused, naming what changed. A directory written with the first layout
+(``cab-sweep/1``: no simulator folder) is refused too: its attempts would all run again elsewhere.
 
 Each job (one attempt) skips an attempt directory whose ``result.json`` validates, moves a partial
 one aside, and runs the attempt under ``AttemptSupervisor`` (child process, watchdog, retries).
@@ -20,11 +24,13 @@ from typing import Any
 
 from .errors import ConfigError
 from .recording import write_json_atomic
+from .sweep_layout import attempt_folders, check_distinct, varying_keys
 from .sweep_records import SET_ASIDE, check_attempt, is_infrastructure_failure, set_aside
 from .sweep_supervisor import AttemptSupervisor, SupervisorConfig
 
 MANIFEST = "sweep.json"
-MANIFEST_VERSION = "cab-sweep/1"
+MANIFEST_VERSION = "cab-sweep/2"  # 2: attempt folders <task>/<model>/<sim>/[<swept>/]seed-<S>/attempt-<A>
+OLD_LAYOUTS = {"cab-sweep/1": "<task>/<model>/seed-<S>/attempt-<A>"}
 VOLATILE = ("hydra", "sweep")  # top-level config keys that may differ between sessions of one sweep
 
 
@@ -99,13 +105,21 @@ def _jobs_diff(old: list[list[str]], new: list[list[str]]) -> list[str]:
 
 @dataclass
 class SweepManifest:
-    """The pinned configuration of one sweep directory."""
+    """The pinned configuration of one sweep directory, and where each of its jobs writes."""
     config: dict
     jobs: list[list[str]]
+    path_keys: list[str]
+    folders: list[str]
 
     @classmethod
     def from_hydra(cls, cfg: Any) -> "SweepManifest":
-        return cls(_stable_config(cfg), expand_jobs(cfg))
+        """The manifest of the sweep Hydra is about to launch. Raises SweepJobsCollide when two of
+        its jobs would write to the same attempt folder."""
+        jobs = expand_jobs(cfg)
+        keys = varying_keys(jobs)
+        folders = attempt_folders(cfg, jobs, keys)
+        check_distinct(folders, jobs)
+        return cls(_stable_config(cfg), jobs, keys, folders)
 
     @property
     def fingerprint(self) -> str:
@@ -118,6 +132,12 @@ class SweepManifest:
         now = time.time()
         if path.is_file():
             old = json.loads(path.read_text())
+            if old.get("manifest_version") in OLD_LAYOUTS:
+                raise SweepConfigChanged(
+                    f"{sweep_dir} was written with the attempt layout {OLD_LAYOUTS[old['manifest_version']]} "
+                    f"({old['manifest_version']}); this cab writes <task>/<model>/<sim>/[<swept>/]seed-<S>/"
+                    "attempt-<A> and would run every attempt again. Finish it with the cab version that "
+                    "started it, or start a new hydra.sweep.dir (cab-report reads both layouts).")
             if old.get("fingerprint") != self.fingerprint:
                 changes = config_diff(old.get("config"), self.config) + _jobs_diff(old.get("jobs", []), self.jobs)
                 raise SweepConfigChanged(
@@ -128,7 +148,8 @@ class SweepManifest:
         else:
             Path(sweep_dir).mkdir(parents=True, exist_ok=True)
             manifest = {"manifest_version": MANIFEST_VERSION, "fingerprint": self.fingerprint, "created": now,
-                        "n_jobs": len(self.jobs), "jobs": self.jobs, "config": self.config, "sessions": []}
+                        "n_jobs": len(self.jobs), "jobs": self.jobs, "path_keys": self.path_keys,
+                        "folders": self.folders, "config": self.config, "sessions": []}
         manifest["sessions"].append({"started": now, "launcher": launcher,
                                      "complete_at_start": len(completed_results(Path(sweep_dir)))})
         write_json_atomic(path, manifest)

@@ -1,7 +1,8 @@
 """A small sweep of real attempts shared by the report, viewer and replay tests.
 
 ``build_sweep(root)`` runs oracle, idle and scripted agents on two tasks with ``run_attempt`` into
-the sweep layout ``task/model/seed-S/attempt-A`` (what ``cab -m`` writes), once per test session:
+the first sweep layout ``task/model/seed-S/attempt-A`` (what ``cab -m`` wrote before the simulator
+folder; the report tests thus check that ``cab-report`` still reads it), once per test session:
 the directory is reused when its ``.complete`` marker exists. The scripted agent exercises what the
 oracle and idle agents never do: a planner refusal, a program that raises, a program that moves,
 an over-claim, and (on the second task) an attempt that ends without ``done``. On the first task it

@@ -32,7 +32,7 @@ def sweep_cmd(sweep_dir: Path, *extra: str, attempts=ATTEMPTS, workers: int = 2)
 
 
 def attempt_dirs(sweep_dir: Path) -> dict[int, Path]:
-    return {a: sweep_dir / "beat_block_hammer" / "idle" / "seed-0" / f"attempt-{a}" for a in ATTEMPTS}
+    return {a: sweep_dir / "beat_block_hammer" / "idle" / "sapien" / "seed-0" / f"attempt-{a}" for a in ATTEMPTS}
 
 
 def fingerprints(d: Path) -> dict:
