@@ -47,29 +47,34 @@ def fingerprints(d: Path) -> dict:
 @pytest.fixture(scope="module")
 def killed_and_resumed(tmp_path_factory):
     """Run a 4-attempt sweep on 2 workers, SIGKILL the whole process group as soon as one attempt
-    has finished while another is half-written, then run the same command again."""
-    root = tmp_path_factory.mktemp("sweep")
-    sweep = root / "sw"
-    dirs = attempt_dirs(sweep)
-    proc = subprocess.Popen(sweep_cmd(sweep), cwd=root, start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 600
-    try:
-        while time.monotonic() < deadline:
-            done = {a for a, d in dirs.items() if (d / "result.json").exists()}
-            half = {a for a, d in dirs.items() if (d / "events.jsonl").exists() and a not in done}
-            if done and half:
-                break
-            assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read()}"
-            time.sleep(0.1)
-        else:
-            pytest.fail("no moment with one finished and one half-written attempt within 600 s")
-    finally:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-    time.sleep(1.0)  # let the kernel reap the attempt processes (they die with their worker)
-    done = {a for a, d in dirs.items() if (d / "result.json").exists()}
-    half = {a for a, d in dirs.items() if (d / "events.jsonl").exists() and a not in done}
+    has finished while another is half-written, then run the same command again. The half-written
+    attempt can still finish between the look and the kill; then the sweep is started afresh in a
+    new directory (at most three times), so the test always resumes the state it means to."""
+    for _ in range(3):
+        root = tmp_path_factory.mktemp("sweep")
+        sweep = root / "sw"
+        dirs = attempt_dirs(sweep)
+        proc = subprocess.Popen(sweep_cmd(sweep), cwd=root, start_new_session=True, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 600
+        try:
+            while time.monotonic() < deadline:
+                done = {a for a, d in dirs.items() if (d / "result.json").exists()}
+                half = {a for a, d in dirs.items() if (d / "events.jsonl").exists() and a not in done}
+                if done and half:
+                    break
+                assert proc.poll() is None, f"the sweep ended before it could be killed: {proc.stderr.read()}"
+                time.sleep(0.1)
+            else:
+                pytest.fail("no moment with one finished and one half-written attempt within 600 s")
+        finally:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        time.sleep(1.0)  # let the kernel reap the attempt processes (they die with their worker)
+        done = {a for a, d in dirs.items() if (d / "result.json").exists()}
+        half = {a for a, d in dirs.items() if (d / "events.jsonl").exists() and a not in done}
+        if done and half:
+            break
     before = {a: fingerprints(dirs[a]) for a in done}
     half_events = {a: (dirs[a] / "events.jsonl").read_bytes() for a in half}
     r = subprocess.run(sweep_cmd(sweep), cwd=root, capture_output=True, text=True, timeout=900)
