@@ -148,10 +148,11 @@ def schema_refuses(tool: str, args) -> bool:
 HUGE_STR = "x" * 1_000_000
 HUGE_LIST = [0.5] * 100_000
 DEEP: list = [0.1]
+DEEP_DICT: dict = {"x": 0.1}
 for _ in range(40):
-    DEEP = [DEEP]
+    DEEP, DEEP_DICT = [DEEP], {"x": DEEP_DICT}
 ODD_VALUES = [math.nan, math.inf, -math.inf, 1e308, -1e308, -0.0, 5e-324, 10**400, -(10**400), 2**63,
-              "0.1", "nan", "1e308", True, False, None, {"x": 0.1}, {}, [], [[]], [None], DEEP, "",
+              "0.1", "nan", "1e308", True, False, None, {"x": 0.1}, {}, DEEP_DICT, [], [[]], [None], DEEP, "",
               "left\x00", "\udbad", HUGE_STR, HUGE_LIST]
 UNKNOWN_KEYS = ["zzz", "", "ARM", "__proto__", "obs_id ", "x" * 300]
 NON_OBJECTS = [None, [], [{"arm": "left"}], "left", '{"arm": "left"}', 0, 1e308, True]
