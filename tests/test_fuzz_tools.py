@@ -724,6 +724,11 @@ def degenerate_cases(obs: str, pair: str, centre: list[float]) -> list[tuple[str
     out += [("camera_aim_pose", {"camera": c, "target_xyz": t, "pitch": p, "standoff": d})
             for c in ("left_camera", "right_camera") for t in ([-10.0, -10.0, -10.0], [10.0, 10.0, 10.0], centre)
             for p in (60.0, 90.0) for d in (0.05, 1.0)]
+    # the workspace envelope of absolute targets (x, y in [-0.8, 0.8], z in [0.4, 1.5]): at and just past its corners
+    env = [[-0.8, -0.8, 0.4], [0.8, 0.8, 1.5], [math.nextafter(-0.8, -1), 0.0, 0.9], [0.0, 0.0, math.nextafter(1.5, 2)]]
+    out += [("reach_tcp", {"arm": arm, "target_xyz": t}) for arm in ("left", "right") for t in env]
+    out += [("reach_both_tcp", {"left_xyz": a, "right_xyz": b}) for a, b in zip(env, reversed(env))]
+    out += [("check_tcp_pose_reachability", {"arm": "left", "target_xyz": t}) for t in env]
     out += [("probe_contact_along", {"arm": "left", "direction_xyz": [0.0, 0.0, tiny], "distance_m": 1e-300,
                                      "step_m": 0.002}),
             ("reach_tcp", {"arm": "left", "target_xyz": [-0.3, -0.15, 0.95], "target_quat": [tiny, 0.0, 0.0, 0.0]})]
