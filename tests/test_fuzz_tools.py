@@ -26,7 +26,13 @@ Python literals (``float('nan')``, ``'x' * 1000000``). Every answer must satisfy
 * no host traceback and no host path (the repository, site-packages, the temp dir, the attempt's
   output directory, the sandbox's directory) reaches the agent;
 * every number the agent gets is finite, and an estimate marked valid has a non-degenerate value (a
-  unit ray direction, finite points and pixels, a positive finite depth).
+  unit ray direction, finite points and pixels, a positive finite depth);
+* a success matches the tool's documented result model (``TOOLS[name].result``), an action's status
+  is SUCCESS, FAILED or ABORTED.
+
+Besides the random cases: a deterministic sweep puts every odd value in every field of every tool
+(both surfaces), and degenerate geometry (vectors of 5e-324, the camera centre, planes through it,
+pixels at the range limits, sub-pixel boxes, targets at the workspace envelope) is tried explicitly.
 
 From ``run_code``, every internal trace entry is checked against the host's record of that internal
 call (``events.jsonl``, kind ``internal_call``: the exact payload the program received), and the
@@ -447,7 +453,8 @@ def check_answer(tool: str, args, payload, markers: list[str]) -> list[str]:
         if isinstance(err, str) and len(err) > ERROR_CHARS:
             out.append(f"error text of {len(err)} characters (at most {ERROR_CHARS}): {_short(err, 200)}")
         if schema_refuses(tool, args) and code != "invalid_tool_arguments":
-            out.append(f"arguments the schema refuses answered {code!r}, not invalid_tool_arguments: {_short(err, 200)}")
+            out.append(f"arguments the schema refuses answered {code!r}, not invalid_tool_arguments: "
+                       f"{_short(err, 200)}")
     elif schema_refuses(tool, args):
         out.append(f"arguments the schema refuses were accepted: {_short(text, 300)}")
     else:
@@ -463,7 +470,8 @@ def check_answer(tool: str, args, payload, markers: list[str]) -> list[str]:
     m = HOST_FRAME.search(text)
     if m:
         out.append(f"host traceback frame in the payload: {text[max(0, m.start() - 80):m.end() + 120]!r}")
-    tb_text = json.dumps({k: v for k, v in payload.items() if k != "error"}, default=repr) if tool == "run_code" else text
+    tb_text = (json.dumps({k: v for k, v in payload.items() if k != "error"}, default=repr) if tool == "run_code"
+               else text)
     if "Traceback (most recent call last)" in tb_text:
         i = tb_text.index("Traceback")
         out.append(f"traceback in the payload: {tb_text[max(0, i - 80):i + 200]!r}")
