@@ -129,6 +129,21 @@ def test_degenerate_geometry_says_so(ep, head):
     assert geometry_tools.degenerate_direction(d)
 
 
+@pytest.mark.parametrize("bbox, extent, code", [
+    ([100, 100, 100.0000001, 100.0000001], 10.0, "DEGENERATE_GEOMETRY"),  # a sub-pixel box: no scale
+    ([-0.0005, -770.2, -5.4e-195, 1650.9], 1e-6, "DEGENERATE_GEOMETRY"),  # a depth of 0.3 micrometres
+    ([300, 200, 302, 202], 10.0, "OUTSIDE_WORKSPACE"),  # a 10 m object 2 px wide: kilometres away
+    ([300, 200, 340, 260], 0.05, None),  # a 5 cm object 40 px wide on the table
+])
+def test_scale_from_object_size_flags_degenerate_boxes(ep, head, bbox, extent, code):
+    p = _call(ep, "scale_from_object_size", {"obs_id": head, "bbox": bbox, "extent_axis": "width",
+                                             "known_extent_m": extent})
+    assert (p["failure"] or {}).get("code") == code
+    assert p["valid"] is (code is None)
+    if code is None:
+        assert 0.5 < p["value"] < 2.0
+
+
 def test_schema_declares_every_numeric_range():
     def walk(node, path):
         if isinstance(node, dict):

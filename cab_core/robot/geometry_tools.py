@@ -22,6 +22,8 @@ from .overlay import AXIS_COLOURS, PALETTE, Canvas, convex_hull, in_frame
 MIN_DEPTH_M = 1e-6  # a point is "in front of" a camera when its camera z exceeds this
 WORKSPACE = {"x": (-0.8, 0.8), "y": (-0.8, 0.8), "z": (0.4, 1.5)}  # FACTS §A.5 envelope, metres
 _PAR_TOL = 1e-6  # |cos| below which a ray counts as parallel to a plane
+MIN_BOX_EXTENT_PX = 1.0  # scale_from_object_size: a box extent below one pixel carries no scale
+MIN_ESTIMATE_DEPTH_M = 0.01  # a depth estimate nearer than this to the camera is degenerate
 
 
 # ==============================================================================================
@@ -426,8 +428,17 @@ def scale_from_object_size(ctx: RobotContext, args) -> ToolOutput:
             "method": "Z = known_extent / (pixel_extent / f): pinhole similar triangles",
             "assumption": "the measured extent is parallel to the image plane at the object's depth; a tilted or "
                           "partly hidden extent biases Z"}
+    if pix < MIN_BOX_EXTENT_PX:
+        failure = ("DEGENERATE_GEOMETRY", f"the box spans {pix:.3g} px along that extent (under {MIN_BOX_EXTENT_PX:g} px): "
+                                          "no scale can be read from it")
+    elif Z < MIN_ESTIMATE_DEPTH_M:
+        failure = ("DEGENERATE_GEOMETRY", f"the implied depth {Z:.3g} m is under {MIN_ESTIMATE_DEPTH_M:g} m: the size "
+                                          "prior and the box do not describe a visible object")
+    else:
+        far = outside_workspace(point)
+        failure = ("OUTSIDE_WORKSPACE", far) if far else None
     return ToolOutput(payload=estimate(rnd(Z), "depth", frame=f"camera:{obs.obs_id}", units="m", provenance=prov,
-                                       uncertainty=unc, coarse=True))
+                                       uncertainty=unc, coarse=True, failure=failure))
 
 
 # ==============================================================================================

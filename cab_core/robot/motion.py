@@ -613,7 +613,8 @@ def capture_motion_pair(ctx: RobotContext, args) -> ToolOutput:
                "contact_evidence": {"contact_free": validity["contact_free"], "scope": f"{arm} arm, anonymous",
                                     "before": contact0, "after": contact1,
                                     "motion_abort_reason": motion.payload.get("abort_reason")},
-               "validity": validity, "obs_ids": [obs_before.obs_id, obs_after.obs_id]}
+               "validity": validity, "obs_ids": [obs_before.obs_id, obs_after.obs_id],
+               "images": [obs_before.obs_id, obs_after.obs_id]}
     return ToolOutput(payload, [obs_before.obs_id, obs_after.obs_id], status=motion.status, physics_steps=motion.physics_steps)
 
 
