@@ -34,6 +34,17 @@ def serve_cmd(out: Path, *overrides: str) -> list[str]:
     return [*CAB, "+harness=mcp", f"task={TASK}", f"hydra.run.dir={out}", *overrides]
 
 
+def wait_for_endpoint(server: subprocess.Popen, out: Path, timeout: float = 300) -> tuple[Path, dict]:
+    """The endpoint file an HTTP-served attempt writes once it listens, and its content."""
+    ep_file = out / "mcp_endpoint.json"
+    deadline = time.monotonic() + timeout
+    while not ep_file.exists():
+        assert server.poll() is None and time.monotonic() < deadline, "the server did not come up"
+        time.sleep(0.1)
+    time.sleep(0.2)  # written atomically, but give the listener a moment
+    return ep_file, json.loads(ep_file.read_text())
+
+
 def result(out: Path) -> dict:
     return json.loads((out / "result.json").read_text())
 
@@ -180,13 +191,7 @@ def test_named_attempt_over_http_records_every_client(tmp_path):
     server = subprocess.Popen(serve_cmd(out, "sim=mujoco", "harness.transport=http", "harness.linger_s=0.5",
                                         "model.name=my-agent"), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        ep_file = out / "mcp_endpoint.json"
-        deadline = time.monotonic() + 300
-        while not ep_file.exists():
-            assert server.poll() is None and time.monotonic() < deadline, "the server did not come up"
-            time.sleep(0.1)
-        time.sleep(0.2)
-        ep = json.loads(ep_file.read_text())
+        _, ep = wait_for_endpoint(server, out)
 
         async def session_of(name: str, version: str, tool: str, args: dict):
             async with connect(url=ep["url"], headers=ep["headers"], client_info=(name, version)) as session:
@@ -347,13 +352,7 @@ def test_mcp_inspector_cli_lists_tools_and_calls_them_on_a_real_attempt(tmp_path
     server = subprocess.Popen(serve_cmd(out, "harness.transport=http"), stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     try:
-        ep_file = out / "mcp_endpoint.json"
-        deadline = time.monotonic() + 300
-        while not ep_file.exists():
-            assert server.poll() is None and time.monotonic() < deadline, "the server did not come up"
-            time.sleep(0.2)
-        time.sleep(0.2)
-        ep = json.loads(ep_file.read_text())
+        ep_file, ep = wait_for_endpoint(server, out)
         assert oct(ep_file.stat().st_mode & 0o777) == "0o600"
         base = [ep["url"], "--transport", "http", "--header", f"Authorization: {ep['headers']['Authorization']}"]
 
