@@ -150,6 +150,9 @@ def schema_refuses(tool: str, args) -> bool:
     return next(nonfinite(args), None) is not None or not VALIDATORS[tool].is_valid(args)
 
 
+NEAR_FIELDS = {"target_xyz", "left_xyz", "right_xyz", "tcp_xyz"}
+NEAR = [(-0.5, 0.5), (-0.45, 0.15), (0.8, 1.15)]  # world x, y, z (m) around the arms' home TCPs
+
 # -- cases ---------------------------------------------------------------------------------------------
 HUGE_STR = "x" * 1_000_000
 HUGE_LIST = [0.5] * 100_000
@@ -298,6 +301,9 @@ def cases(tool: str, fz: "Fuzz", kinds=("valid", "valid", "valid", "boundary", "
                 elif how == "unknown":
                     args[f] = bad
         if kind == "valid":
+            for k in NEAR_FIELDS & set(args):  # half of the absolute targets near the arms, so plans and motions run
+                if draw(st.booleans()):
+                    args[k] = [draw(st.floats(lo, hi)) for lo, hi in NEAR]
             return Case(kind, "from_schema", args)
         where = slots(args, schema)
         if kind == "structure" or not where:
