@@ -150,8 +150,10 @@ def schema_refuses(tool: str, args) -> bool:
     return next(nonfinite(args), None) is not None or not VALIDATORS[tool].is_valid(args)
 
 
-NEAR_FIELDS = {"target_xyz", "left_xyz", "right_xyz", "tcp_xyz"}
-NEAR = [(-0.5, 0.5), (-0.45, 0.15), (0.8, 1.15)]  # world x, y, z (m) around the arms' home TCPs
+# world x, y, z ranges (m) around the arms' home TCPs (left arm at -x, right at +x)
+NEAR = {"target_xyz": [(-0.45, 0.45), (-0.4, 0.1), (0.85, 1.1)], "tcp_xyz": [(-0.45, 0.45), (-0.4, 0.1), (0.85, 1.1)],
+        "left_xyz": [(-0.45, -0.15), (-0.4, 0.1), (0.85, 1.1)], "right_xyz": [(0.15, 0.45), (-0.4, 0.1), (0.85, 1.1)]}
+QUAT_FIELDS = {"target_quat", "left_quat", "right_quat"}
 
 # -- cases ---------------------------------------------------------------------------------------------
 HUGE_STR = "x" * 1_000_000
@@ -301,9 +303,13 @@ def cases(tool: str, fz: "Fuzz", kinds=("valid", "valid", "valid", "boundary", "
                 elif how == "unknown":
                     args[f] = bad
         if kind == "valid":
-            for k in NEAR_FIELDS & set(args):  # half of the absolute targets near the arms, so plans and motions run
-                if draw(st.booleans()):
-                    args[k] = [draw(st.floats(lo, hi)) for lo, hi in NEAR]
+            # half of the absolute targets near the arms, mostly keeping the orientation, so plans and motions run
+            if any(k in args for k in NEAR) and draw(st.booleans()):
+                for k in sorted(NEAR.keys() & args.keys()):
+                    args[k] = [draw(st.floats(lo, hi)) for lo, hi in NEAR[k]]
+                for k in sorted(QUAT_FIELDS & args.keys()):
+                    if draw(st.integers(0, 3)):
+                        del args[k]
             return Case(kind, "from_schema", args)
         where = slots(args, schema)
         if kind == "structure" or not where:
