@@ -238,6 +238,11 @@ CRASHERS = [
     {"tool": "move_delta", "args": {"arm": "left", "dz": HUGE}},
     {"tool": "ray", "args": {"obs_id": "obs_0001", "px": [HUGE, HUGE]}},
     {"tool": "set_gripper", "args": {"arm": "left", "pos": "0.1"}},
+    {"tool": "move_delta", "args": {"arm": "left", "dz": True}},
+    {"tool": "move_both_delta", "args": {"left_delta": [0, 0, HUGE], "right_delta": [0, 0, 0]}},
+    {"tool": "plane_intersect", "args": {"obs_id": "obs_0001", "px": [320, 240], "plane_point_xyz": [0, 0, -HUGE],
+                                         "plane_normal_xyz": [0, 0, 1], "plane_offset_sigma_m": 0.01}},
+    {"tool": "done", "args": {"report": "x" * 1_000_000}},  # refused (over 20000 characters): free, goes on
     {"tool": "run_code", "args": {"code": "camera_aim_pose(camera='left_camera', target_xyz=[1e308]*3)\n"
                                           "project(obs_id='obs_0001', xyz=[-1e308]*3)\nresult = 1"}},
     {"tool": "done", "args": {"report": "tried", "success_claim": True}},
@@ -259,7 +264,7 @@ def test_a_sweep_scores_the_attempt_of_a_script_sending_bad_numbers(tmp_path):
     res = results[0]
     assert res["termination"]["reason"] == "done" and res["verdict"]["success"] is False
     assert res["claim"]["success_claim"] is True
-    assert res["budget"]["tool_calls_used"] == len(CRASHERS) - 1
+    assert res["budget"]["tool_calls_used"] == len(CRASHERS) - 2  # done is free
     assert "infrastructure" not in res or res["infrastructure"]["failures"] == []
     assert not list(sweep.rglob("set_aside"))
     rep = subprocess.run([str(cab.parent / "cab-report"), str(sweep), "--no-views"], capture_output=True,
