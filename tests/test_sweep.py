@@ -147,6 +147,15 @@ def test_record_checks_catch_incomplete_records(killed_and_resumed, tmp_path):
     shutil.copytree(src, d)
     assert check_attempt(d, {"attempt": 1}).state == "complete"
     assert check_attempt(d, {"attempt": 2}).problems == ["attempt is 1, expected 2"]
+    # a model named after the agent that played it (an unnamed MCP configuration) is not a mismatch
+    res = json.loads((d / "result.json").read_text())
+    (d / "result.json").write_text(json.dumps({**res, "model": "mcp:some-client", "agent": {
+        "kind": "mcp_client", "named_by": "client", "client": None, "clients": []}}))
+    assert check_attempt(d, {"attempt": 1, "model": "mcp_client"}).state == "complete"
+    (d / "result.json").write_text(json.dumps({**res, "model": "mcp:some-client"}))
+    assert check_attempt(d, {"attempt": 1, "model": "mcp_client"}).problems == [
+        "model is 'mcp:some-client', expected 'mcp_client'"]
+    (d / "result.json").write_text(json.dumps(res))
     lines = (d / "events.jsonl").read_text().splitlines(keepends=True)
     (d / "events.jsonl").write_text("".join(lines[:-1]))
     assert check_attempt(d).problems == ["events.jsonl does not end with attempt_end"]
