@@ -13,7 +13,9 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 . .venv/bin/activate
-python -m pip install -q --upgrade pip
+# quiet for a newcomer: setuptools' editable-build warning is printed once per package otherwise
+export PYTHONWARNINGS="ignore::UserWarning"
+python -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || true
 python -m pip install -q -e ".[test,ray,slurm]" -e plugins/embodiment_aloha -e plugins/planner_mplib \
   -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all]" \
   -e plugins/harness_mcp 2>&1 | grep -v '^WARNING: Location' || true
