@@ -14,7 +14,7 @@ import sys
 from html import escape
 from pathlib import Path
 
-from .analysis.records import Attempt, read_jsonl
+from .analysis.records import Attempt, attempt_dirs, read_jsonl
 from .errors import CabError, RecordError
 
 CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}
@@ -211,19 +211,8 @@ def render_unfinished(d: Path) -> str:
 
 
 def attempts_below(root: Path) -> list[str]:
-    """The attempt directories below ``root`` (those holding result.json or events.jsonl), relative
-    to it, sorted; hidden ones and those a sweep set aside are skipped, as cab-report does."""
-    import os
-
-    from .sweep_records import SET_ASIDE
-
-    found = []
-    for d, dirs, files in os.walk(root):
-        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != SET_ASIDE)
-        if "result.json" in files or "events.jsonl" in files:
-            dirs[:] = []
-            found.append(os.path.relpath(d, root).replace(os.sep, "/"))
-    return sorted(found)
+    """The attempt directories below ``root``, relative to it, sorted, as cab-report finds them."""
+    return sorted(rel for _, rel, _ in attempt_dirs(root))
 
 
 def check_attempt_dir(d: Path, show: int = 5) -> None:

@@ -132,6 +132,18 @@ class Scan:
     excluded: list[tuple[str, str]] = field(default_factory=list)  # infrastructure failures: no verdict
 
 
+def attempt_dirs(root: Path):
+    """``(directory, path relative to root, whether it holds result.json)`` for every attempt
+    directory below ``root`` (``root`` itself included), in sorted order: a directory holding
+    ``result.json`` or ``events.jsonl``, not searched further (a replay kept inside it is not a sweep
+    attempt); hidden directories (``.hydra``) and the records a sweep set aside are skipped."""
+    for d, dirs, files in os.walk(root):
+        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != SET_ASIDE)
+        if "result.json" in files or "events.jsonl" in files:
+            dirs[:] = []
+            yield Path(d), os.path.relpath(d, root).replace(os.sep, "/"), "result.json" in files
+
+
 def scan(root: Path) -> Scan:
     """Every attempt directory below ``root`` (``root`` itself included), in sorted order. An
     attempt directory is not searched further (a replay kept inside it is not a sweep attempt);
@@ -142,19 +154,14 @@ def scan(root: Path) -> Scan:
     if not root.is_dir():
         raise RecordError(f"{root} is not a directory")
     out = Scan(root)
-    for d, dirs, files in os.walk(root):
-        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != SET_ASIDE)
-        here = Path(d)
-        rel = os.path.relpath(here, root).replace(os.sep, "/")
-        if "result.json" in files:
-            dirs[:] = []
-            try:
-                out.attempts.append(Attempt.load(here, root))
-            except InfrastructureResult as e:
-                out.excluded.append((rel, str(e)))
-            except RecordError as e:
-                out.problems.append((rel, str(e)))
-        elif "events.jsonl" in files:
-            dirs[:] = []
+    for here, rel, finished in attempt_dirs(root):
+        if not finished:
             out.in_flight.append(rel)
+            continue
+        try:
+            out.attempts.append(Attempt.load(here, root))
+        except InfrastructureResult as e:
+            out.excluded.append((rel, str(e)))
+        except RecordError as e:
+            out.problems.append((rel, str(e)))
     return out
