@@ -70,12 +70,12 @@ def _before_task(e: Exception) -> str | None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from .cmdline import _one_line
+    from .cmdline import one_line
 
     if isinstance(e, OSError) and e.filename:
         return f"cannot create the output folder {e.filename} (hydra.run.dir): {e.strerror or e}"
     if isinstance(e, (HydraException, OmegaConfBaseException)):
-        return _one_line(e)
+        return one_line(e)
     return None
 
 

@@ -55,7 +55,7 @@ def check_budget_value(key: str, value: Any) -> None:
         raise ConfigError(f"budget.{key} must be a positive {what} or null ({default}), got {value!r}")
 
 
-def _one_line(e: BaseException) -> str:
+def one_line(e: BaseException) -> str:
     lines = [l.strip() for l in str(e).splitlines() if l.strip() and not l.strip().startswith("See https://")]
     return ": ".join(lines) if lines else type(e).__name__
 
@@ -122,14 +122,14 @@ def check_command_line(argv: list[str]):
     try:
         overrides = OverridesParser.create().parse_overrides(args.overrides)
     except (HydraException, OmegaConfBaseException) as e:
-        raise ConfigError(_one_line(e)) from None
+        raise ConfigError(one_line(e)) from None
     config_name = args.config_name or "config"
     loader = _loader(args)
     searchpath = [o.input_line for o in overrides if o.get_key_element() == "hydra.searchpath"]
     try:
         top_groups = {g for g in loader.list_groups("") if g != "hydra"}
     except (HydraException, OmegaConfBaseException) as e:
-        raise ConfigError(_one_line(e)) from None
+        raise ConfigError(one_line(e)) from None
 
     def is_group(key: str) -> bool:
         return key in top_groups or ("/" in key and key.split("/")[0] in top_groups)
@@ -146,7 +146,7 @@ def check_command_line(argv: list[str]):
             try:
                 options = loader.get_group_options(key, ObjectType.CONFIG, config_name, searchpath)
             except (HydraException, OmegaConfBaseException) as e:
-                raise ConfigError(_one_line(e)) from None
+                raise ConfigError(one_line(e)) from None
             if o.value_type == ValueType.GLOB_CHOICE_SWEEP:  # task=glob(*): the options it matches
                 values = list(o.value().filter(options))
             else:
@@ -176,7 +176,7 @@ def check_command_line(argv: list[str]):
             try:
                 cfg = loader.load_configuration(config_name, picked + searchpath, RunMode.RUN)
             except (HydraException, OmegaConfBaseException) as e:
-                raise ConfigError(_one_line(e)) from None
+                raise ConfigError(one_line(e)) from None
             plain = OmegaConf.to_container(cfg, resolve=False)
             plain.pop("hydra", None)
             composed[selection] = plain
