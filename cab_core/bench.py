@@ -136,9 +136,21 @@ def main() -> None:
     ap.add_argument("--sim", default="sapien")
     ap.add_argument("-n", type=int, default=30, help="repetitions per tool")
     ap.add_argument("--out", default=None, help="JSON file to write (default: outputs/bench/<time>.json)")
+    ap.add_argument("--startup", action="store_true",
+                    help="only the start-up of an attempt on each simulator of --sim (comma-separated): cold "
+                         "process, warm cache, warm worker (cab_core.bench_startup)")
     a = ap.parse_args()
     out = Path(a.out) if a.out else Path("outputs") / "bench" / f"{time.strftime('%Y-%m-%d_%H-%M-%S')}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
+    if a.startup:
+        from .bench_startup import print_startup, startup
+
+        task = a.task if a.task != "beat_block_hammer" else "click_bell"
+        res = startup([s.strip() for s in a.sim.split(",") if s.strip()], task)
+        print_startup(res, task)
+        out.write_text(json.dumps({"startup": res, "task": task}, indent=2))
+        print(f"wrote {out}")
+        return
     with tempfile.TemporaryDirectory() as td:
         res = run(a.task, a.sim, a.n, Path(td))
     print(f"cab-bench: {res['task']} on {res['sim']} ({res['versions']['simulator']})")

@@ -9,42 +9,52 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import json
-import multiprocessing as mp
 import os
 import sys
 import time
 from pathlib import Path
 
 
-def sim_config(sim: str) -> dict:
-    """The simulator's options as ``cab +sim=<sim>`` gets them: its file in the ``sim`` config
-    group (physical parameters declared per simulator live there), else just the name."""
-    from importlib.resources import files
-
+def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
+    """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
+    seed=S model=A sim=X`` composes it (in this thread: Hydra's composition is not thread-safe).
+    ``cold``: SAPIEN generates its BRDF table in each process, as before the cache."""
+    from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
-    path = files("cab_core") / "conf" / "sim" / f"{sim}.yaml"
-    if not path.is_file():
-        return {"name": sim}
-    return {**OmegaConf.to_container(OmegaConf.load(str(path)), resolve=True), "name": sim}
+    from .cli import normalise_overrides
+
+    out = []
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        for task, seed, agent, _, sim in jobs:
+            overrides = [f"task={task}", f"seed={seed}", f"model={agent}", f"sim={sim}", "attempt=1"]
+            cfg = compose(config_name="config", overrides=normalise_overrides(overrides))
+            plain = OmegaConf.to_container(cfg, resolve=True)
+            if cold and "brdf_cache" in plain["sim"]:
+                plain["sim"]["brdf_cache"] = False
+            out.append(plain)
+    return out
 
 
-def run_one(task: str, seed: int, agent: str, out: str, sim: str = "sapien") -> dict:
-    """One attempt in this (worker) process; returns a compact summary."""
+def run_one(config: dict, out: str, settings) -> dict:
+    """One attempt, supervised (crashes, hangs and runaway memory are retried as infrastructure
+    failures); returns a compact summary."""
     from .catalog import task_info
-    from .episode import AttemptSpec
-    from .runner import run_attempt
+    from .sweep_records import is_infrastructure_failure
+    from .sweep_supervisor import AttemptSupervisor
 
+    task, seed, agent, sim = config["task"]["name"], config["seed"], config["model"]["name"], config["sim"]["name"]
     info = task_info(task)
-    spec = AttemptSpec(task=task, seed=seed, attempt=1, sim=sim, embodiment="aloha_agilex", planner="mplib",
-                       harness="direct", model=agent, output_dir=Path(out), budget_tool_calls=info.budget_tool_calls,
-                       budget_sim_seconds=info.budget_sim_s, budget_wall_seconds=info.budget_wall_s,
-                       sim_cfg=sim_config(sim), model_cfg={"name": agent, "agent": agent})
+    identity = {"task": task, "seed": seed, "attempt": 1, "sim": sim, "model": agent}
     t0 = time.monotonic()
     try:
-        r = run_attempt(spec)
+        r = AttemptSupervisor(config, Path(out), identity, settings).run()
     except Exception as e:  # report, never stop the whole check
-        return {"task": task, "seed": seed, "agent": agent, "error": repr(e), "wall_s": time.monotonic() - t0}
+        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "error": repr(e),
+                "wall_s": time.monotonic() - t0}
+    if is_infrastructure_failure(r):
+        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "wall_s": time.monotonic() - t0,
+                "error": f"infrastructure failure: {r['termination'].get('detail')}"}
     ck = r.get("checkpoints") or {}
     return {
         "task": task, "seed": seed, "agent": agent, "sim": sim, "dir": out,
@@ -57,12 +67,18 @@ def run_one(task: str, seed: int, agent: str, out: str, sim: str = "sapien") -> 
         "subgoals_at_start": ck.get("subgoals_at_start", []),
         "checkpoint_error": ck.get("error"),
         "wall_s": round(time.monotonic() - t0, 1),
+        "setup_s": (r.get("timing") or {}).get("setup_seconds"),
     }
 
 
 def check(tasks: list[str], seeds: list[int] | None, jobs: int, out: Path, agents=("oracle", "idle"),
-          sims: tuple[str, ...] = ("sapien",)) -> list[dict]:
+          sims: tuple[str, ...] = ("sapien",), cold: bool = False) -> list[dict]:
+    """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
+    worker process that runs its attempts one after another (``sweep.warm_workers``), SAPIEN's BRDF
+    table read from the cache. ``cold``: a fresh process per attempt and no BRDF cache, as a
+    ``cab -m`` sweep ran attempts before warm workers, for comparison."""
     from .catalog import task_info
+    from .sweep_supervisor import SupervisorConfig, close_workers
 
     jobs_list = []
     for t in tasks:
@@ -70,16 +86,20 @@ def check(tasks: list[str], seeds: list[int] | None, jobs: int, out: Path, agent
             for sim in sims:
                 for a in agents:
                     jobs_list.append((t, s, a, str(out / sim / t / f"seed-{s}" / a), sim))
+    configs = attempt_configs(jobs_list, cold)
+    settings = SupervisorConfig(warm_workers=not cold, retry_backoff_s=1.0)
     rows: list[dict] = []
-    ctx = mp.get_context("spawn")  # a fresh interpreter per worker: no simulator state is forked
-    with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as ex:
-        futs = {ex.submit(run_one, *j): j for j in jobs_list}
-        for f in cf.as_completed(futs):
-            row = f.result()
-            rows.append(row)
-            print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}: "
-                  f"{'error ' + row['error'] if 'error' in row else ('success' if row['success'] else 'fail')}",
-                  file=sys.stderr, flush=True)
+    try:
+        with cf.ThreadPoolExecutor(max_workers=jobs) as ex:
+            futs = [ex.submit(run_one, c, j[3], settings) for c, j in zip(configs, jobs_list)]
+            for f in cf.as_completed(futs):
+                row = f.result()
+                rows.append(row)
+                print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}: "
+                      f"{'error ' + row['error'] if 'error' in row else ('success' if row['success'] else 'fail')}",
+                      file=sys.stderr, flush=True)
+    finally:
+        close_workers()
     order = {(t, s, a, sim): i for i, (t, s, a, _, sim) in enumerate(jobs_list)}
     rows.sort(key=lambda r: order[(r["task"], r["seed"], r["agent"], r["sim"])])
     return rows
@@ -157,6 +177,10 @@ def main() -> None:
     ap.add_argument("--no-idle", action="store_true", help="run only the oracles")
     ap.add_argument("--sim", default="sapien",
                     help="comma-separated simulators (default: sapien); several add a cross-simulator table")
+    ap.add_argument("--cold", action="store_true",
+                    help="a fresh process per attempt and no SAPIEN BRDF cache (start-up as before warm workers)")
+    ap.add_argument("--compare", action="store_true",
+                    help="run the check twice, --cold then warm, and print both wall times and the speed-up")
     a = ap.parse_args()
     sims = [s.strip() for s in a.sim.split(",") if s.strip()]
     from .plugins import registry
@@ -175,8 +199,18 @@ def main() -> None:
     seeds = None if a.seeds is None else [int(s) for s in a.seeds.split(",")]
     out = Path(a.out) if a.out else Path("outputs") / "suite-check" / time.strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
+    agents = ("oracle",) if a.no_idle else ("oracle", "idle")
+    timings = {}
+    if a.compare:
+        t0 = time.monotonic()
+        cold_rows = check(tasks, seeds, max(1, a.jobs), out / "cold", agents, tuple(sims), cold=True)
+        timings["cold_s"] = round(time.monotonic() - t0, 1)
+        print(f"cold (a fresh process per attempt, no BRDF cache): {timings['cold_s']:.0f} s; "
+              f"verdict {verdict(cold_rows)}", file=sys.stderr, flush=True)
     t0 = time.monotonic()
-    rows = check(tasks, seeds, max(1, a.jobs), out, ("oracle",) if a.no_idle else ("oracle", "idle"), tuple(sims))
+    rows = check(tasks, seeds, max(1, a.jobs), out / "warm" if a.compare else out, agents, tuple(sims),
+                 cold=a.cold)
+    timings["cold_s" if a.cold else "warm_s"] = round(time.monotonic() - t0, 1)
     print_table(rows)
     table = cross_sim(rows)
     if len(sims) > 1:
@@ -187,8 +221,13 @@ def main() -> None:
           f"idle: {v['idle_success']}/{v['idle_attempts']} successes, {v['idle_subgoal_at_start']} with a subgoal "
           f"satisfied at the start; checkpoints attained by the oracles: subgoals {v['subgoals_attained']}/"
           f"{v['subgoals_total']}, spatial {v['spatial_attained']}/{v['spatial_total']}; "
-          f"{time.monotonic() - t0:.0f} s with {a.jobs} worker(s)")
+          f"{time.monotonic() - t0:.0f} s with {a.jobs} worker(s)" + (" (cold)" if a.cold else ""))
+    if a.compare:
+        timings["speedup"] = round(timings["cold_s"] / max(timings["warm_s"], 1e-9), 2)
+        print(f"start-up compared on the same {len(rows)} attempts with {a.jobs} worker(s): cold "
+              f"{timings['cold_s']:.0f} s, warm {timings['warm_s']:.0f} s: {timings['speedup']:.2f}x")
     (out / "summary.json").write_text(json.dumps({"sims": sims, "rows": rows, "verdict": v, "cross_sim": table,
+                                                  "timings": timings,
                                                   "verdict_by_sim": {s: verdict([r for r in rows if r["sim"] == s])
                                                                      for s in sims}}, indent=2))
     print(f"records and summary.json in {out}")

@@ -7,14 +7,27 @@ episode recorded (termination ``provider_failure`` or ``error``). Each is record
 ``infrastructure.jsonl``, the try's records are moved aside (kept), and the attempt runs again, at
 most ``max_retries`` more times. If every try fails, ``result.json`` says so and carries no verdict;
 reports exclude it and a resumed sweep runs it again. Configuration problems are not retried.
+
+Warm workers (``sweep.warm_workers``, on by default): the attempt runs in a worker process that has
+run earlier attempts of this launcher process and keeps its renderer and imports (SAPIEN's set-up
+drops from seconds to a fraction of one); each attempt builds its world fresh. A worker is replaced
+after any try that is not a clean attempt (crash, hang, host fault), after
+``sweep.worker_max_attempts`` attempts, and when its resident memory exceeds
+``sweep.worker_max_rss_mb`` (after an attempt; during one the worker is killed and the attempt
+retried, kind ``memory``). Each launcher process (a joblib or Ray worker) holds at most one worker
+per thread and environment; under SLURM each job is its own process, so each attempt gets a fresh one there.
+With ``warm_workers: false`` every try is a fresh process, as before.
 """
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +57,9 @@ class SupervisorConfig:
     retry_backoff_s: float = 10.0
     threads: int | None = 1
     poll_s: float = 0.5
+    warm_workers: bool = True
+    worker_max_attempts: int = 50
+    worker_max_rss_mb: float = 6144.0
 
     @classmethod
     def from_cfg(cls, cfg: dict | None) -> "SupervisorConfig":
@@ -51,10 +67,21 @@ class SupervisorConfig:
         out = cls(max_retries=int(c.get("max_infra_retries", cls.max_retries)),
                   hang_timeout_s=float(c.get("hang_timeout_s", cls.hang_timeout_s)),
                   retry_backoff_s=float(c.get("retry_backoff_s", cls.retry_backoff_s)),
-                  threads=c.get("threads_per_attempt", cls.threads))
+                  threads=c.get("threads_per_attempt", cls.threads),
+                  warm_workers=c.get("warm_workers", cls.warm_workers),
+                  worker_max_attempts=c.get("worker_max_attempts", cls.worker_max_attempts),
+                  worker_max_rss_mb=c.get("worker_max_rss_mb", cls.worker_max_rss_mb))
         if out.max_retries < 0 or out.hang_timeout_s <= 0 or out.retry_backoff_s < 0:
             raise ConfigError("sweep.max_infra_retries and sweep.retry_backoff_s must be >= 0, "
                               "sweep.hang_timeout_s > 0")
+        if not isinstance(out.warm_workers, bool):
+            raise ConfigError(f"sweep.warm_workers must be true or false, got {out.warm_workers!r}")
+        if isinstance(out.worker_max_attempts, bool) or not isinstance(out.worker_max_attempts, int) \
+                or out.worker_max_attempts < 1:
+            raise ConfigError(f"sweep.worker_max_attempts must be a positive integer, got {out.worker_max_attempts!r}")
+        if isinstance(out.worker_max_rss_mb, bool) or not isinstance(out.worker_max_rss_mb, (int, float)) \
+                or not out.worker_max_rss_mb > 0:
+            raise ConfigError(f"sweep.worker_max_rss_mb must be a positive number, got {out.worker_max_rss_mb!r}")
         if out.threads is not None and (not isinstance(out.threads, int) or out.threads < 1):
             raise ConfigError(f"sweep.threads_per_attempt must be a positive integer or null, got {out.threads!r}")
         return out
@@ -81,11 +108,107 @@ def _kill(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
+def _rss_mb(pid: int) -> float:
+    """Resident memory of a process now, in MiB (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+class WarmWorker:
+    """A ``cab_core.sweep_child --worker`` process: attempts one after another (see there)."""
+
+    def __init__(self, env: dict, first_log: Path):
+        with open(first_log, "ab") as log:  # what the worker says before its first job lands there
+            self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep_child", "--worker"],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
+                                         start_new_session=True)
+        self.attempts = 0
+        self.rss_mb = 0.0
+        self._buf = b""
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def submit(self, job: dict) -> bool:
+        """Hand the worker a job; False when it is gone (its status then says why)."""
+        try:
+            self.proc.stdin.write((json.dumps(job) + "\n").encode())
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            return False
+        self.attempts += 1
+        return True
+
+    def reply(self, timeout: float) -> dict | None:
+        """The worker's answer to its job, None while it works; ``{"status": <exit status>}`` once it
+        has died without one."""
+        if b"\n" not in self._buf:
+            ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+            if ready:
+                chunk = os.read(self.proc.stdout.fileno(), 65536)
+                if not chunk:  # end of its output: the process is gone
+                    return {"status": self.proc.wait()}
+                self._buf += chunk
+        if b"\n" in self._buf:
+            line, self._buf = self._buf.split(b"\n", 1)
+            out = json.loads(line)
+            self.rss_mb = float(out.get("rss_mb") or 0.0)
+            return out
+        return None
+
+    def close(self) -> None:
+        """Let the worker leave (its input ends), or kill it if it does not within 5 s."""
+        if self.alive():
+            try:
+                self.proc.stdin.close()
+                self.proc.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                _kill(self.proc)
+        for f in (self.proc.stdin, self.proc.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+
+
+_WORKERS: dict[tuple, WarmWorker] = {}  # this process's warm workers, by environment and thread
+
+
+@atexit.register
+def close_workers() -> None:
+    """Close every warm worker of this process (at exit; tests call it too)."""
+    while _WORKERS:
+        _WORKERS.popitem()[1].close()
+
+
 def _log_tail(d: Path, n: int = 1200) -> str:
     try:
         return (d / CHILD_LOG).read_text(errors="replace")[-n:]
     except FileNotFoundError:
         return ""
+
+
+class _Watchdog:
+    """Watches one try: a hang (no record grows for ``hang_timeout_s``) or, in a warm worker, a
+    process over ``worker_max_rss_mb``."""
+
+    def __init__(self, attempt_dir: Path, settings: SupervisorConfig, pid: int):
+        self.dir, self.settings, self.pid = attempt_dir, settings, pid
+        self.mark, self.last_change = _progress_mark(attempt_dir), time.monotonic()
+
+    def verdict(self) -> str | None:
+        """None while the try may go on, else why it must be killed."""
+        mark = _progress_mark(self.dir)
+        if mark != self.mark:
+            self.mark, self.last_change = mark, time.monotonic()
+        elif time.monotonic() - self.last_change > self.settings.hang_timeout_s:
+            return "hang"
+        if self.settings.warm_workers and _rss_mb(self.pid) > self.settings.worker_max_rss_mb:
+            return "memory"
+        return None
 
 
 class AttemptSupervisor:
@@ -100,12 +223,19 @@ class AttemptSupervisor:
         self.job_log = job_log
         self.on_child = on_child  # observes each child process started (pid, try number)
 
-    def _run_child(self, try_no: int) -> tuple[int | None, bool]:
-        """One try; returns (exit status or None when killed as hung, whether it hung)."""
-        self.dir.mkdir(parents=True, exist_ok=True)
+    def _env(self) -> dict:
         env = {**os.environ, PARENT_ENV: str(os.getpid())}
         if self.settings.threads is not None:  # N workers on N cores: no attempt oversubscribes them
             env.update({k: str(self.settings.threads) for k in THREAD_ENV})
+        return env
+
+    def _run_child(self, try_no: int) -> tuple[int | None, str | None]:
+        """One try; returns (exit status, or None when it was killed, and why it was killed: None,
+        "hang" or "memory")."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        if self.settings.warm_workers:
+            return self._run_in_worker(try_no)
+        env = self._env()
         with open(self.dir / CHILD_LOG, "ab") as log:
             proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep_child"], stdin=subprocess.PIPE,
                                     stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
@@ -116,21 +246,54 @@ class AttemptSupervisor:
             proc.stdin.close()
         except BrokenPipeError:  # the child died at once; its exit status tells why
             pass
-        mark, last_change = _progress_mark(self.dir), time.monotonic()
+        watch = _Watchdog(self.dir, self.settings, proc.pid)
         while proc.poll() is None:
             time.sleep(self.settings.poll_s)
-            now_mark = _progress_mark(self.dir)
-            if now_mark != mark:
-                mark, last_change = now_mark, time.monotonic()
-            elif time.monotonic() - last_change > self.settings.hang_timeout_s:
+            killed = watch.verdict()
+            if killed:
                 _kill(proc)
-                return None, True
-        return proc.returncode, False
+                return None, killed
+        return proc.returncode, None
 
-    def _failure(self, code: int | None, hung: bool) -> dict | None:
+    def _run_in_worker(self, try_no: int) -> tuple[int | None, str | None]:
+        env = self._env()
+        # one worker per thread (cab-suite-check supervises from a pool of threads) and environment
+        key = tuple(sorted((k, env.get(k)) for k in (*THREAD_ENV, PARENT_ENV))) + (sys.executable,
+                                                                                 threading.get_ident())
+        worker = _WORKERS.get(key)
+        if worker is not None and not worker.alive():
+            worker.close()
+            worker = None
+        if worker is None:
+            worker = _WORKERS[key] = WarmWorker(env, self.dir / CHILD_LOG)
+        if self.on_child is not None:
+            self.on_child(worker.proc, try_no)
+        job = {"config": self.config, "output_dir": str(self.dir), "log": str(self.dir / CHILD_LOG)}
+        reply = None if worker.submit(job) else {"status": worker.proc.wait()}
+        watch = _Watchdog(self.dir, self.settings, worker.proc.pid)
+        while reply is None:
+            reply = worker.reply(self.settings.poll_s)
+            killed = None if reply is not None else watch.verdict()
+            if killed:
+                _kill(worker.proc)
+                worker.close()
+                _WORKERS.pop(key, None)
+                return None, killed
+        code = int(reply["status"])
+        s = self.settings
+        if code != 0 or not worker.alive() or worker.attempts >= s.worker_max_attempts \
+                or worker.rss_mb > s.worker_max_rss_mb:
+            worker.close()
+            _WORKERS.pop(key, None)
+        return code, None
+
+    def _failure(self, code: int | None, killed: str | None) -> dict | None:
         """Classify a finished try: None when it is a valid attempt, else the failure record."""
-        if hung:
+        if killed == "hang":
             return {"kind": "hang", "detail": f"no progress for {self.settings.hang_timeout_s:g} s; killed"}
+        if killed == "memory":
+            return {"kind": "memory", "detail": f"the attempt's process held more than "
+                                                f"{self.settings.worker_max_rss_mb:g} MiB; killed"}
         if code == EXIT_CONFIG or code == EXIT_RENDERER:
             raise ChildConfigError(f"attempt {self.dir}: {_log_tail(self.dir, 600).strip()}")
         if code != 0:
@@ -149,8 +312,8 @@ class AttemptSupervisor:
         s = self.settings
         for try_no in range(1, s.max_retries + 2):
             t0 = time.monotonic()
-            code, hung = self._run_child(try_no)
-            failure = self._failure(code, hung)
+            code, killed = self._run_child(try_no)
+            failure = self._failure(code, killed)
             if failure is None:
                 return annotate_result(self.dir, infrastructure_failures(self.dir))
             failure.update(try_no=try_no, wall_seconds=round(time.monotonic() - t0, 3), at=time.time())

@@ -95,11 +95,12 @@ def test_unknown_key_in_a_sweep(tmp_path):
     (["+record.vidoe=false"], "unknown key 'record.vidoe'; did you mean record.video? valid keys under record: "
                               "video, video_every_steps, video_size"),
     (["sweep.max_retries=1"], "unknown key 'sweep.max_retries'; did you mean sweep.max_infra_retries? valid keys under "
-                              "sweep: max_infra_retries, hang_timeout_s, retry_backoff_s, threads_per_attempt"),
+                              "sweep: max_infra_retries, hang_timeout_s, retry_backoff_s, threads_per_attempt, "
+                              "warm_workers, worker_max_attempts, worker_max_rss_mb"),
     (["sim=mujoco", "+sim.physic.impratio=2"], "unknown key 'sim.physic.impratio'; did you mean sim.physics? valid keys "
                                                "under sim (sim=mujoco): name, render, physics"),
     (["sim=sapien", "+sim.physics.impratio=2"], "unknown key 'sim.physics.impratio'; valid keys under sim (sim=sapien): "
-                                                "name, render"),
+                                                "name, render, brdf_cache"),
     (["harness=mcp", "harness.transprt=http"], "unknown key 'harness.transprt'; did you mean harness.transport? valid "
      f"keys under harness (harness=mcp): {', '.join(option_keys('harness/mcp'))}"),
     (["harness.transport=http"], "unknown key 'harness.transport'; valid keys under harness (harness=auto): name"),
