@@ -327,6 +327,33 @@ def check_seeded_reset_identical(factory: SimFactory) -> None:
         b.close()
 
 
+def check_sequential_builds_identical(factory: SimFactory) -> None:
+    """A world built after another was used and closed in the same process (a warm worker's next
+    attempt) starts, steps and renders exactly as the first did: nothing leaks across builds."""
+    def run_once() -> tuple[dict, dict]:
+        sim = build(factory)
+        try:
+            images = {cam: sim.render(cam) for cam in sim.camera_names()}
+            _motion_script(sim, 120)
+            images.update({f"{cam}@120": sim.render(cam) for cam in sim.camera_names()})
+            return world_state(sim), images
+        finally:
+            sim.close()
+
+    state1, images1 = run_once()
+    other = build(factory)  # a different history in between: stepped, snapshotted, rendered, closed
+    try:
+        _motion_script(other, 60, phase=17.0)
+        other.restore_state(other.save_state())
+        other.render(HEAD_CAMERA)
+    finally:
+        other.close()
+    state2, images2 = run_once()
+    _assert_bit_equal(state1, state2, "second build in the process")
+    for k in images1:
+        assert np.array_equal(images1[k], images2[k]), f"{k}: images differ in the second build"
+
+
 def check_snapshot_restore_exact(factory: SimFactory, n_steps: int = 150) -> None:
     """A restore reproduces the snapshot bit-exactly; replays from the snapshot agree to 1e-6."""
     sim = build(factory)
@@ -601,6 +628,7 @@ def check_object_api(factory: SimFactory) -> None:
 CHECKS: list[Callable[[SimFactory], None]] = [
     check_build_and_names,
     check_seeded_reset_identical,
+    check_sequential_builds_identical,
     check_snapshot_restore_exact,
     check_snapshot_portable,
     check_bad_commands,
@@ -613,7 +641,8 @@ CHECKS: list[Callable[[SimFactory], None]] = [
 
 
 # Checks that render images; the others also run on a physics-only build.
-NEEDS_RENDERER: tuple[Callable[[SimFactory], None], ...] = (check_seeded_reset_identical, check_cameras)
+NEEDS_RENDERER: tuple[Callable[[SimFactory], None], ...] = (check_seeded_reset_identical,
+                                                            check_sequential_builds_identical, check_cameras)
 
 
 def check_id(check: Callable) -> str:
