@@ -66,7 +66,7 @@ class ToolResponse:
 
 class StepClock:
     """The only way physics advances during an attempt: charges simulated time, polls latches,
-    feeds the video."""
+    feeds the video. ``callbacks`` are called with the step count after every step."""
 
     def __init__(self, sim, ledger: BudgetLedger):
         self.sim = sim
@@ -75,17 +75,18 @@ class StepClock:
         self.callbacks: list = []
 
     def step(self, n: int = 1) -> None:
+        sim_step, charge, callbacks = self.sim.step, self.ledger.charge_steps, self.callbacks
         for _ in range(int(n)):
-            self.sim.step(1)
+            sim_step(1)
             self.steps += 1
-            self.ledger.charge_steps(1)
-            for cb in self.callbacks:
+            charge(1)
+            for cb in callbacks:
                 cb(self.steps)
 
 
 class VerdictTracker:
-    """Hidden scoring. Latch tasks poll every ``poll_every`` steps; an event already true at the
-    start is voided until it has been false once."""
+    """Hidden scoring. Latch tasks poll (``Verifier.holds``) every ``poll_every`` steps; an event
+    already true at the start is voided until it has been false once."""
 
     def __init__(self, verifier: Verifier, world: WorldView):
         self.v = verifier
@@ -99,8 +100,7 @@ class VerdictTracker:
     def poll(self, step: int) -> None:
         if self.v.scoring != "latch" or self.latched or step % self.v.poll_every:
             return
-        ev = self.v.evaluate(self.w)
-        if ev.success:
+        if self.v.holds(self.w):
             self.observed = True
             if self.armed:
                 self.latched, self.latched_at_step = True, step
@@ -180,11 +180,19 @@ class Episode:
         self.world = WorldView(self.sim, self.emb, self.ctx.gripper_cmd, self.instance.info)
         self.verifier = self.task.verifier(self.instance)
         self.verdict = VerdictTracker(self.verifier, self.world)
-        self.clock.callbacks.append(self.verdict.poll)
+        if self.verifier.scoring == "latch":
+            self.clock.callbacks.append(self.verdict.poll)
+        self._video_samples: list | None = None
+        self._video_render_seconds: float | None = None
         if self._video_every:
             self.recorder.open_video(1.0 / (self.sim.timestep * self._video_every), tuple(rec.get("video_size", [320, 240])))
-            self.recorder.video.add(self.sim.render(RECORD_CAMERA))
-            self.clock.callbacks.append(self._video_frame)
+            first = self.sim.render_sample()
+            if first is not None:  # the video is rendered from state samples once the attempt is over
+                self._video_samples = [first]
+                self.clock.callbacks.append(self._video_sample)
+            else:  # a simulator that cannot render from samples: frames rendered in the loop
+                self.recorder.video.add(self.sim.render(RECORD_CAMERA))
+                self.clock.callbacks.append(self._video_frame)
         self.registry = build_registry()
         self.recorder.write_private("scene_info.json", {"task": spec.task, "seed": spec.seed, "info": self.instance.info,
                                                         "objects": self.sim.object_names()})
@@ -197,6 +205,27 @@ class Episode:
     def _video_frame(self, step: int) -> None:
         if step % self._video_every == 0 and self.recorder.video is not None:
             self.recorder.video.add(self.sim.render(RECORD_CAMERA))
+
+    def _video_sample(self, step: int) -> None:
+        """What the video frame of this step takes, kept for later (:meth:`Simulator.render_sample`:
+        a read that changes nothing, a few microseconds): rendering 320x240 costs more than the
+        25 physics steps between two frames, so it is kept out of the motion loop."""
+        if step % self._video_every == 0 and self._video_samples is not None:
+            self._video_samples.append(self.sim.render_sample())
+
+    def _render_video(self) -> None:
+        """The frames of the samples taken during the attempt, rendered and encoded now that its
+        physics is over: the same frames the loop would have rendered, bit for bit
+        (:meth:`Simulator.render_samples`), and the world is left as it was."""
+        samples, self._video_samples = self._video_samples, None
+        if not samples or self.recorder.video is None:
+            return
+        t0 = time.monotonic()
+        try:
+            self.sim.render_samples(RECORD_CAMERA, samples, self.recorder.video.add)
+        except Exception as e:  # never lose the attempt because its video failed
+            self.recorder.event("video_error", error=repr(e), traceback=traceback.format_exc())
+        self._video_render_seconds = time.monotonic() - t0
 
     def _on_observation(self, obs) -> None:
         self.recorder.save_observation(obs)
@@ -376,6 +405,7 @@ class Episode:
         except Exception as e:  # never lose the attempt because scoring failed
             verdict = {"success": False, "error": repr(e)}
         self._snapshot("end")
+        self._render_video()
         checkpoints = self._checkpoints(verdict)
         if self.sandbox is not None:
             self.sandbox.close()
@@ -400,7 +430,10 @@ class Episode:
                         "note": getattr(self.sandbox, "confinement_note", None)},
             "versions": self.versions(),
             "checkpoints": checkpoints,
-            "video": {"file": "video.mp4", "frames": self.recorder.video.frames, "every_steps": self._video_every}
+            "video": {"file": "video.mp4", "frames": self.recorder.video.frames, "every_steps": self._video_every,
+                      "rendered": "in the loop" if self._video_render_seconds is None else "after the attempt",
+                      **({} if self._video_render_seconds is None
+                         else {"render_seconds": round(self._video_render_seconds, 3)})}
             if self.recorder.video else None,
         }
         self.recorder.event("attempt_end", termination=self.termination, claim=self.claim)

@@ -8,6 +8,7 @@ as ``"ground"``. Names are privileged: they never reach the agent.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,6 +144,24 @@ class Simulator(ABC):
     @abstractmethod
     def render(self, name: str) -> np.ndarray:
         """RGB image, uint8 HxWx3, of the current state. BadCommand for an unknown camera."""
+
+    # -- rendering later (optional) -----------------------------------------------------------
+    def render_sample(self) -> object | None:
+        """A cheap record of what rendering the current state takes (the poses of everything
+        drawn), read without changing the world in any way: a run in which samples are taken
+        steps bit-identically to the same run without them. ``None`` where the backend cannot
+        render from samples (the default; also when it was built without a renderer): the host
+        then renders in the loop. The episode takes one every ``record.video_every_steps`` steps
+        and renders the video from them once the attempt is over (:meth:`render_samples`)."""
+        return None
+
+    def render_samples(self, name: str, samples: Iterable[object], emit: Callable[[np.ndarray], None]) -> None:
+        """For each of ``samples`` (from :meth:`render_sample` of this simulator), in order,
+        ``emit(image)`` with the image that ``render(name)`` gave in the state the sample was taken
+        in, bit for bit. Returns with the world exactly as it found it: nothing the contract reads
+        has changed and the steps that follow are those that would have followed without the call
+        (``emit`` must not use the simulator)."""
+        raise NotImplementedError(f"{type(self).__name__} does not render from samples")
 
     # -- state --------------------------------------------------------------------------------
     @abstractmethod

@@ -81,7 +81,7 @@ class Evaluation:
 class Verifier(ABC):
     """One task's success check. ``evaluate`` is the task's predicate with its named sub-predicates.
 
-    For ``scoring == "latch"`` the host polls ``evaluate`` every ``poll_every`` physics steps and
+    For ``scoring == "latch"`` the host polls ``holds`` every ``poll_every`` physics steps and
     latches success the first time it holds (an event already true at the start is voided);
     ``final_requirements`` must also hold at the end. For ``"final"`` only the end state counts.
     """
@@ -95,6 +95,12 @@ class Verifier(ABC):
 
     @abstractmethod
     def evaluate(self, w: WorldView) -> Evaluation: ...
+
+    def holds(self, w: WorldView) -> bool:
+        """``evaluate(w).success``: what latch polling asks every ``poll_every`` physics steps.
+        A task may answer it more cheaply (its cheapest predicate first, stopping at the first
+        that fails), never differently."""
+        return bool(self.evaluate(w).success)
 
     def final_requirements(self, w: WorldView) -> dict[str, bool]:
         return {}

@@ -70,7 +70,8 @@ def timestep_option_overrides_the_scene(cls: type) -> None:
 
 
 def physics_only_build_keeps_camera_geometry(physics_only: SimFactory) -> None:
-    """Without a renderer, camera names, sizes and poses still answer; pictures are refused."""
+    """Without a renderer, camera names, sizes and poses still answer; pictures (and render samples)
+    are refused."""
     sim = sc.build(physics_only)
     try:
         assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
@@ -78,6 +79,7 @@ def physics_only_build_keeps_camera_geometry(physics_only: SimFactory) -> None:
         assert sim.camera_pose(sc.WRIST_CAMERA).shape == (7,)
         with pytest.raises(RendererUnavailable, match="render: false"):
             sim.render(sc.HEAD_CAMERA)
+        assert sim.render_sample() is None  # the episode then renders in the loop, and fails there
         assert sim.versions()["render"] == "off"
     finally:
         sim.close()

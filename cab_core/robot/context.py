@@ -116,6 +116,7 @@ class RobotContext:
         self.pairs: dict[str, dict] = {}  # capture_motion_pair records by pair_id
         self._action_counter = itertools.count(1)
         self._pair_counter = itertools.count(1)
+        self._joint_idx: dict[tuple[str, ...], np.ndarray] = {}
 
     # -- ids ----------------------------------------------------------------------------------
     def next_action_id(self) -> str:
@@ -137,15 +138,20 @@ class RobotContext:
     def ee_pose(self, arm: str) -> np.ndarray:
         return self.sim.get_link_pose(self.arm(arm).ee_link)
 
+    def joint_indices(self, joints) -> np.ndarray:
+        """Positions of ``joints`` in the simulator's ``joint_names`` (looked up once a list)."""
+        key = tuple(joints)
+        idx = self._joint_idx.get(key)
+        if idx is None:
+            names = self.sim.joint_names
+            idx = self._joint_idx[key] = np.array([names.index(j) for j in key], dtype=np.intp)
+        return idx
+
     def arm_qpos(self, arm: str) -> np.ndarray:
-        names = self.sim.joint_names
-        q = self.sim.get_qpos()
-        return np.array([q[names.index(j)] for j in self.arm(arm).joints])
+        return self.sim.get_qpos()[self.joint_indices(self.arm(arm).joints)]
 
     def finger_qpos(self, arm: str) -> np.ndarray:
-        names = self.sim.joint_names
-        q = self.sim.get_qpos()
-        return np.array([q[names.index(j)] for j in self.arm(arm).gripper.joints])
+        return self.sim.get_qpos()[self.joint_indices(self.arm(arm).gripper.joints)]
 
     def finger_gap(self, arm: str) -> float:
         g = self.arm(arm).gripper

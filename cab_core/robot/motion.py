@@ -120,11 +120,6 @@ def robot_snapshot(ctx: RobotContext) -> dict:
 # ---------------------------------------------------------------------------------------------
 # execution primitives
 # ---------------------------------------------------------------------------------------------
-def _indices(ctx: RobotContext, joints) -> list[int]:
-    names = ctx.sim.joint_names
-    return [names.index(j) for j in joints]
-
-
 def _set_arm_targets(ctx: RobotContext, targets: dict[str, np.ndarray],
                      velocities: dict[str, np.ndarray] | None = None) -> None:
     """Arm joint position (and velocity) targets; every other joint keeps its position target
@@ -132,7 +127,7 @@ def _set_arm_targets(ctx: RobotContext, targets: dict[str, np.ndarray],
     t = ctx.sim.get_drive_targets().copy()
     v = np.zeros_like(t)
     for arm, q in targets.items():
-        idx = _indices(ctx, ctx.arm(arm).joints)
+        idx = ctx.joint_indices(ctx.arm(arm).joints)
         t[idx] = q
         if velocities is not None:
             v[idx] = velocities[arm]
@@ -141,26 +136,40 @@ def _set_arm_targets(ctx: RobotContext, targets: dict[str, np.ndarray],
 
 def _execute(ctx: RobotContext, trajs: dict[str, np.ndarray], settle: bool = True) -> int:
     """Stream joint position and velocity targets at one row per physics step (as a planned
-    trajectory is executed), then let the arms settle."""
+    trajectory is executed), then let the arms settle.
+
+    The rows for every driven joint are laid out before the first step (each arm's trajectory,
+    its last row held once it has ended, velocity targets from finite differences and zero
+    elsewhere; the other joints keep their position targets), so the loop only hands one row a
+    step to the simulator."""
     n = max((len(v) for v in trajs.values()), default=0)
     steps0 = ctx.clock.steps
     dt = ctx.sim.timestep
-    vel = {a: np.vstack([np.diff(tr, axis=0) / dt, np.zeros((1, tr.shape[1]))]) if len(tr) > 1 else np.zeros_like(tr)
-           for a, tr in trajs.items()}
-    for i in range(n):
-        _set_arm_targets(ctx, {a: tr[min(i, len(tr) - 1)] for a, tr in trajs.items()},
-                         {a: (vel[a][i] if i < len(vel[a]) else np.zeros(vel[a].shape[1])) for a in trajs})
-        ctx.clock.step(1)
+    sim, clock = ctx.sim, ctx.clock
+    if n:
+        pos = np.repeat(sim.get_drive_targets()[None, :], n, axis=0)
+        vel = np.zeros_like(pos)
+        for a, tr in trajs.items():
+            idx = ctx.joint_indices(ctx.arm(a).joints)
+            m = len(tr)
+            pos[:m, idx] = tr
+            pos[m:, idx] = tr[-1]
+            if m > 1:
+                vel[:m - 1, idx] = np.diff(tr, axis=0) / dt
+        for i in range(n):
+            sim.set_drive_targets(pos[i], vel[i])
+            clock.step(1)
     if trajs:
         _set_arm_targets(ctx, {a: tr[-1] for a, tr in trajs.items()})
     if settle and trajs:
-        final = {a: tr[-1] for a, tr in trajs.items()}
+        idx = np.concatenate([ctx.joint_indices(ctx.arm(a).joints) for a in trajs])
+        final = np.concatenate([trajs[a][-1] for a in trajs])
         for _ in range(SETTLE_MAX_STEPS):
-            err = max(float(np.max(np.abs(ctx.arm_qpos(a) - q))) for a, q in final.items())
-            vel = float(np.max(np.abs(ctx.sim.get_qvel())))
-            if err < 2e-3 and vel < 0.05:
+            err = float(np.max(np.abs(sim.get_qpos()[idx] - final)))
+            vel_now = float(np.max(np.abs(sim.get_qvel())))
+            if err < 2e-3 and vel_now < 0.05:
                 break
-            ctx.clock.step(1)
+            clock.step(1)
     if ctx.clock.steps > steps0:
         ctx.tick += 1
     return ctx.clock.steps - steps0
@@ -538,7 +547,7 @@ def set_gripper(ctx: RobotContext, args) -> ToolOutput:
     aid = ctx.next_action_id()
     old = ctx.gripper_cmd[arm]
     ctx.gripper_cmd[arm] = pos
-    idx = _indices(ctx, g.joints)
+    idx = ctx.joint_indices(g.joints)
     t0 = ctx.sim.get_drive_targets()[idx].copy()
     t1 = np.full(len(idx), g.closed_target + pos * (g.open_target - g.closed_target))
     n = max(50, int(math.ceil(GRIPPER_FULL_STEPS * abs(pos - old))))

@@ -135,6 +135,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         except ValueError as e:
             raise SimulatorError(f"MuJoCo could not compile the scene: {e}") from e
         self._model, self._data = model, mujoco.MjData(model)
+        self._render_data = None  # pictures of render samples (render_samples), made on first use
         try:
             self._index(plan, scene, embodiment)
             self._renderer = None
@@ -247,7 +248,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
             except Exception:  # noqa: BLE001 (best effort at teardown)
                 log.debug("freeing the MuJoCo render context failed", exc_info=True)
         self._renderer = None
-        self._model = self._data = None
+        self._model = self._data = self._render_data = None
 
     def _live(self):
         return live_or_error(self._model, self._closed)
@@ -438,6 +439,37 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         d = self._kinematics()
         mujoco.mj_camlight(self._model, d)
         return self._renderer.render(self._model, d, self._camera_ids[name], cam.spec.width, cam.spec.height)
+
+    def render_sample(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Copies of ``qpos``, ``mocap_pos`` and ``mocap_quat``: every pose the renderer draws
+        follows from them (``mj_kinematics``)."""
+        self._live()
+        if self._renderer is None:
+            return None
+        d = self._data
+        return d.qpos.copy(), d.mocap_pos.copy(), d.mocap_quat.copy()
+
+    def render_samples(self, name, samples, emit) -> None:
+        """Each sample goes into a second ``MjData`` of the model, used for pictures only (poses
+        from ``mj_kinematics`` and ``mj_camlight``, as :meth:`render` computes them); the
+        attempt's ``MjData`` is not touched."""
+        cam = self._camera(name)
+        if self._renderer is None:
+            raise RendererUnavailable("this MuJoCo simulator was built with render: false (physics only); "
+                                      "build it with render: true to capture images")
+        m = self._model
+        if self._render_data is None:
+            self._render_data = mujoco.MjData(m)
+        d = self._render_data
+        cid, w, h = self._camera_ids[name], cam.spec.width, cam.spec.height
+        for sample in samples:
+            qpos, mocap_pos, mocap_quat = sample
+            if qpos.shape != d.qpos.shape or mocap_pos.shape != d.mocap_pos.shape:
+                raise BadCommand("a render sample of another world")
+            d.qpos[:], d.mocap_pos[:], d.mocap_quat[:] = qpos, mocap_pos, mocap_quat
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_camlight(m, d)
+            emit(self._renderer.render(m, d, cid, w, h))
 
     # -- state --------------------------------------------------------------------------------
     def _layout(self) -> str:

@@ -164,6 +164,8 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def __init__(self, cfg: dict | None = None):
         cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
+        self._cfg = dict(cfg)  # for the render twin (render_samples)
+        self._twin: PybulletSimulator | None = None
         self._render_enabled = bool(cfg.get("render", True))
         self._renderer = _renderer.choose(str(cfg.get("renderer", "auto"))) if self._render_enabled else None
         self._timestep_override = timestep_option(cfg, BACKEND)
@@ -503,8 +505,11 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             self._cameras[spec.name] = _Camera(spec, mount, np.asarray(pose_or_bad(spec.pose)), proj)
 
     def close(self) -> None:
-        """Disconnect the physics client. Idempotent."""
+        """Disconnect the physics client (and the render twin's). Idempotent."""
         self._closed = True
+        twin, self._twin = self._twin, None
+        if twin is not None:
+            twin.close()
         c, self._c = self._c, None
         if c is None:
             return
@@ -676,6 +681,44 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
                                      **self._shading.kwargs())
         rgba = np.asarray(out[2], dtype=np.uint8).reshape(h, w, 4)
         return np.ascontiguousarray(rgba[..., :3])
+
+    def render_sample(self) -> tuple | None:
+        """Base position and orientation (the centre-of-mass frame, as Bullet holds them) and
+        joint positions of every multibody: the renderer draws from those."""
+        c = self._live()
+        if self._renderer is None:
+            return None
+        out = []
+        for mb in self._multibodies():
+            pos, orn = c.getBasePositionAndOrientation(mb.uid)
+            q = tuple(s[0] for s in c.getJointStates(mb.uid, mb.joints)) if mb.joints else ()
+            out.append((pos, orn, q))
+        return tuple(out)
+
+    def render_samples(self, name, samples, emit) -> None:
+        """Pictured in a render twin: a second client built from the same description on first
+        use (0.2-0.5 s for an aloha scene on a 2-core CPU), never stepped, into which each sample's
+        poses are written. Writing poses into this world would disturb its contact caches, so it is
+        not touched."""
+        self._camera(name)
+        if self._renderer is None:
+            raise RendererUnavailable("this PyBullet simulator was built with render: false (physics only); "
+                                      "build it with render: true to capture images")
+        if self._twin is None:
+            twin = PybulletSimulator(self._cfg)
+            twin.build(self._scene_spec, self._emb)
+            self._twin = twin
+        twin = self._twin
+        c = twin._c
+        mbs = twin._multibodies()
+        for sample in samples:
+            if len(sample) != len(mbs):
+                raise BadCommand("a render sample of another world")
+            for mb, (pos, orn, q) in zip(mbs, sample):
+                c.resetBasePositionAndOrientation(mb.uid, pos, orn)
+                for j, v in zip(mb.joints, q):
+                    c.resetJointState(mb.uid, j, v, 0.0)
+            emit(twin.render(name))
 
     # -- state --------------------------------------------------------------------------------
     def _multibodies(self) -> list[_MultiBody]:

@@ -666,9 +666,41 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         if self._rendered_version != self._version:
             self._scene.update_render()
             self._rendered_version = self._version
+        return self._picture(cam)
+
+    @staticmethod
+    def _picture(cam: _Camera) -> np.ndarray:
         cam.component.take_picture()
         rgba = cam.component.get_picture("Color")  # float32 RGBA in [0, 1]
         return (np.clip(rgba[..., :3], 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+    def render_sample(self) -> bytes | None:
+        """The pose of every entity of the scene (``Scene.pack_poses``, 28 bytes an entity, about
+        3 us): what the renderer reads. A read of the entities' poses, which PhysX writes after
+        each step; PhysX itself is not asked anything."""
+        self._live()
+        return None if self._rs is None else self._scene.pack_poses()
+
+    def render_samples(self, name, samples, emit) -> None:
+        """Each sample's poses go into the scene's entities only (``Scene.unpack_poses`` sets
+        the entity poses the renderer reads without telling PhysX: bodies, joints, velocities and
+        contact caches stay as they are), are pictured, and the current entity poses are put back."""
+        cam = self._camera(name)
+        if cam.component is None:
+            raise RendererUnavailable("this SAPIEN simulator was built with render: false (physics only); "
+                                      "build it with render: true to capture images")
+        scene = self._scene
+        now = scene.pack_poses()
+        try:
+            for sample in samples:
+                if not isinstance(sample, bytes) or len(sample) != len(now):
+                    raise BadCommand("a render sample of another world")
+                scene.unpack_poses(sample)
+                scene.update_render()
+                emit(self._picture(cam))
+        finally:
+            scene.unpack_poses(now)
+            self._rendered_version = -1  # the renderer holds the last sample's poses
 
     # -- state --------------------------------------------------------------------------------
     def _layout(self) -> str:

@@ -121,11 +121,17 @@ class BeatBlockHammerVerifier(Verifier):
         self.guarded_objects = (self.hammer,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
+    def _face_over_block(self, w: WorldView) -> tuple[bool, np.ndarray]:
         face = transform_point(w.pose(self.hammer), self.face_local)
         top = transform_point(w.pose(self.block), self.top_local)
         d = face - top
-        over = bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol)
+        return bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol), d
+
+    def holds(self, w: WorldView) -> bool:
+        return self._face_over_block(w)[0] and bool(w.in_contact(self.hammer, self.block))
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        over, d = self._face_over_block(w)
         touch = bool(w.in_contact(self.hammer, self.block))
         return Evaluation(
             success=over and touch,

@@ -53,6 +53,16 @@ class ClickBellVerifier(Verifier):
         self.grippers = info.get("gripper_bodies")
         self.guarded_objects = ()
 
+    def holds(self, w: WorldView) -> bool:
+        # success needs the side gripper closed and a gripper touching the bell: check both first
+        if not w.gripper_command(self.arm) < GRIPPER_CLOSED:
+            return False
+        if not any(c.point is not None and c.impulse > 0 and ((c.b == self.bell and is_gripper(c.a, self.grippers))
+                                                               or (c.a == self.bell and is_gripper(c.b, self.grippers)))
+                   for c in w.contacts()):
+            return False
+        return bool(self.evaluate(w).success)
+
     def evaluate(self, w: WorldView) -> Evaluation:
         target = transform_point(w.pose(self.bell), self.point_local)
         best = None

@@ -88,6 +88,10 @@ class DumpBinBigbinVerifier(Verifier):
         self.guarded_objects = (self.bin, *self.balls)
         self.guard_min_z = float(info["guard_min_z"])
 
+    def holds(self, w: WorldView) -> bool:
+        return (float(w.pose(self.bin)[2]) >= self.min_z
+                and all(self.band[0] <= float(w.pose(n)[2]) <= self.band[1] for n in self.balls))
+
     def evaluate(self, w: WorldView) -> Evaluation:
         bz = float(w.pose(self.bin)[2])
         zs = [float(w.pose(n)[2]) for n in self.balls]

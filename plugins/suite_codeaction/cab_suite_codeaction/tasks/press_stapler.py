@@ -71,6 +71,15 @@ class PressStaplerVerifier(Verifier):
     def press_point(self, w: WorldView) -> np.ndarray:
         return arm_point(self.info, w.pose(self.name), hinge_q(w, self.info), self.point_arm)
 
+    def holds(self, w: WorldView) -> bool:
+        # success needs a gripper touching the stapler near the press point: look for the touch first
+        prefix = self.name + "/"
+        if not any(c.point is not None and c.impulse > 0 and ((c.a.startswith(prefix) and is_gripper(c.b, self.grippers))
+                                                               or (c.b.startswith(prefix) and is_gripper(c.a, self.grippers)))
+                   for c in w.contacts()):
+            return False
+        return bool(self.evaluate(w).success)
+
     def evaluate(self, w: WorldView) -> Evaluation:
         target = self.press_point(w)
         prefix = self.name + "/"
