@@ -2,7 +2,9 @@
 figures of the same scene, so the host's overhead reads as a ratio.
 
 Targets (2-core CPU): non-image, non-motion tools p50 <= 5 ms; capture_head p50 <= 60 ms;
-motion at least 3x faster than real time; reset <= 3 s.
+motion at least 3x faster than real time, and its wall time per simulated second at most 2x that
+of raw physics with the arms moving (recording on: the video is rendered from state samples after
+the attempt, reported beside it); reset <= 3 s.
 """
 from __future__ import annotations
 
@@ -112,7 +114,10 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
     raw = {"step_rate_hz": 1.0 / raw_step, "realtime_factor_physics_only": (1.0 / raw_step) * dt,
            "render_head_p50_ms": 1e3 * _pct(rs, 50)}
     versions = ep.versions()
+    video = ep.finish().get("video") or {}  # the attempt's video: rendered now, from the motion's samples
     ep.close()
+    if video.get("render_seconds") is not None:
+        motion["video_after_attempt_s_per_sim_s"] = video["render_seconds"] / max(sim_s, 1e-9)
     non_image_p50 = [v["p50_ms"] for k, v in figures.items() if k not in ("capture_head", "check_tcp_pose_reachability")]
     return {
         "task": task, "sim": sim_name, "n": n, "tools": figures,
@@ -124,6 +129,7 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
             "non_image_tools_p50_le_5ms": max(non_image_p50) <= 5.0,
             "capture_head_p50_le_60ms": figures["capture_head"]["p50_ms"] <= 60.0,
             "motion_ge_3x_realtime": motion["realtime_factor"] >= 3.0,
+            "motion_le_2x_raw_physics": motion["wall_s_per_sim_s"] / (raw_step / dt) <= 2.0,
             "reset_le_3s": statistics.median(resets) <= 3.0,
         },
         "versions": versions,
@@ -160,6 +166,8 @@ def main() -> None:
     print(f"{'reset (s, p50 of 3)':<30}{res['reset_s']['p50']:>10.2f}")
     m, r = res["motion"], res["raw"]
     print(f"{'motion wall s per sim s':<30}{m['wall_s_per_sim_s']:>10.3f}   ({m['realtime_factor']:.1f}x real time)")
+    if "video_after_attempt_s_per_sim_s" in m:
+        print(f"{'video after attempt s per sim s':<30}{m['video_after_attempt_s_per_sim_s']:>10.3f}   (rendered from state samples)")
     print(f"{'raw step rate, arms moving (Hz)':<30}{r['step_rate_hz']:>10.0f}   ({r['realtime_factor_physics_only']:.1f}x real time)")
     print(f"{'raw head render p50 (ms)':<30}{r['render_head_p50_ms']:>10.2f}")
     for k, v in res["ratios"].items():
