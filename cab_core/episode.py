@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
+from . import __version__, numerics
 from .budget import BudgetLedger
 from .errors import AttemptEnded, BudgetExhausted, CabError, ObservationUnavailable, ToolArgumentError
 from .faults import is_infrastructure_fault, tool_error_payload
@@ -461,7 +461,8 @@ class Episode:
             except metadata.PackageNotFoundError:
                 pass
         return {"cab": __version__, "python": platform.python_version(), "platform": platform.platform(),
-                "simulator": self.sim.versions(), "planner": self.planner.versions(), "packages": pk}
+                "simulator": self.sim.versions(), "planner": self.planner.versions(), "packages": pk,
+                "numerics": numerics.describe()}
 
     def close(self) -> None:
         try:
