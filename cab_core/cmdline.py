@@ -10,7 +10,7 @@ directory exists). It reads the config groups and their options from Hydra's own
 What is checked:
 
 * the option of every config group (``task=``, ``sim=``, ``model=``..., each value of a sweep);
-* keys under ``budget``, ``sandbox``, ``record``, ``sweep`` (the primary config's), ``sim`` and
+* keys under ``budget``, ``sandbox``, ``record``, ``perturb``, ``sweep`` (the primary config's), ``sim`` and
   ``harness`` (the selected option's config, for each option a sweep selects), with or without
   ``+``/``++``; an empty mapping of an option (``sim.physics: {}``) is open: the names in it are
   the plugin's to check when it is created, before its simulator starts;
@@ -31,7 +31,7 @@ from typing import Any
 
 from .errors import ConfigError
 
-CHECKED_SECTIONS = ("budget", "sandbox", "record", "sweep", "sim", "harness")
+CHECKED_SECTIONS = ("budget", "sandbox", "record", "perturb", "sweep", "sim", "harness")
 OPTION_SECTIONS = ("sim", "harness")  # their keys are the selected option's
 BUDGET_KEYS = {"tool_calls": int, "sim_seconds": float, "wall_seconds": float, "run_code_max_internal_calls": int}
 MAIN_CONFIG_MODULE = "cab_core.cli"  # the module of the Hydra app (its config_path is relative to it)

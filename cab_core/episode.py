@@ -16,6 +16,7 @@ from . import __version__, numerics
 from .budget import BudgetLedger
 from .errors import AttemptEnded, BudgetExhausted, CabError, ObservationUnavailable, ToolArgumentError
 from .faults import is_infrastructure_fault, tool_error_payload
+from .perturb import Perturbation, perturb_scene
 from .recording import RECORD_VERSION, Recorder
 from .robot.context import ObservationStore, RobotContext
 from .scene import CameraSpec
@@ -48,6 +49,7 @@ class AttemptSpec:
     embodiment_cfg: dict = field(default_factory=dict)
     model_cfg: dict = field(default_factory=dict)
     harness_cfg: dict = field(default_factory=dict)
+    perturb: dict | None = None  # cab_core.perturb.Perturbation fields; None: the instance as sampled
 
     def as_record(self) -> dict:
         """Everything but the output directory: what a replay needs to rebuild the attempt."""
@@ -157,6 +159,10 @@ class Episode:
         t0 = time.monotonic()
         self.instance: SceneInstance = self.task.build(spec.seed, self.emb)
         scene = self.instance.scene
+        self.perturbation = None
+        if spec.perturb is not None:
+            p = Perturbation(**spec.perturb)
+            self.perturbation = {**p.as_record(), "objects": perturb_scene(scene, p)}
         rec = spec.record or {}
         self._video_every = int(rec.get("video_every_steps", 25)) if rec.get("video", True) else 0
         if self._video_every:
@@ -195,7 +201,8 @@ class Episode:
                 self.clock.callbacks.append(self._video_frame)
         self.registry = build_registry()
         self.recorder.write_private("scene_info.json", {"task": spec.task, "seed": spec.seed, "info": self.instance.info,
-                                                        "objects": self.sim.object_names()})
+                                                        "objects": self.sim.object_names(),
+                                                        "perturbation": self.perturbation})
         self._snapshot("start")
         self.setup_seconds = time.monotonic() - t0
         self.recorder.event("attempt_start", task=spec.task, seed=spec.seed, attempt=spec.attempt,
@@ -417,6 +424,7 @@ class Episode:
             **({"agent": self.agent} if self.agent is not None else {}),
             "instruction": self.task.info.instruction,
             "scoring": self.verifier.scoring,
+            **({"perturbation": self.perturbation} if self.perturbation is not None else {}),
             "verdict": verdict,
             "termination": self.termination,
             "claim": self.claim,

@@ -9,6 +9,7 @@ from .cmdline import BUDGET_KEYS, check_budget_value
 from .episode import AttemptSpec, Episode
 from .errors import ConfigError
 from .faults import is_infrastructure_fault
+from .perturb import Perturbation
 
 log = logging.getLogger("cab")
 
@@ -53,6 +54,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
     sim_s = info.budget_sim_s if b.get("sim_seconds") is None else b["sim_seconds"]
     wall_s = info.budget_wall_s if b.get("wall_seconds") is None else b["wall_seconds"]
     max_internal = 500 if b.get("run_code_max_internal_calls") is None else b["run_code_max_internal_calls"]
+    perturbation = Perturbation.from_cfg(c.get("perturb"))
     return AttemptSpec(
         task=info.name, seed=int(seed), attempt=int(attempt), sim=c["sim"]["name"], embodiment=c["embodiment"]["name"],
         planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
@@ -61,6 +63,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
         sandbox=dict(c.get("sandbox") or {}), record=dict(c.get("record") or {}),
         sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
         harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},
+        perturb=None if perturbation is None else perturbation.as_record(),
     )
 
 

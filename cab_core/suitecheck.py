@@ -26,8 +26,10 @@ def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
 
     out = []
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
-        for task, seed, agent, _, sim in jobs:
+        for task, seed, agent, _, sim, *perturb in jobs:
             overrides = [f"task={task}", f"seed={seed}", f"model={agent}", f"sim={sim}", "attempt=1"]
+            if perturb and perturb[0] is not None:
+                overrides.append(f"perturb.seed={perturb[0]}")
             cfg = compose(config_name="config", overrides=normalise_overrides(overrides))
             plain = OmegaConf.to_container(cfg, resolve=True)
             if cold and "brdf_cache" in plain["sim"]:
@@ -44,20 +46,21 @@ def run_one(config: dict, out: str, settings) -> dict:
     from .sweep_supervisor import AttemptSupervisor
 
     task, seed, agent, sim = config["task"]["name"], config["seed"], config["model"]["name"], config["sim"]["name"]
+    perturb = (config.get("perturb") or {}).get("seed")
     info = task_info(task)
     identity = {"task": task, "seed": seed, "attempt": 1, "sim": sim, "model": agent}
     t0 = time.monotonic()
     try:
         r = AttemptSupervisor(config, Path(out), identity, settings).run()
     except Exception as e:  # report, never stop the whole check
-        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "error": repr(e),
+        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb, "error": repr(e),
                 "wall_s": time.monotonic() - t0}
     if is_infrastructure_failure(r):
-        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "wall_s": time.monotonic() - t0,
-                "error": f"infrastructure failure: {r['termination'].get('detail')}"}
+        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb,
+                "wall_s": time.monotonic() - t0, "error": f"infrastructure failure: {r['termination'].get('detail')}"}
     ck = r.get("checkpoints") or {}
     return {
-        "task": task, "seed": seed, "agent": agent, "sim": sim, "dir": out,
+        "task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb, "dir": out,
         "success": bool(r["verdict"].get("success")), "termination": r["termination"]["reason"],
         "calls": r["budget"]["tool_calls_used"], "calls_limit": r["budget"]["tool_calls_limit"],
         "sim_s": r["budget"]["sim_seconds_used"], "sim_s_limit": r["budget"]["sim_seconds_limit"],
@@ -72,11 +75,12 @@ def run_one(config: dict, out: str, settings) -> dict:
 
 
 def check(tasks: list[str], seeds: list[int] | None, jobs: int, out: Path, agents=("oracle", "idle"),
-          sims: tuple[str, ...] = ("sapien",), cold: bool = False) -> list[dict]:
+          sims: tuple[str, ...] = ("sapien",), cold: bool = False, perturb: int = 0) -> list[dict]:
     """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
     worker process that runs its attempts one after another (``sweep.warm_workers``), SAPIEN's BRDF
     table read from the cache. ``cold``: a fresh process per attempt and no BRDF cache, as a
-    ``cab -m`` sweep ran attempts before warm workers, for comparison."""
+    ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
+    ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.perturb``)."""
     from .catalog import task_info
     from .sweep_supervisor import SupervisorConfig, close_workers
 
@@ -85,7 +89,9 @@ def check(tasks: list[str], seeds: list[int] | None, jobs: int, out: Path, agent
         for s in (seeds if seeds is not None else [task_info(t).seed]):
             for sim in sims:
                 for a in agents:
-                    jobs_list.append((t, s, a, str(out / sim / t / f"seed-{s}" / a), sim))
+                    for k in (range(1, perturb + 1) if perturb else [None]):
+                        where = out / sim / t / f"seed-{s}" / a / (f"perturb-{k}" if k else "")
+                        jobs_list.append((t, s, a, str(where), sim, k))
     configs = attempt_configs(jobs_list, cold)
     settings = SupervisorConfig(warm_workers=not cold, retry_backoff_s=1.0)
     rows: list[dict] = []
@@ -95,13 +101,14 @@ def check(tasks: list[str], seeds: list[int] | None, jobs: int, out: Path, agent
             for f in cf.as_completed(futs):
                 row = f.result()
                 rows.append(row)
-                print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}: "
+                print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}"
+                      + (f" perturb={row['perturb']}" if row.get("perturb") else "") + ": "
                       f"{'error ' + row['error'] if 'error' in row else ('success' if row['success'] else 'fail')}",
                       file=sys.stderr, flush=True)
     finally:
         close_workers()
-    order = {(t, s, a, sim): i for i, (t, s, a, _, sim) in enumerate(jobs_list)}
-    rows.sort(key=lambda r: order[(r["task"], r["seed"], r["agent"], r["sim"])])
+    order = {(t, s, a, sim, k): i for i, (t, s, a, _, sim, k) in enumerate(jobs_list)}
+    rows.sort(key=lambda r: order[(r["task"], r["seed"], r["agent"], r["sim"], r.get("perturb"))])
     return rows
 
 
@@ -150,6 +157,34 @@ def cross_sim(rows: list[dict]) -> dict:
     return out
 
 
+PERTURBED_SUCCESS_MIN = 0.95  # every oracle, on each simulator, over its perturbed runs
+
+
+def robustness(rows: list[dict]) -> dict:
+    """``{task: {sim: {"successes", "runs", "rate"}}}`` over the oracle attempts (all seeds and
+    perturbations of the check)."""
+    out: dict[str, dict[str, dict]] = {}
+    for r in rows:
+        if r["agent"] != "oracle":
+            continue
+        cell = out.setdefault(r["task"], {}).setdefault(r["sim"], {"successes": 0, "runs": 0})
+        cell["runs"] += 1
+        cell["successes"] += int("error" not in r and bool(r["success"]) and r["calls"] <= r["calls_limit"]
+                                 and r["sim_s"] <= r["sim_s_limit"])
+    for cells in out.values():
+        for c in cells.values():
+            c["rate"] = round(c["successes"] / c["runs"], 3)
+    return out
+
+
+def print_robustness(table: dict, sims: list[str]) -> None:
+    print(f"{'task':<26}" + "".join(f"{s:>16}" for s in sims))
+    print("-" * (26 + 16 * len(sims)))
+    for task, cells in table.items():
+        print(f"{task:<26}" + "".join(f"{cells[s]['successes']:>9}/{cells[s]['runs']:<6}" if s in cells else f"{'-':>16}"
+                                      for s in sims))
+
+
 def print_cross_sim(table: dict, sims: list[str]) -> None:
     hdr = f"{'task':<26}" + "".join(f"{s:>32}" for s in sims)
     print(hdr)
@@ -179,6 +214,10 @@ def main() -> None:
                     help="comma-separated simulators (default: sapien); several add a cross-simulator table")
     ap.add_argument("--cold", action="store_true",
                     help="a fresh process per attempt and no SAPIEN BRDF cache (start-up as before warm workers)")
+    ap.add_argument("--perturb", type=int, default=0, metavar="N",
+                    help="run each oracle N times under small perturbations (perturb.seed 1..N: objects moved "
+                         "<= 1 mm and turned <= 0.5 deg, physical parameters +-2 %%); success: every oracle "
+                         f"succeeds in at least {PERTURBED_SUCCESS_MIN * 100:.0f} %% of its runs on each simulator")
     ap.add_argument("--compare", action="store_true",
                     help="run the check twice, --cold then warm, and print both wall times and the speed-up")
     a = ap.parse_args()
@@ -199,7 +238,10 @@ def main() -> None:
     seeds = None if a.seeds is None else [int(s) for s in a.seeds.split(",")]
     out = Path(a.out) if a.out else Path("outputs") / "suite-check" / time.strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
-    agents = ("oracle",) if a.no_idle else ("oracle", "idle")
+    if a.perturb < 0:
+        print("cab-suite-check: --perturb must be >= 0", file=sys.stderr)
+        sys.exit(2)
+    agents = ("oracle",) if a.no_idle or a.perturb else ("oracle", "idle")
     timings = {}
     if a.compare:
         t0 = time.monotonic()
@@ -209,7 +251,7 @@ def main() -> None:
               f"verdict {verdict(cold_rows)}", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     rows = check(tasks, seeds, max(1, a.jobs), out / "warm" if a.compare else out, agents, tuple(sims),
-                 cold=a.cold)
+                 cold=a.cold, perturb=a.perturb)
     timings["cold_s" if a.cold else "warm_s"] = round(time.monotonic() - t0, 1)
     print_table(rows)
     table = cross_sim(rows)
@@ -217,6 +259,10 @@ def main() -> None:
         print()
         print_cross_sim(table, sims)
     v = verdict(rows)
+    robust = robustness(rows) if a.perturb else None
+    if robust is not None:
+        print(f"\noracle successes within budgets under perturbation ({a.perturb} noise seeds per instance):")
+        print_robustness(robust, sims)
     print(f"\noracle: {v['oracle_success_within_budget']}/{v['oracle_attempts']} successes within budgets; "
           f"idle: {v['idle_success']}/{v['idle_attempts']} successes, {v['idle_subgoal_at_start']} with a subgoal "
           f"satisfied at the start; checkpoints attained by the oracles: subgoals {v['subgoals_attained']}/"
@@ -227,10 +273,14 @@ def main() -> None:
         print(f"start-up compared on the same {len(rows)} attempts with {a.jobs} worker(s): cold "
               f"{timings['cold_s']:.0f} s, warm {timings['warm_s']:.0f} s: {timings['speedup']:.2f}x")
     (out / "summary.json").write_text(json.dumps({"sims": sims, "rows": rows, "verdict": v, "cross_sim": table,
-                                                  "timings": timings,
+                                                  "timings": timings, "perturb": a.perturb,
+                                                  "robustness": robust,
                                                   "verdict_by_sim": {s: verdict([r for r in rows if r["sim"] == s])
                                                                      for s in sims}}, indent=2))
     print(f"records and summary.json in {out}")
-    ok = (v["oracle_success_within_budget"] == v["oracle_attempts"] and v["idle_success"] == 0
-          and v["idle_subgoal_at_start"] == 0)
+    if robust is not None:  # perturbed: a rate per task and simulator, not every run
+        ok = all(c["rate"] >= PERTURBED_SUCCESS_MIN for cells in robust.values() for c in cells.values())
+    else:
+        ok = (v["oracle_success_within_budget"] == v["oracle_attempts"] and v["idle_success"] == 0
+              and v["idle_subgoal_at_start"] == 0)
     sys.exit(0 if ok else 1)
