@@ -21,7 +21,7 @@ from .recording import RECORD_VERSION, Recorder
 from .robot.context import ObservationStore, RobotContext
 from .scene import CameraSpec
 from .task import SceneInstance, Task
-from .verifier import Evaluation, Verifier, WorldView
+from .verifier import Evaluation, Verifier, WorldView, deciding_margin
 
 RECORD_CAMERA = "record_camera"
 
@@ -98,6 +98,7 @@ class VerdictTracker:
         self.latched = False
         self.latched_at_step: int | None = None
         self.observed = self.baseline.success
+        self.at_latch: Evaluation | None = None  # the evaluation at the step the event latched
 
     def poll(self, step: int) -> None:
         if self.v.scoring != "latch" or self.latched or step % self.v.poll_every:
@@ -106,6 +107,7 @@ class VerdictTracker:
             self.observed = True
             if self.armed:
                 self.latched, self.latched_at_step = True, step
+                self.at_latch = self.v.evaluate(self.w)
         else:
             self.armed = True
 
@@ -115,6 +117,13 @@ class VerdictTracker:
         guard = self.v.guard(self.w)
         core = self.latched if self.v.scoring == "latch" else ev.success
         success = bool(core and all(req.values()) and all(guard.values()))
+        # margins of what decided the verdict: a latched event's predicates as they were when it
+        # latched, otherwise as they are at the end; then the final requirements and the guard
+        decisive = self.at_latch if self.v.scoring == "latch" and self.at_latch is not None else ev
+        preds = {**decisive.predicates, **req, **guard}
+        margins = {**decisive.margins, **self.v.final_requirement_margins(self.w), **self.v.guard_margins(self.w)}
+        if self.v.scoring == "latch" and not self.latched:
+            preds = {**preds, "event_latched": False}  # the event never latched: no threshold can flip it
         return {
             "success": success,
             "scoring": self.v.scoring,
@@ -126,6 +135,9 @@ class VerdictTracker:
             "latch": {"latched": self.latched, "at_step": self.latched_at_step, "armed_at_start": not self.baseline.success}
             if self.v.scoring == "latch" else None,
             "baseline_success": bool(self.baseline.success),
+            "margins": {k: m.as_record() for k, m in margins.items()},
+            "margins_at": "latch" if decisive is self.at_latch else "final",
+            "margin": deciding_margin(preds, margins, success),
         }
 
 
@@ -162,7 +174,7 @@ class Episode:
         self.perturbation = None
         if spec.perturb is not None:
             p = Perturbation(**spec.perturb)
-            self.perturbation = {**p.as_record(), "objects": perturb_scene(scene, p)}
+            self.perturbation = {**p.as_record(), "objects": perturb_scene(scene, p, spec.seed)}
         rec = spec.record or {}
         self._video_every = int(rec.get("video_every_steps", 25)) if rec.get("video", True) else 0
         if self._video_every:

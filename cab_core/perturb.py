@@ -15,7 +15,8 @@ ground, not the robot):
   damping. The default material (the ground's) is not changed.
 
 The attempt records what was drawn (``result.json`` ``perturbation``), so a perturbed run can be
-repeated exactly. The scene seed still decides the instance; ``perturb.seed`` only the noise.
+repeated exactly. The scene seed still decides the instance; the noise is drawn from ``perturb.seed``
+and the scene seed together.
 """
 from __future__ import annotations
 
@@ -103,10 +104,11 @@ def _perturb_articulation(a: ArticulatedObject, rng: np.random.Generator, p: Per
     return {**moved, **{f"{k}_scale": v for k, v in f.items()}}
 
 
-def perturb_scene(scene: SceneSpec, p: Perturbation) -> dict:
-    """Perturb ``scene`` in place; returns what was drawn, per object (in the scene's order, so the
-    same seed perturbs the same instance the same way)."""
-    rng = np.random.default_rng([p.seed, 0x7E57])
+def perturb_scene(scene: SceneSpec, p: Perturbation, scene_seed: int) -> dict:
+    """Perturb ``scene`` (the instance of ``scene_seed``) in place; returns what was drawn, per
+    object, in the scene's order. The noise is drawn from (``p.seed``, ``scene_seed``): the same
+    pair perturbs the same instance the same way, and one noise seed differs between instances."""
+    rng = np.random.default_rng([p.seed, scene_seed, 0x7E57])
     drawn: dict[str, dict] = {}
     for b in scene.bodies:
         drawn[b.name] = _perturb_body(b, rng, p)

@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from .verifier import BORDERLINE_FRACTION
+
 
 def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
     """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
@@ -62,6 +64,8 @@ def run_one(config: dict, out: str, settings) -> dict:
     return {
         "task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb, "dir": out,
         "success": bool(r["verdict"].get("success")), "termination": r["termination"]["reason"],
+        "margin": (r["verdict"].get("margin") or {}).get("fraction"),
+        "margin_predicate": (r["verdict"].get("margin") or {}).get("predicate"),
         "calls": r["budget"]["tool_calls_used"], "calls_limit": r["budget"]["tool_calls_limit"],
         "sim_s": r["budget"]["sim_seconds_used"], "sim_s_limit": r["budget"]["sim_seconds_limit"],
         "ref_calls": info.reference_solution_api_calls, "ref_sim_s": info.reference_solution_sim_s,
@@ -74,19 +78,21 @@ def run_one(config: dict, out: str, settings) -> dict:
     }
 
 
-def check(tasks: list[str], seeds: list[int] | None, jobs: int, out: Path, agents=("oracle", "idle"),
-          sims: tuple[str, ...] = ("sapien",), cold: bool = False, perturb: int = 0) -> list[dict]:
+def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None, jobs: int, out: Path,
+          agents=("oracle", "idle"), sims: tuple[str, ...] = ("sapien",), cold: bool = False,
+          perturb: int = 0) -> list[dict]:
     """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
     worker process that runs its attempts one after another (``sweep.warm_workers``), SAPIEN's BRDF
     table read from the cache. ``cold``: a fresh process per attempt and no BRDF cache, as a
     ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
-    ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.perturb``)."""
+    ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.perturb``). ``seeds``: one
+    list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
     from .catalog import task_info
     from .sweep_supervisor import SupervisorConfig, close_workers
 
     jobs_list = []
     for t in tasks:
-        for s in (seeds if seeds is not None else [task_info(t).seed]):
+        for s in (seeds.get(t, ()) if isinstance(seeds, dict) else seeds if seeds is not None else [task_info(t).seed]):
             for sim in sims:
                 for a in agents:
                     for k in (range(1, perturb + 1) if perturb else [None]):
@@ -124,11 +130,15 @@ def verdict(rows: list[dict]) -> dict:
         "idle_subgoal_at_start": sum(1 for r in i if any(r.get("subgoals_at_start") or [])),
         "subgoals_attained": sum(sub), "subgoals_total": len(sub),
         "spatial_attained": sum(spa), "spatial_total": len(spa),
+        # the oracle successes decided by the smallest margin: the verdicts another machine could flip
+        "oracle_borderline": sum(1 for r in o if within(r) and r.get("margin") is not None
+                                 and r["margin"] < BORDERLINE_FRACTION),
+        "oracle_min_margin": min((r["margin"] for r in o if within(r) and r.get("margin") is not None), default=None),
     }
 
 
 def print_table(rows: list[dict]) -> None:
-    hdr = f"{'task':<26}{'seed':>5} {'sim':<9}{'agent':<7}{'result':<9}{'calls':>10}{'ref':>5}{'sim s':>15}{'ref':>7}{'subgoals':>10}{'spatial':>9}{'wall s':>8}"
+    hdr = f"{'task':<26}{'seed':>5} {'sim':<9}{'agent':<7}{'result':<9}{'calls':>10}{'ref':>5}{'sim s':>15}{'ref':>7}{'subgoals':>10}{'spatial':>9}{'wall s':>8}{'margin':>8}"
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
@@ -139,7 +149,8 @@ def print_table(rows: list[dict]) -> None:
         print(f"{r['task']:<26}{r['seed']:>5} {r['sim']:<9}{r['agent']:<7}{'success' if r['success'] else 'fail':<9}"
               f"{r['calls']:>4}/{r['calls_limit']:<5}{r['ref_calls'] or '':>5}"
               f"{r['sim_s']:>7.1f}/{r['sim_s_limit']:<7g}{r['ref_sim_s'] or '':>7}"
-              f"{sum(sg):>6}/{len(sg):<3}{sum(sp):>5}/{len(sp):<3}{r['wall_s']:>8.1f}")
+              f"{sum(sg):>6}/{len(sg):<3}{sum(sp):>5}/{len(sp):<3}{r['wall_s']:>8.1f}"
+              f"{'' if r.get('margin') is None else format(r['margin'], '.0%'):>8}")
 
 
 def cross_sim(rows: list[dict]) -> dict:
@@ -167,10 +178,13 @@ def robustness(rows: list[dict]) -> dict:
     for r in rows:
         if r["agent"] != "oracle":
             continue
-        cell = out.setdefault(r["task"], {}).setdefault(r["sim"], {"successes": 0, "runs": 0})
+        cell = out.setdefault(r["task"], {}).setdefault(r["sim"], {"successes": 0, "runs": 0, "min_margin": None})
         cell["runs"] += 1
-        cell["successes"] += int("error" not in r and bool(r["success"]) and r["calls"] <= r["calls_limit"]
-                                 and r["sim_s"] <= r["sim_s_limit"])
+        ok = ("error" not in r and bool(r["success"]) and r["calls"] <= r["calls_limit"]
+              and r["sim_s"] <= r["sim_s_limit"])
+        cell["successes"] += int(ok)
+        if ok and r.get("margin") is not None:
+            cell["min_margin"] = r["margin"] if cell["min_margin"] is None else min(cell["min_margin"], r["margin"])
     for cells in out.values():
         for c in cells.values():
             c["rate"] = round(c["successes"] / c["runs"], 3)
@@ -178,11 +192,16 @@ def robustness(rows: list[dict]) -> dict:
 
 
 def print_robustness(table: dict, sims: list[str]) -> None:
-    print(f"{'task':<26}" + "".join(f"{s:>16}" for s in sims))
-    print("-" * (26 + 16 * len(sims)))
+    """Successes/runs and the smallest deciding margin of a success, per task and simulator."""
+    print(f"{'task':<26}" + "".join(f"{s:>22}" for s in sims))
+    print("-" * (26 + 22 * len(sims)))
+
+    def cell(c: dict) -> str:
+        m = "" if c["min_margin"] is None else f"min {c['min_margin']:.0%}"
+        return f"{c['successes']:>9}/{c['runs']:<4}{m:>9}"
+
     for task, cells in table.items():
-        print(f"{task:<26}" + "".join(f"{cells[s]['successes']:>9}/{cells[s]['runs']:<6}" if s in cells else f"{'-':>16}"
-                                      for s in sims))
+        print(f"{task:<26}" + "".join(cell(cells[s]) if s in cells else f"{'-':>22}" for s in sims))
 
 
 def print_cross_sim(table: dict, sims: list[str]) -> None:
@@ -207,6 +226,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(prog="cab-suite-check", description=__doc__)
     ap.add_argument("--tasks", default="all", help="comma-separated task names (default: every installed task)")
     ap.add_argument("--seeds", default=None, help="comma-separated seeds (default: each task's catalog seed)")
+    ap.add_argument("--seed-set", default=None, metavar="NAME",
+                    help="each task's own named seed set instead (e.g. heldout: the seeds its suite validated)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel attempts (default: cores)")
     ap.add_argument("--out", default=None, help="records folder (default: outputs/suite-check/<time>)")
     ap.add_argument("--no-idle", action="store_true", help="run only the oracles")
@@ -229,13 +250,26 @@ def main() -> None:
     if not sims or missing:
         print(f"cab-suite-check: unknown simulator(s) {missing or sims}; installed: {', '.join(known)}", file=sys.stderr)
         sys.exit(2)
-    installed = list(all_tasks())
-    tasks = installed if a.tasks == "all" else [t.strip() for t in a.tasks.split(",") if t.strip()]
+    installed = all_tasks()
+    tasks = list(installed) if a.tasks == "all" else [t.strip() for t in a.tasks.split(",") if t.strip()]
     unknown = [t for t in tasks if t not in installed]
     if unknown:
         print(f"cab-suite-check: unknown task(s) {unknown}; installed: {', '.join(installed)}", file=sys.stderr)
         sys.exit(2)
-    seeds = None if a.seeds is None else [int(s) for s in a.seeds.split(",")]
+    if a.seeds is not None and a.seed_set is not None:
+        print("cab-suite-check: give --seeds or --seed-set, not both", file=sys.stderr)
+        sys.exit(2)
+    seeds: list[int] | dict[str, tuple[int, ...]] | None = None
+    if a.seeds is not None:
+        seeds = [int(s) for s in a.seeds.split(",")]
+    elif a.seed_set is not None:
+        from .errors import ConfigError
+
+        try:
+            seeds = {t: installed[t].seeds(a.seed_set) for t in tasks}
+        except ConfigError as e:
+            print(f"cab-suite-check: {e}", file=sys.stderr)
+            sys.exit(2)
     out = Path(a.out) if a.out else Path("outputs") / "suite-check" / time.strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     if a.perturb < 0:
@@ -266,7 +300,9 @@ def main() -> None:
     print(f"\noracle: {v['oracle_success_within_budget']}/{v['oracle_attempts']} successes within budgets; "
           f"idle: {v['idle_success']}/{v['idle_attempts']} successes, {v['idle_subgoal_at_start']} with a subgoal "
           f"satisfied at the start; checkpoints attained by the oracles: subgoals {v['subgoals_attained']}/"
-          f"{v['subgoals_total']}, spatial {v['spatial_attained']}/{v['spatial_total']}; "
+          f"{v['subgoals_total']}, spatial {v['spatial_attained']}/{v['spatial_total']}; borderline oracle "
+          f"verdicts {v['oracle_borderline']} (smallest margin "
+          f"{'-' if v['oracle_min_margin'] is None else format(v['oracle_min_margin'], '.0%')}); "
           f"{time.monotonic() - t0:.0f} s with {a.jobs} worker(s)" + (" (cold)" if a.cold else ""))
     if a.compare:
         timings["speedup"] = round(timings["cold_s"] / max(timings["warm_s"], 1e-9), 2)

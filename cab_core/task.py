@@ -53,6 +53,20 @@ class Task(ABC):
     the agent acts; the verifier scores."""
 
     info: TaskInfo
+    #: named sets of scene seeds besides the catalog's, e.g. ``{"heldout": (100, ..., 119)}``: seeds
+    #: whose instances the task's author checked (oracle success with margin on every simulator)
+    seed_sets: dict[str, tuple[int, ...]] = {}
+
+    def seeds(self, seed_set: str) -> tuple[int, ...]:
+        """The seeds of ``seed_set``; ``"catalog"`` is the catalog's fixed seed."""
+        if seed_set == "catalog":
+            return (self.info.seed,)
+        if seed_set not in self.seed_sets:
+            from .errors import ConfigError
+
+            known = ", ".join(["catalog", *self.seed_sets])
+            raise ConfigError(f"task {self.info.name} has no seed set {seed_set!r}; its sets: {known}")
+        return tuple(self.seed_sets[seed_set])
 
     @abstractmethod
     def build(self, seed: int, embodiment: "EmbodimentSpec") -> SceneInstance:

@@ -150,6 +150,30 @@ def _checkpoints(ck) -> str:
             + "".join(rows) + "</table>")
 
 
+def _margin_line(m: dict) -> str:
+    if m.get("fraction") is None:
+        return "no thresholded predicate decided it"
+    return (f"{'BORDERLINE: ' if m['borderline'] else ''}{m['fraction']:.1%} of its tolerance ({m['predicate']}; "
+            f"borderline below {m['threshold']:.0%})")
+
+
+def _margins(v: dict) -> str:
+    """Each predicate's margin: how far inside (+) or outside (-) its threshold, in its unit and as
+    a fraction of its tolerance."""
+    ms = v.get("margins")
+    if not isinstance(ms, dict) or not ms:
+        return ""
+
+    def g(x) -> str:
+        return "" if x is None else f"{x:.4g}"
+
+    rows = "".join(f"<tr><td>{escape(k)}</td><td class=\"{'good' if m['slack'] > 0 else 'bad'}\">{m['slack']:+.4g} "
+                   f"{escape(m['unit'])}</td><td>{m['fraction']:+.1%}</td><td>{g(m.get('measured'))}</td>"
+                   f"<td>{g(m.get('threshold'))}</td></tr>" for k, m in ms.items())
+    return (f"<p>margins measured at the {escape(str(v.get('margins_at', 'end')))}</p><table><tr><th>predicate</th>"
+            "<th>margin</th><th>of tolerance</th><th>measured</th><th>threshold</th></tr>" + rows + "</table>")
+
+
 def _rows(summary: list[tuple[str, object]]) -> str:
     return "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
 
@@ -177,6 +201,7 @@ def render(a: Attempt) -> str:
         ("task", f"{r['task']} (seed {r['seed']}, attempt {r['attempt']})"),
         ("configuration", a.config), ("instruction", r.get("instruction", "")),
         ("verdict", "success" if v["success"] else "failure"),
+        *([("verdict margin", _margin_line(v["margin"]))] if isinstance(v.get("margin"), dict) else []),
         ("claim", "absent" if claimed is None else ("success" if claimed else "failure")),
         ("report", claim.get("report") or ""),
         ("termination", f"{r['termination']['reason']}: {r['termination'].get('detail', '')}"),
@@ -187,7 +212,7 @@ def render(a: Attempt) -> str:
     video = ('<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
              else "<p>no video recorded</p>")
     return _page(a.rel, f"{r['task']} · {a.config} · attempt {r['attempt']}", rows,
-                 f"<h2>Verdict details</h2>{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
+                 f"<h2>Verdict details</h2>{_margins(v)}{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
                  f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
                  f"<h2>Timeline</h2>{timeline(a.dir, events, r.get('checkpoints'))}")
 

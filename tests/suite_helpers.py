@@ -109,6 +109,18 @@ def check_verifier_false_on_the_initial_scene(task, seeds, world=FakeWorld):
         ev = task.verifier(inst).evaluate(world(inst))
         assert ev.success is False
         assert ev.predicates and all(isinstance(v, bool) for v in ev.predicates.values())
+        check_margins_agree(ev.predicates, {k: m.as_record() for k, m in ev.margins.items()})
+
+
+def check_margins_agree(predicates: dict, margins: dict) -> None:
+    """Every margin (a record: slack, scale, fraction) belongs to a predicate and has its sign:
+    inside its threshold (slack > 0) exactly where the predicate holds."""
+    assert set(margins) <= set(predicates), (set(margins) - set(predicates))
+    for k, m in margins.items():
+        assert m["scale"] > 0 and np.isfinite(m["slack"]), (k, m)
+        assert abs(m["fraction"] - m["slack"] / m["scale"]) < 1e-9, (k, m)
+        if m["slack"] != 0:
+            assert (m["slack"] > 0) == predicates[k], (k, m, predicates[k])
 
 
 def check_rules_match_catalog(rules, spec):

@@ -2,10 +2,13 @@
 budgets (catalog seed, and seeds 1 and 2), attains its checkpoints, and the idle agent fails."""
 import json
 import os
+from pathlib import Path
 import subprocess
 import sys
 
 import pytest
+
+from suite_helpers import check_margins_agree
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 BIN = os.path.dirname(sys.executable)
@@ -38,8 +41,26 @@ def test_oracles_succeed_and_idle_fails_at_catalog_seeds(tmp_path, sim):
     assert v["idle_success"] == 0 and v["idle_subgoal_at_start"] == 0
     assert v["subgoals_attained"] == v["subgoals_total"]
     assert r.returncode == 0, r.stderr[-2000:]
-    for line in ("oracle", "idle", "subgoals", "spatial", "ref"):
+    for line in ("oracle", "idle", "subgoals", "spatial", "ref", "margin"):
         assert line in r.stdout
+    check_recorded_margins(s["rows"])
+
+
+def check_recorded_margins(rows):
+    """Every verdict records its predicates' margins with their signs, and what decided it; an
+    oracle success is decided by a thresholded predicate of its task."""
+    for x in rows:
+        verdict = json.loads((Path(x["dir"]) / "result.json").read_text())["verdict"]
+        preds = {**verdict["predicates"], **verdict["final_requirements"], **verdict["guard"]}
+        if verdict["margins_at"] == "latch":  # the event's predicates all held when it latched
+            preds = {**preds, **{k: True for k in verdict["predicates"]}}
+        check_margins_agree(preds, verdict["margins"])
+        assert verdict["margins"], x["task"]
+        d = verdict["margin"]
+        assert set(d) == {"predicate", "fraction", "borderline", "threshold"}
+        if x["agent"] == "oracle":
+            assert d["predicate"] in verdict["margins"] and d["fraction"] > 0, (x["task"], d)
+            assert x["margin"] == d["fraction"]
 
 
 def test_oracles_succeed_on_other_seeds(tmp_path):
@@ -62,6 +83,36 @@ def test_cross_simulator_table(tmp_path):
         assert s["verdict_by_sim"][sim]["oracle_success_within_budget"] == 1
     assert "result  calls   sim s  wall s" in r.stdout
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_seed_set_and_perturbed_runs(tmp_path):
+    """--seed-set takes each task's own seeds; --perturb N runs each oracle N times under noise
+    (recorded in result.json) and reports a success rate and smallest margin per task and simulator."""
+    from cab_core.plugins import all_tasks
+
+    heldout = all_tasks()["click_bell"].seeds("heldout")
+    assert len(heldout) >= 20 and all_tasks()["click_bell"].info.seed not in heldout
+    r, s = suite_check(tmp_path, "--sim", "mujoco", "--tasks", "click_bell", "--seed-set", "heldout", "--perturb", "2",
+                       "--jobs", "2")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    assert sorted((x["seed"], x["perturb"]) for x in s["rows"]) == sorted((h, k) for h in heldout for k in (1, 2))
+    cell = s["robustness"]["click_bell"]["mujoco"]
+    assert cell["runs"] == 2 * len(heldout) and cell["successes"] == cell["runs"] and 0 < cell["min_margin"] <= 1
+    records = [json.loads((Path(x["dir"]) / "result.json").read_text()) for x in s["rows"]]
+    drawn = {(rec["seed"], rec["perturbation"]["seed"]): rec["perturbation"]["objects"]["bell"] for rec in records}
+    assert len({round(o["dx_m"], 9) for o in drawn.values()}) == len(drawn)  # each run its own noise
+    assert all(abs(o["dx_m"]) <= 1e-3 and abs(o["yaw_deg"]) <= 0.5 and abs(o["mass_scale"] - 1) <= 0.02
+               for o in drawn.values())
+    check_recorded_margins(s["rows"])
+    assert "min " in r.stdout and "under perturbation" in r.stdout
+
+
+def test_seed_set_mistakes_are_one_line(tmp_path):
+    r = subprocess.run([os.path.join(BIN, "cab-suite-check"), "--out", str(tmp_path), "--tasks", "click_bell",
+                        "--seed-set", "no_such_set"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    assert r.stderr.strip() == ("cab-suite-check: task click_bell has no seed set 'no_such_set'; "
+                                "its sets: catalog, heldout")
 
 
 def test_unknown_simulator_is_refused(tmp_path):

@@ -134,6 +134,9 @@ class AttemptMeasures:
     clients: list = field(default_factory=list)  # MCP clients that played it, "name/version", in order seen
     failure_stage: str | None = None
     failure_detail: str = ""
+    margin: float | None = None  # the deciding predicate's margin, as a fraction of its tolerance
+    margin_predicate: str | None = None
+    borderline: bool | None = None  # None: a record written before margins were recorded
 
     @classmethod
     def of(cls, a: Attempt) -> "AttemptMeasures":
@@ -150,6 +153,8 @@ class AttemptMeasures:
         ok_ck = bool(ck) and "error" not in ck
         spatial = ck.get("spatial", []) if ok_ck else []
         success = a.success
+        decided = r["verdict"].get("margin")
+        decided = decided if isinstance(decided, dict) else None
         return cls(
             rel=a.rel, config=a.config, task=r["task"], attempt=r["attempt"], success=success,
             termination=r["termination"]["reason"], stopping=stopping(r["termination"]["reason"]),
@@ -166,6 +171,9 @@ class AttemptMeasures:
             tools=sorted({e.get("tool") for e in ev if e.get("kind") in ("call", "internal_call")} - {None, "done"}),
             infra_retries=len((r.get("infrastructure") or {}).get("failures") or []),
             clients=_client_labels(a),
+            margin=None if decided is None or decided.get("fraction") is None else float(decided["fraction"]),
+            margin_predicate=None if decided is None else decided.get("predicate"),
+            borderline=None if decided is None else bool(decided.get("borderline")),
         )
 
     def spatial_at(self, k: int) -> float | None:
@@ -232,6 +240,8 @@ class ConfigSummary:
     infra_retries: int = 0
     tool_use: dict = field(default_factory=dict)
     clients: list = field(default_factory=list)  # distinct MCP clients ("name/version") over its attempts, sorted
+    #: verdicts decided by less than BORDERLINE_FRACTION of a tolerance: could flip on another machine
+    borderline: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, config: str, ms: list[AttemptMeasures], max_calls: int) -> "ConfigSummary":
@@ -279,10 +289,22 @@ class ConfigSummary:
             tool_use={t: {"attempts": sum(t in m.tools for m in ms), "successes": sum(t in m.tools and m.success for m in ms)}
                       for t in tools},
             clients=sorted({c for m in ms for c in m.clients}),
+            borderline=_borderline(ms),
         )
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+def _borderline(ms: list[AttemptMeasures]) -> dict:
+    """Borderline verdicts (successes and failures), attempts without margins on record, and the
+    smallest deciding margin of a success (the one nearest to flipping)."""
+    succ = [m.margin for m in ms if m.success and m.margin is not None]
+    return {"successes": sum(bool(m.borderline) and m.success for m in ms),
+            "failures": sum(bool(m.borderline) and not m.success for m in ms),
+            "unrecorded": sum(m.borderline is None for m in ms),
+            "min_success_margin": min(succ) if succ else None,
+            "attempts": [m.rel for m in ms if m.borderline]}
 
 
 def matrix(ms: list[AttemptMeasures]) -> dict[str, dict[str, list[int]]]:

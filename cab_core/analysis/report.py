@@ -18,6 +18,7 @@ from html import escape
 from pathlib import Path
 
 from ..errors import CabError, RecordError
+from ..verifier import BORDERLINE_FRACTION
 from . import svg
 from .failure import LABELS, STAGES, Classifier
 from .measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
@@ -134,7 +135,14 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
               *[str(c["progress"][k]) for k in ("success", "subgoal", "spatial_only", "none")]] for c in cs]),
            ("Failure stages (earliest supported stage per failed attempt)",
             ["Configuration", "Success", *[LABELS[s] for s in STAGES]],
-            [[c["config"], str(c["successes"]), *[str(c["failure_stages"].get(s, 0)) for s in STAGES]] for c in cs])]
+            [[c["config"], str(c["successes"]), *[str(c["failure_stages"].get(s, 0)) for s in STAGES]] for c in cs]),
+           (f"Borderline verdicts (decided by less than {BORDERLINE_FRACTION:.0%} of a tolerance: could flip on "
+            "another machine)",
+            ["Configuration", "Borderline successes", "Borderline failures", "Smallest success margin",
+             "No margin on record"],
+            [[c["config"], f"{c['borderline']['successes']}/{c['successes']}",
+              f"{c['borderline']['failures']}/{c['attempts'] - c['successes']}",
+              pct(c["borderline"]["min_success_margin"]), str(c["borderline"]["unrecorded"])] for c in cs])]
     tools = list(ESTIMATION_TOOLS) + sorted({t for c in cs for t in c["tool_use"]} - set(ESTIMATION_TOOLS))
     tools = [t for t in tools if any(t in c["tool_use"] for c in cs)]
 
@@ -169,6 +177,10 @@ def notes(r: dict) -> list[str]:
         out.append(f"Excluded as infrastructure failures (not the model's): {len(r['excluded'])}: "
                    + "; ".join(f"{e['dir']} {e['why']}" for e in r["excluded"]))
     out += [f"Skipped record {p['dir']}: {p['problem']}" for p in r["problems"]]
+    flagged = [(c["config"], a) for c in r["configs"] for a in c["borderline"]["attempts"]]
+    if flagged:
+        out.append(f"Borderline verdicts (deciding margin under {BORDERLINE_FRACTION:.0%} of its tolerance): "
+                   + "; ".join(f"{a} ({cfg})" for cfg, a in flagged))
     return out
 
 
@@ -230,6 +242,13 @@ def _matrix_class(v: str) -> str | None:
     return "ok" if k == n else ("part" if k else "bad")
 
 
+def margin_text(m: dict) -> str:
+    """An attempt's deciding margin: "borderline 4% (green_on_red)", "95% (green_on_red)", "–"."""
+    if m.get("margin") is None:
+        return "–"
+    return f"{'borderline ' if m['borderline'] else ''}{pct(m['margin'])} ({m['margin_predicate']})"
+
+
 def html(r: dict, view_links: dict[str, str]) -> str:
     ts = tables(r)
     parts = ["<h1>cab report</h1>"] + [f"<p>{escape(line)}</p>" for line in notes(r)]
@@ -247,9 +266,11 @@ def html(r: dict, view_links: dict[str, str]) -> str:
         rows.append(f"<tr><td>{name}</td><td>{escape(m['config'])}</td><td>{'yes' if m['success'] else 'no'}</td>"
                     f"<td>{escape(m['termination'])}</td><td>{escape(m['claim'])}</td><td>{m['charged_calls']}</td>"
                     f"<td>{escape(LABELS.get(m['failure_stage'], '') if m['failure_stage'] else '')}</td>"
-                    f"<td>{escape(m['failure_detail'])}</td></tr>")
+                    f"<td>{escape(m['failure_detail'])}</td><td{' class=part' if m['borderline'] else ''}>"
+                    f"{escape(margin_text(m))}</td></tr>")
     parts.append("<h2>Attempts</h2><table><tr><th>Attempt</th><th>Configuration</th><th>Success</th><th>Termination</th>"
-                 "<th>Claim</th><th>Calls</th><th>Failure stage</th><th>Why</th></tr>" + "".join(rows) + "</table>")
+                 "<th>Claim</th><th>Calls</th><th>Failure stage</th><th>Why</th><th>Verdict margin</th></tr>"
+                 + "".join(rows) + "</table>")
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>cab report</title><style>{CSS}</style></head>"
             f"<body>{''.join(parts)}</body></html>\n")
 

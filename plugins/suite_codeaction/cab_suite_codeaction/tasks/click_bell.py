@@ -28,7 +28,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_below, margin_within
 
 from ..assets_tools import BELL_KNOB_RADIUS, BELL_VARIANTS, bell_geometry, bell_shapes, gripper_bodies, is_gripper
 from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z, vec
@@ -81,11 +81,20 @@ class ClickBellVerifier(Verifier):
         grip = w.gripper_command(self.arm)
         closed = grip < GRIPPER_CLOSED
         values = {"side_gripper_command": float(grip)}
+        margins = {"side_gripper_closed": margin_below(grip, GRIPPER_CLOSED, "gripper command")}
         if best is not None:
             values.update({f"contact_d{ax}": float(v) for ax, v in zip("xyz", best)})
+            if not hit:  # the nearest contact (when one is within the box, that one decides)
+                margins["knob_contact"] = margin_within(best, self.tol, "m")
+        if hit:  # the best contact inside the box: the one farthest inside it
+            inside = [margin_within(np.asarray(c.point, float) - target, self.tol, "m") for c in w.contacts()
+                      if c.point is not None and c.impulse > 0
+                      and ((c.b == self.bell and is_gripper(c.a, self.grippers))
+                           or (c.a == self.bell and is_gripper(c.b, self.grippers)))]
+            margins["knob_contact"] = max(inside, key=lambda m: m.fraction)
         return Evaluation(success=bool(closed and hit),
                           predicates={"side_gripper_closed": bool(closed), "knob_contact": bool(hit)},
-                          values=values)
+                          values=values, margins=margins)
 
 
 class ClickBell(CodeActionTask):

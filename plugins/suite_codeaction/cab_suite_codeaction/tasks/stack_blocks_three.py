@@ -28,7 +28,7 @@ import numpy as np
 from cab_core.scene import Body, Box, Shape
 from cab_core.task import SceneInstance, rng_for
 from cab_core.analysis.checkpoints import SpatialRule, box, sphere
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
 
 from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
 from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, base_scene, pose_list,
@@ -76,6 +76,9 @@ class StackBlocksThreeVerifier(Verifier):
             predicates={"green_on_red": green_on_red, "blue_on_green": blue_on_green,
                         "grippers_open": grippers_open},
             values=values,
+            margins={"green_on_red": margin_within(d1, self.tol, "m"), "blue_on_green": margin_within(d2, self.tol, "m"),
+                     "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                                   for g in grips.values()))},
         )
 
 
