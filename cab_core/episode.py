@@ -90,26 +90,51 @@ class VerdictTracker:
     """Hidden scoring. Latch tasks poll (``Verifier.holds``) every ``poll_every`` steps; an event
     already true at the start is voided until it has been false once."""
 
-    def __init__(self, verifier: Verifier, world: WorldView):
+    #: a latched event's margin is the widest it reached over the polls where it held, within this
+    #: much simulated time after it latched: the event latches the first step it holds, when a
+    #: moving quantity has only just crossed its threshold
+    LATCH_MARGIN_WINDOW_S = 1.0
+
+    def __init__(self, verifier: Verifier, world: WorldView, timestep: float = 0.004):
         self.v = verifier
         self.w = world
+        self.window_steps = max(1, int(round(self.LATCH_MARGIN_WINDOW_S / timestep)))
         self.baseline: Evaluation = verifier.evaluate(world)
         self.armed = not self.baseline.success
         self.latched = False
         self.latched_at_step: int | None = None
         self.observed = self.baseline.success
-        self.at_latch: Evaluation | None = None  # the evaluation at the step the event latched
+        self.at_latch: Evaluation | None = None  # the event's evaluation where it held widest
+        self.at_latch_step: int | None = None
 
     def poll(self, step: int) -> None:
-        if self.v.scoring != "latch" or self.latched or step % self.v.poll_every:
+        if self.v.scoring != "latch" or step % self.v.poll_every:
+            return
+        if self.latched:
+            if step - self.latched_at_step <= self.window_steps:
+                self._widen(step)
             return
         if self.v.holds(self.w):
             self.observed = True
             if self.armed:
                 self.latched, self.latched_at_step = True, step
                 self.at_latch = self.v.evaluate(self.w)
+                self._at_latch_fraction = self._deciding_fraction(self.at_latch)
+                self.at_latch_step = step
         else:
             self.armed = True
+
+    @staticmethod
+    def _deciding_fraction(ev: Evaluation) -> float:
+        return min((m.fraction for k, m in ev.margins.items() if ev.predicates.get(k)), default=float("inf"))
+
+    def _widen(self, step: int) -> None:
+        """Within the window after latching: keep the evaluation where the event held widest."""
+        ev = self.v.evaluate(self.w)
+        if ev.success:
+            f = self._deciding_fraction(ev)
+            if f > self._at_latch_fraction:
+                self.at_latch, self._at_latch_fraction, self.at_latch_step = ev, f, step
 
     def final(self) -> dict:
         ev = self.v.evaluate(self.w)
@@ -117,8 +142,9 @@ class VerdictTracker:
         guard = self.v.guard(self.w)
         core = self.latched if self.v.scoring == "latch" else ev.success
         success = bool(core and all(req.values()) and all(guard.values()))
-        # margins of what decided the verdict: a latched event's predicates as they were when it
-        # latched, otherwise as they are at the end; then the final requirements and the guard
+        # margins of what decided the verdict: a latched event's predicates where it held widest
+        # (within the window after latching), otherwise as they are at the end; then the final
+        # requirements and the guard
         decisive = self.at_latch if self.v.scoring == "latch" and self.at_latch is not None else ev
         preds = {**decisive.predicates, **req, **guard}
         margins = {**decisive.margins, **self.v.final_requirement_margins(self.w), **self.v.guard_margins(self.w)}
@@ -136,7 +162,9 @@ class VerdictTracker:
             if self.v.scoring == "latch" else None,
             "baseline_success": bool(self.baseline.success),
             "margins": {k: m.as_record() for k, m in margins.items()},
+            # "latch": the event's widest moment within the window after it latched, at that step
             "margins_at": "latch" if decisive is self.at_latch else "final",
+            "margins_at_step": self.at_latch_step if decisive is self.at_latch else None,
             "margin": deciding_margin(preds, margins, success),
         }
 
@@ -197,7 +225,7 @@ class Episode:
         self.ctx = RobotContext(self.sim, self.planner, self.emb, self.clock, self.obs)
         self.world = WorldView(self.sim, self.emb, self.ctx.gripper_cmd, self.instance.info)
         self.verifier = self.task.verifier(self.instance)
-        self.verdict = VerdictTracker(self.verifier, self.world)
+        self.verdict = VerdictTracker(self.verifier, self.world, self.sim.timestep)
         if self.verifier.scoring == "latch":
             self.clock.callbacks.append(self.verdict.poll)
         self._video_samples: list | None = None

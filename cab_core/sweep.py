@@ -69,7 +69,10 @@ def expand_jobs(cfg: Any) -> list[list[str]]:
 def _stable_config(cfg: Any) -> dict:
     """The resolved config without its volatile parts (resolved key by key: Hydra's own node only
     resolves inside a job)."""
-    return {k: _plain(cfg[k]) for k in cfg if k not in VOLATILE}
+    out = {k: _plain(cfg[k]) for k in cfg if k not in VOLATILE}
+    if isinstance(out.get("perturb"), dict) and out["perturb"].get("seed") is None:
+        del out["perturb"]  # off: a sweep from before perturbations existed keeps its fingerprint
+    return out
 
 
 def fingerprint(config: dict, jobs: list[list[str]]) -> str:

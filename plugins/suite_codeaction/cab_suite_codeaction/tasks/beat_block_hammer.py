@@ -20,6 +20,7 @@ Success (latch: any physics step, polled every step)
     of the block's top-face centre (functional point 1) in x and in y, and
     ``hammer_touches_block``: the hammer and the block are in contact.
     Guard: the hammer must stay on the table (not below table top - 0.08 m).
+    Margins are recorded for ``face_over_block`` (the contact is an event: none).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from cab_core.geometry import transform_point
 from cab_core.scene import Body, Box, Capsule, Cylinder, Material, Shape
 from cab_core.task import SceneInstance, rng_for
 from cab_core.analysis.checkpoints import SpatialRule, box, sphere
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
 from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, base_scene, lowest_point_z, pose_list,
@@ -137,6 +138,7 @@ class BeatBlockHammerVerifier(Verifier):
             success=over and touch,
             predicates={"face_over_block": over, "hammer_touches_block": touch},
             values={"face_dx": float(d[0]), "face_dy": float(d[1]), "face_dz": float(d[2])},
+            margins={"face_over_block": margin_within(d[:2], self.tol, "m")},  # the contact: an event, no margin
         )
 
 

@@ -23,6 +23,7 @@ Success (final state)
     The instruction's "to the center of the table" is not scored (RoboTwin's check scores only the
     row and the paper's alignment appendix lists no change for this task); the row's distance from
     the table centre is recorded as a value. Guard: no block may fall off the table.
+    Margins are recorded for each predicate (``size_order``: each dx against the 0.13 m x band).
 """
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import quat_to_mat
 from cab_core.scene import Body, Box, Material, Shape
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
 
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
                       srgb, table_top_z, vec, yaw_of)
@@ -111,7 +112,14 @@ class BlocksRankingSizeVerifier(Verifier):
         values.update({f"middle_small_d{ax}": float(v) for ax, v in zip("xy", p[2][:2] - p[1][:2])})
         values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
         values["row_xy_from_centre"] = float(np.linalg.norm(np.mean(p, axis=0)[:2] - self.centre))
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+        # size_order: each neighbour's dx > 0, judged against the band 0 < dx < tol_x the row's x lies in
+        margins = {"large_middle_aligned": margin_within(p[0][:2] - p[1][:2], self.tol, "m"),
+                   "middle_small_aligned": margin_within(p[1][:2] - p[2][:2], self.tol, "m"),
+                   "size_order": margin_all(margin_above(p[1][0] - p[0][0], 0.0, "m", self.tol[0]),
+                                            margin_above(p[2][0] - p[1][0], 0.0, "m", self.tol[0])),
+                   "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                                 for g in grips.values()))}
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class BlocksRankingSize(CodeActionTask):

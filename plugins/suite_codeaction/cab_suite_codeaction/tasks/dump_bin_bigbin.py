@@ -27,6 +27,7 @@ Success (latch: any physics step, polled every step; RoboTwin's check)
     at least 3 cm above the table top; ``small_bin_held``: a gripper's finger touches it.
     Guard (the card's destructive check, min_z 0.05 m): the small bin and every ball stay above
     z = 0.05 m (a ball that misses the dustbin ends on the floor).
+    Margins are recorded for every predicate with a threshold (``small_bin_held``, a contact, has none).
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ import numpy as np
 from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below
 
 from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BIN_IDS, TABLE_BINS, ball_body, big_dustbin,
                            big_dustbin_info, table_bin_body, table_bin_info)
@@ -85,6 +86,10 @@ class DumpBinBigbinVerifier(Verifier):
         ring = [(r * np.cos(t), r * np.sin(t), z) for r, z in ((b["radius_bottom"], -h / 2), (b["radius_top"], h / 2))
                 for t in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
         self.hull_points = np.asarray(ring, float)  # the bin's outer edges (bottom and rim circles)
+        # margins' scales: the raise the bin's centre needs from standing on the table; the balls'
+        # band's half-height; the table's half-extents
+        self.raise_scale = self.min_z - (self.table_top + h / 2)
+        self.band_scale = (self.band[1] - self.band[0]) / 2
         self.guarded_objects = (self.bin, *self.balls)
         self.guard_min_z = float(info["guard_min_z"])
 
@@ -99,8 +104,13 @@ class DumpBinBigbinVerifier(Verifier):
         in_band = all(self.band[0] <= z <= self.band[1] for z in zs)
         values = {"small_bin_z": bz, "balls_z_min": min(zs), "balls_z_max": max(zs),
                   "balls_in_band_count": float(sum(self.band[0] <= z <= self.band[1] for z in zs))}
+        margins = {"small_bin_raised": margin_above(bz, self.min_z, "m", self.raise_scale),
+                   "balls_in_band": margin_all(*(m for z in zs for m in (
+                       margin_above(z, self.band[0], "m", self.band_scale),
+                       margin_below(z, self.band[1], "m", self.band_scale))))}
         return Evaluation(success=raised and in_band,
-                          predicates={"small_bin_raised": raised, "balls_in_band": in_band}, values=values)
+                          predicates={"small_bin_raised": raised, "balls_in_band": in_band}, values=values,
+                          margins=margins)
 
     def lowest_z(self, w: WorldView) -> float:
         p = w.pose(self.bin)
@@ -112,6 +122,18 @@ class DumpBinBigbinVerifier(Verifier):
         return {"small_bin_over_table": over,
                 "small_bin_above_tabletop": bool(self.lowest_z(w) >= self.table_top + self.above),
                 "small_bin_held": any(w.gripper_touches(a, self.bin) for a in self.arms)}
+
+    def final_requirement_margins(self, w: WorldView) -> dict[str, Margin]:
+        """``small_bin_over_table``: each side of the footprint against the table's half-extent on
+        that axis; ``small_bin_above_tabletop``: against the 3 cm asked for; ``small_bin_held`` is
+        a contact (none)."""
+        p = w.pose(self.bin)
+        sx, sy = (self.table_x[1] - self.table_x[0]) / 2, (self.table_y[1] - self.table_y[0]) / 2
+        over = margin_all(margin_above(p[0], self.table_x[0], "m", sx), margin_below(p[0], self.table_x[1], "m", sx),
+                          margin_above(p[1], self.table_y[0], "m", sy), margin_below(p[1], self.table_y[1], "m", sy))
+        return {"small_bin_over_table": over,
+                "small_bin_above_tabletop": margin_above(self.lowest_z(w), self.table_top + self.above, "m",
+                                                         self.above)}
 
 
 class DumpBinBigbin(CodeActionTask):

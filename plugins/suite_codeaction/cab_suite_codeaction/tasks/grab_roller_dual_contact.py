@@ -20,6 +20,7 @@ Success (final state; upstream's check plus CodeActionBench's contact terms)
     ``left_contact`` / ``right_contact``: each gripper's finger links are in live contact with the
     roller (contacts that carry no impulse are ignored).
     Guard: the roller must not fall off the table.
+    Margins are recorded for the gripper and height predicates (the contacts are events: none).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_pots import ROLLER_VARIANTS, roller_geometry, roller_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of
@@ -52,6 +53,8 @@ class GrabRollerVerifier(Verifier):
     def __init__(self, info: dict[str, Any]):
         self.roller = info["roller"]["name"]
         self.raised_z = float(info["raised_z"])
+        # ``roller_raised``'s margin is judged against the lift it asks for from where the roller lay
+        self.raise_scale = self.raised_z - float(info["roller"]["initial_z"])
         self.guarded_objects = (self.roller,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
@@ -65,8 +68,14 @@ class GrabRollerVerifier(Verifier):
             "left_contact": bool(w.gripper_touches("left", self.roller)),
             "right_contact": bool(w.gripper_touches("right", self.roller)),
         }
+        margins = {  # the contacts are events (no margin)
+            "left_closed": margin_below(grips["left"], GRIPPER_CLOSED, "gripper command"),
+            "right_closed": margin_below(grips["right"], GRIPPER_CLOSED, "gripper command"),
+            "roller_raised": margin_above(z, self.raised_z, "m", self.raise_scale),
+        }
         return Evaluation(success=all(preds.values()), predicates=preds,
-                          values={"roller_z": z, "gripper_left": grips["left"], "gripper_right": grips["right"]})
+                          values={"roller_z": z, "gripper_left": grips["left"], "gripper_right": grips["right"]},
+                          margins=margins)
 
 
 class GrabRollerDualContact(CodeActionTask):

@@ -20,6 +20,7 @@ Success (final state)
     stands upright on the pad); ``right_gripper_open``: the right arm's commanded gripper value is
     > 0.8 (the right arm has let go). Which arm did what is not checked beyond that (as upstream).
     Guard: the block must stay on the table (not below table top - 0.08 m).
+    Margins are recorded for both predicates.
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
 from cab_core.scene import Body, Box, Material, Shape
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, srgb, table_top_z, vec,
                       yaw_of)
@@ -83,7 +84,10 @@ class HandoverBlockVerifier(Verifier):
         return Evaluation(success=on_pad and right_open,
                           predicates={"block_on_pad": on_pad, "right_gripper_open": right_open},
                           values={"bottom_dx": float(d[0]), "bottom_dy": float(d[1]), "bottom_dz": float(d[2]),
-                                  "gripper_right": float(g)})
+                                  "gripper_right": float(g)},
+                          margins={"block_on_pad": margin_within(d, (self.xy_tol, self.xy_tol, self.z_tol), "m"),
+                                   "right_gripper_open": margin_above(g, GRIPPER_OPEN, "gripper command",
+                                                                      1 - GRIPPER_OPEN)})
 
 
 class HandoverBlock(CodeActionTask):

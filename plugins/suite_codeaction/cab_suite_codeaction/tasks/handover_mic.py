@@ -21,6 +21,7 @@ Success (final state)
     ``on_receiver_side``: the head centre's x is on the receiving arm's side (x < 0 for the left
     arm, x > 0 for the right).
     Guard: the microphone must stay on the table (not below table top - 0.08 m).
+    Margins are recorded for every predicate but ``gripper_contact`` (an event).
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_handover import microphone
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
@@ -44,10 +45,20 @@ RAISED_Z = 0.92
 GRIPPER_OPEN = 0.8
 GRIPPER_CLOSED = 0.2
 HANDOVER_BASE = (0.0, -0.05, 0.90)  # oracle hint: the stand's bottom centre during the handover
+# margins' scales: the head rests only 0.5-1.5 cm below RAISED_Z, too narrow a band to judge a held
+# microphone's height by, so 5 cm; the side is judged against the 0.15 m the microphone starts off
+# the midline (on the grasping arm's side)
+RAISED_SCALE_M = 0.05
+SIDE_SCALE_M = 0.15
 
 
 def _side_ok(arm: str, x: float) -> bool:
     return x < 0 if arm == "left" else x > 0
+
+
+def _side_margin(arm: str, x: float) -> Margin:
+    """The margin of ``_side_ok``."""
+    return margin_below(x, 0.0, "m", SIDE_SCALE_M) if arm == "left" else margin_above(x, 0.0, "m", SIDE_SCALE_M)
 
 
 class HandoverMicVerifier(Verifier):
@@ -76,7 +87,12 @@ class HandoverMicVerifier(Verifier):
         return Evaluation(success=all(preds.values()), predicates=preds,
                           values={"head_x": float(fp[0]), "head_y": float(fp[1]), "head_z": float(fp[2]),
                                   f"gripper_{self.receiver}": float(g_recv),
-                                  f"gripper_{self.grasper}": float(g_grasp)})
+                                  f"gripper_{self.grasper}": float(g_grasp)},
+                          margins={  # gripper_contact is an event (no margin)
+                              "receiver_closed": margin_below(g_recv, GRIPPER_CLOSED, "gripper command"),
+                              "grasper_open": margin_above(g_grasp, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN),
+                              "raised": margin_above(fp[2], RAISED_Z, "m", RAISED_SCALE_M),
+                              "on_receiver_side": _side_margin(self.receiver, float(fp[0]))})
 
 
 class HandoverMic(CodeActionTask):

@@ -24,6 +24,7 @@ Success (final state)
     ``mug_high``: mug point z > 0.86;
     ``right_gripper_open``: the right arm's commanded gripper value > 0.8.
     Guard: the mug must not fall off the table.
+    Margins are recorded for all three predicates.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_to_mat, transform_point
 from cab_core.scene import Body, Cylinder, Material, Shape, Sphere, cache_dir
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 
 from ..assets_organise import Vessel, revolved, rod, tilt_correction, vessel_collision, visual, x_to
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, srgb, table_top_z, vec,
@@ -147,6 +148,8 @@ class HangingMugVerifier(Verifier):
         self.rack = info["rack"]["name"]
         self.point = np.asarray(info["mug"]["hang_point"], float)
         self.tip = np.asarray(info["rack"]["peg_tip"], float)
+        # ``mug_high``'s margin is judged against how far MIN_Z lies above the point of the upright mug
+        self.high_scale = MIN_Z - (float(info["table_top_z"]) + float(self.point[2]))
         self.guarded_objects = (self.mug,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
@@ -163,6 +166,9 @@ class HangingMugVerifier(Verifier):
             predicates={"mug_at_peg": at_peg, "mug_high": high, "right_gripper_open": grip > GRIPPER_OPEN},
             values={"mug_point_dx": float(d[0]), "mug_point_dy": float(d[1]), "mug_point_z": float(p[2]),
                     "gripper_right": float(grip)},
+            margins={"mug_at_peg": margin_within(d[:2], XY_TOLERANCE, "m"),
+                     "mug_high": margin_above(p[2], MIN_Z, "m", self.high_scale),
+                     "right_gripper_open": margin_above(grip, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)},
         )
 
 

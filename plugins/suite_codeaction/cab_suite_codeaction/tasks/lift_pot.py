@@ -21,6 +21,7 @@ Success (final state)
     ``right_at_handle``: the right TCP is within 0.03 m of contact point 1 (the +x handle);
     ``pot_upright``: the pot's up axis has a dot product > 0.8 with world +z.
     Guard: the pot must not fall off the table.
+    Margins are recorded for all four predicates.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_pots import POT_VARIANTS, pot_geometry, pot_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of
@@ -55,6 +56,7 @@ class LiftPotVerifier(Verifier):
         self.handles = [np.asarray(h, float) for h in p["handle_points"]]
         self.raised_z = float(info["raised_z"])
         self.tol = float(info["handle_tolerance"])
+        self.lift = self.raised_z - float(info["table_top_z"])  # the lift ``pot_raised`` asks for (8 cm)
         self.guarded_objects = (self.pot,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
@@ -71,7 +73,11 @@ class LiftPotVerifier(Verifier):
         }
         return Evaluation(success=all(preds.values()), predicates=preds,
                           values={"pot_z": float(pose[2]), "left_handle_dist": d["left"],
-                                  "right_handle_dist": d["right"], "pot_up_dot_z": up})
+                                  "right_handle_dist": d["right"], "pot_up_dot_z": up},
+                          margins={"pot_raised": margin_above(pose[2], self.raised_z, "m", self.lift),
+                                   "left_at_handle": margin_below(d["left"], self.tol, "m"),
+                                   "right_at_handle": margin_below(d["right"], self.tol, "m"),
+                                   "pot_upright": margin_above(up, UPRIGHT_DOT, "dot product", 1 - UPRIGHT_DOT)})
 
 
 class LiftPot(CodeActionTask):

@@ -39,7 +39,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
 
 from ..assets_pots import CAN_VARIANTS, POT_VARIANTS, can_geometry, can_shapes, pot_geometry, pot_shapes
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
@@ -97,10 +97,21 @@ class MoveCanPotVerifier(Verifier):
             "set_down": float(can[2]) <= self.pot_z0 + SET_DOWN_TOL,
             "grippers_open": all(g > GRIPPER_OPEN for g in grips.values()),
         }
+        # the band 0 < dis < MAX_DIS is what both side predicates are judged against
+        margins = {
+            "on_start_side": margin_above(dis, 0.0, "m", MAX_DIS),
+            "near_pot": margin_below(dis, MAX_DIS, "m"),
+            "aligned_with_pot": margin_within([dy], ALIGN_TOL, "m"),
+            "can_upright": margin_within([ax - math.pi / 2, ay], ANGLE_TOL, "rad"),
+            "set_down": margin_below(float(can[2]), self.pot_z0 + SET_DOWN_TOL, "m", SET_DOWN_TOL),
+            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                          for g in grips.values())),
+        }
         return Evaluation(success=all(preds.values()), predicates=preds,
                           values={"dis": dis, "dy": dy, "can_euler_x_deg": math.degrees(ax),
                                   "can_euler_y_deg": math.degrees(ay), "can_z": float(can[2]),
-                                  "gripper_left": grips["left"], "gripper_right": grips["right"]})
+                                  "gripper_left": grips["left"], "gripper_right": grips["right"]},
+                          margins=margins)
 
 
 class MoveCanPot(CodeActionTask):

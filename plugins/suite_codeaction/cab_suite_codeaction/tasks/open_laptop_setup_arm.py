@@ -31,7 +31,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import ArticulatedObject
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_any, margin_below
 
 from ..assets_articulated import (LAPTOP_VARIANTS, LID_UPPER, HINGE_DAMPING, HINGE_FRICTION, laptop_geometry,
                                   laptop_urdf, lid_rotation)
@@ -102,8 +102,12 @@ class OpenLaptopVerifier(Verifier):
         at_edge = bool(min(dist.values()) < self.tol)
         values = {"lid_qpos": q, "lid_fraction": (q - self.lo) / (self.hi - self.lo)}
         values.update({f"tcp_to_edge_{a}": d for a, d in dist.items()})
+        # the lid's opening is judged against the angle it must open to from closed (the threshold)
+        margins = {"lid_open": margin_above(q, self.threshold, "rad", self.threshold - self.lo),
+                   "gripper_at_lid_edge": margin_any(*(margin_below(d, self.tol, "m") for d in dist.values()))}
         return Evaluation(success=lid_open and at_edge,
-                          predicates={"lid_open": lid_open, "gripper_at_lid_edge": at_edge}, values=values)
+                          predicates={"lid_open": lid_open, "gripper_at_lid_edge": at_edge}, values=values,
+                          margins=margins)
 
 
 class OpenLaptopSetupArm(CodeActionTask):

@@ -31,7 +31,7 @@ from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import ArticulatedObject
 from cab_core.task import SceneInstance, rng_for
 from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above
 
 from ..oracle import Hands, tcp_quat
 from ..common import (CodeActionTask, base_scene, box_inertia, hinged_urdf, pose_list, rand_pose, srgb,
@@ -182,7 +182,9 @@ class OpenMicrowaveVerifier(Verifier):
         q = float(np.asarray(w.qpos(self.name))[self.joint_index])
         ok = q >= self.threshold
         return Evaluation(success=ok, predicates={"door_open": ok},
-                          values={"door_qpos": q, "door_fraction": q / self.upper})
+                          values={"door_qpos": q, "door_fraction": q / self.upper},
+                          # judged against the angle the door must open to from closed (0 rad)
+                          margins={"door_open": margin_above(q, self.threshold, "rad", self.threshold)})
 
 
 class OpenMicrowave(CodeActionTask):

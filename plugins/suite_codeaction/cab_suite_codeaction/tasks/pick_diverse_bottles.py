@@ -17,7 +17,7 @@ Randomisation (per seed; FACTS B.6)
 Success (final state; RoboTwin's check)
     For each bottle, its functional point 0 (the centre of the bottle, on its axis at half its
     height) must lie within 0.1 m in x and in y of its target, (-0.06, -0.105) for bottle 1 and
-    (0.06, -0.105) for bottle 2, and above z = 0.89 (raised 4-15 cm above its resting height):
+    (0.06, -0.105) for bottle 2, and above z = 0.89 (raised 2.5-10 cm above its resting height):
     ``bottle1_xy``, ``bottle1_raised``, ``bottle2_xy``, ``bottle2_raised``. Upstream's extra
     "never fell below 0.78" flag belongs to its expert replay; here a knocked-off bottle is caught by
     the guard (a bottle below table top - 0.08 m fails the attempt).
@@ -31,7 +31,7 @@ import numpy as np
 from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_within
 
 from ..assets_bins import DIVERSE_BOTTLES, bottle_body, bottle_info
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, yaw_of
@@ -58,19 +58,27 @@ class PickDiverseBottlesVerifier(Verifier):
                          np.asarray(info["target_xy"][key], float)) for key in ("bottle1", "bottle2")]
         self.tol = float(info["xy_tolerance"])
         self.min_z = float(info["min_z"])
+        # the raise each bottle's functional point needs from standing upright on the table to min_z:
+        # the tolerance its ``raised`` margin is judged against
+        top = float(info["table_top_z"])
+        self.lift = {key: self.min_z - (top + float(info[key]["height"]) / 2 + float(fp[2]))
+                     for key, _, fp, _ in self.bottles}
         self.guarded_objects = tuple(b[1] for b in self.bottles)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
     def evaluate(self, w: WorldView) -> Evaluation:
         preds: dict[str, bool] = {}
         values: dict[str, float] = {}
+        margins: dict[str, Margin] = {}
         for key, name, fp_local, target in self.bottles:
             fp = transform_point(w.pose(name), fp_local)
             d = fp[:2] - target
             preds[f"{key}_xy"] = bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol)
             preds[f"{key}_raised"] = bool(fp[2] > self.min_z)
             values.update({f"{key}_dx": float(d[0]), f"{key}_dy": float(d[1]), f"{key}_z": float(fp[2])})
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+            margins[f"{key}_xy"] = margin_within(d, self.tol, "m")
+            margins[f"{key}_raised"] = margin_above(float(fp[2]), self.min_z, "m", self.lift[key])
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class PickDiverseBottles(CodeActionTask):

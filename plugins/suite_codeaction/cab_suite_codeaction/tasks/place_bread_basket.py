@@ -32,7 +32,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_within
 
 from ..assets_placing import BREAD_BASKET_MASS, BREAD_BASKETS, BREAD_MASS, bread_basket_shapes, bread_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
@@ -114,6 +114,7 @@ class PlaceBreadBasketVerifier(Verifier):
         self.breads = [b["name"] for b in info["breads"]]
         self.tol = float(info["xy_tolerance"])
         self.z_min = float(info["bread_min_z"])
+        self.z_scale = float(info["table_top_z"]) - self.z_min  # how far below the table top still counts
         self.arms = list(info["arms"])
         self.guarded_objects = (*self.breads, self.basket)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
@@ -122,15 +123,20 @@ class PlaceBreadBasketVerifier(Verifier):
         b = np.asarray(w.pose(self.basket)[:3], dtype=float)
         preds: dict[str, bool] = {}
         values: dict[str, float] = {}
+        margins: dict[str, Margin] = {}
         for i, name in enumerate(self.breads):
             p = np.asarray(w.pose(name)[:3], dtype=float)
             d = p - b
             preds[f"bread{i}_in_basket"] = bool(abs(d[0]) < self.tol and abs(d[1]) < self.tol and p[2] > self.z_min)
             values.update({f"bread{i}_dx": float(d[0]), f"bread{i}_dy": float(d[1]), f"bread{i}_z": float(p[2])})
+            margins[f"bread{i}_in_basket"] = margin_all(margin_within(d[:2], self.tol, "m"),
+                                                        margin_above(p[2], self.z_min, "m", self.z_scale))
         grips = {a: w.gripper_command(a) for a in self.arms}
         preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
         values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+        margins["grippers_open"] = margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                                for g in grips.values()))
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class PlaceBreadBasket(CodeActionTask):

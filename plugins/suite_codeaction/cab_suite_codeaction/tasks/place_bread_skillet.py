@@ -34,7 +34,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..assets_placing import BREAD_MASS, SKILLET_MASS, SKILLETS, bread_shapes, skillet_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
@@ -75,7 +75,10 @@ class PlaceBreadSkilletVerifier(Verifier):
         return Evaluation(success=over and height and released,
                           predicates={"bread_over_pan": over, "bread_at_pan_height": height,
                                       "bread_released": released},
-                          values=values)
+                          values=values,
+                          # ``bread_released`` is an event (no finger touches the bread): no margin
+                          margins={"bread_over_pan": margin_within(d[:2], XY_TOLERANCE, "m"),
+                                   "bread_at_pan_height": margin_within(d[2:], Z_TOLERANCE, "m")})
 
 
 class PlaceBreadSkillet(CodeActionTask):

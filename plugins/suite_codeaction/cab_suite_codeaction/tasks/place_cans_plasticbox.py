@@ -29,7 +29,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below
 
 from ..assets_placing import CAN_MASS, PLASTIC_BOX_MASS, can_shapes, plastic_box_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z
@@ -62,15 +62,19 @@ class PlaceCansPlasticboxVerifier(Verifier):
         pts = [transform_point(bp, p)[:2] for p in self.points]
         preds: dict[str, bool] = {}
         values: dict[str, float] = {}
+        margins: dict[str, Margin] = {}
         for name in self.cans:
             c = np.asarray(w.pose(name)[:2], dtype=float)
             d = min(float(np.linalg.norm(c - p)) for p in pts)
             preds[f"{name}_in_box"] = d < XY_TOLERANCE
             values[f"{name}_xy_to_box_point"] = d
+            margins[f"{name}_in_box"] = margin_below(d, XY_TOLERANCE, "m")
         grips = {a: w.gripper_command(a) for a in self.arms}
         preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
         values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+        margins["grippers_open"] = margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                                for g in grips.values()))
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class PlaceCansPlasticbox(CodeActionTask):

@@ -40,7 +40,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import pose_inv, pose_mul, quat_to_mat, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_any, margin_within
 
 from ..assets_articulated import (SHOE_BOX, SHOE_MASS, SHOE_STYLES, shoe_box_shapes, shoe_geometry, shoe_outline,
                                   shoe_shapes)
@@ -118,7 +118,20 @@ class PlaceDualShoesVerifier(Verifier):
         values["swapped_assignment"] = float(swapped and not direct)
         preds = {"assignment_xy": bool(direct or swapped), "heights": heights, "orientations": oriented,
                  "grippers_open": grippers_open}
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+
+        def at_margin(p, place):
+            return margin_within(p[:2] - place, self.xy_tol, "m")
+
+        margins = {
+            "assignment_xy": margin_any(
+                margin_all(at_margin(poses[0], self.places[0]), at_margin(poses[1], self.places[1])),
+                margin_all(at_margin(poses[0], self.places[1]), at_margin(poses[1], self.places[0]))),
+            "heights": margin_within(dz, self.z_tol, "m"),
+            "orientations": margin_within(np.concatenate(dq), self.q_tol, "quaternion component"),
+            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                          for g in grips.values())),
+        }
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class PlaceDualShoes(CodeActionTask):

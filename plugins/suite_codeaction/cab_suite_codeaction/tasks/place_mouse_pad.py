@@ -35,7 +35,7 @@ from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_any, margin_within
 
 from ..assets_handover import MAT_COLOURS, MAT_HALF, computer_mouse, mouse_mat
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
@@ -77,8 +77,17 @@ class PlaceMousePadVerifier(Verifier):
         values = {"mouse_dx": float(d[0]), "mouse_dy": float(d[1]), "q_yz": yz, "q_wx": wx,
                   "mouse_yaw": yaw_of(m[3:])}
         values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        margins = {
+            "centred": margin_within(d[:2], (TOL_X, TOL_Y), "m"),
+            # either of upstream's two products within its band (unit: the product |q_i q_j|)
+            "aligned": margin_any(margin_within([yz - ORIENT_TARGET], ORIENT_TOL, "quaternion product"),
+                                  margin_within([wx - ORIENT_TARGET], ORIENT_TOL, "quaternion product")),
+            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                          for g in grips.values())),
+        }
         return Evaluation(success=centred and ok and open_,
-                          predicates={"centred": centred, "aligned": bool(ok), "grippers_open": open_}, values=values)
+                          predicates={"centred": centred, "aligned": bool(ok), "grippers_open": open_}, values=values,
+                          margins=margins)
 
 
 class PlaceMousePad(CodeActionTask):

@@ -37,7 +37,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box, cylinder, sphere
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CAR_MASS, TOY_CARS,
                               handled_basket_shapes, playing_cards_shapes, toy_car_shapes)
@@ -79,7 +79,14 @@ class PlaceObjectBasketVerifier(Verifier):
         }
         values = {"basket_rise": float(bp[2] - self.basket_z0), "object_rise": float(op[2] - self.object_z0),
                   "basket_up_z": up, "object_basket_l1": l1}
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+        # the two contact predicates are events without a threshold: no margin
+        margins = {
+            "basket_raised": margin_above(bp[2] - self.basket_z0, RISE, "m"),
+            "object_raised": margin_above(op[2] - self.object_z0, RISE, "m"),
+            "basket_upright": margin_above(up, UPRIGHT, "up-axis z component"),
+            "object_near_basket": margin_below(l1, NEAR_L1, "m"),
+        }
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class PlaceObjectBasket(CodeActionTask):

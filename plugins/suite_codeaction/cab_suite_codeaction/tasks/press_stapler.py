@@ -29,7 +29,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
 from cab_core.scene import ArticulatedObject
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_any, margin_within
 
 from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER_VARIANTS, gripper_bodies,
                             is_gripper, stapler_asset, stapler_geometry)
@@ -84,6 +84,7 @@ class PressStaplerVerifier(Verifier):
         target = self.press_point(w)
         prefix = self.name + "/"
         best, hit = None, False
+        margin: Margin | None = None  # of the contact farthest inside the box (or nearest to entering it)
         for c in w.contacts():
             if c.point is None or c.impulse <= 0:
                 continue
@@ -95,10 +96,14 @@ class PressStaplerVerifier(Verifier):
                 best = d
             if np.all(np.abs(d) < self.tol):
                 hit = True
+            m = margin_within(d, self.tol, "m")
+            margin = m if margin is None else margin_any(margin, m)
         values = {"hinge_qpos": hinge_q(w, self.info)}
         if best is not None:
             values.update({f"contact_d{ax}": float(v) for ax, v in zip("xyz", best)})
-        return Evaluation(success=hit, predicates={"press_contact": hit}, values=values)
+        # no gripper-stapler contact at all: an event with nothing to measure, no margin
+        margins = {"press_contact": margin} if margin is not None else {}
+        return Evaluation(success=hit, predicates={"press_contact": hit}, values=values, margins=margins)
 
 
 class PressStapler(CodeActionTask):

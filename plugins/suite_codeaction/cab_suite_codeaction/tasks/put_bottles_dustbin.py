@@ -30,7 +30,8 @@ import numpy as np
 
 from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
+                               margin_within)
 
 from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info
 from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
@@ -44,6 +45,7 @@ KEYS = ("bottle1", "bottle2", "bottle3")
 REGION_CENTER = (-0.45, 0.0)
 REGION_HALF = (0.221, 0.325)
 REGION_Z = (0.2, 0.7)
+FLOOR_BAND = 0.02  # a bottle lying on the bucket's floor has its centre at least this far above REGION_Z[0]
 MIN_PAIR_DIST = 0.13
 GUARD_MIN_Z = 0.1
 GUARD_XY = ((-0.85, 0.55), (-0.55, 0.55))
@@ -75,15 +77,25 @@ class PutBottlesDustbinVerifier(Verifier):
         d = np.abs(np.asarray(p[:2]) - self.center)
         return bool(d[0] < self.half[0] and d[1] < self.half[1] and self.z[0] < p[2] < self.z[1])
 
+    def region_margin(self, p) -> Margin:
+        """The margin of ``in_region``: x and y against the half-sizes; z above the range's bottom
+        against FLOOR_BAND (a bottle on the bucket's floor cannot sink further: it reads >= 1, never
+        borderline), below its top against the range's half-height."""
+        return margin_all(margin_within(np.asarray(p[:2]) - self.center, self.half, "m"),
+                          margin_above(p[2], self.z[0], "m", FLOOR_BAND),
+                          margin_below(p[2], self.z[1], "m", (self.z[1] - self.z[0]) / 2))
+
     def evaluate(self, w: WorldView) -> Evaluation:
         preds: dict[str, bool] = {}
         values: dict[str, float] = {}
+        margins: dict[str, Margin] = {}
         for key, name in zip(self.keys, self.names):
             p = w.pose(name)[:3]
             preds[f"{key}_in_bin"] = self.in_region(p)
+            margins[f"{key}_in_bin"] = self.region_margin(p)
             values.update({f"{key}_dx": float(p[0] - self.center[0]), f"{key}_dy": float(p[1] - self.center[1]),
                            f"{key}_z": float(p[2])})
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
     def guard(self, w: WorldView) -> dict[str, bool]:
         """``<bottle>_on_table``: above the card's min_z and inside its xy bounds."""
@@ -92,6 +104,18 @@ class PutBottlesDustbinVerifier(Verifier):
         for n in self.guarded_objects:
             p = w.pose(n)
             out[f"{n}_on_table"] = bool(p[2] >= self.guard_min_z and x0 <= p[0] <= x1 and y0 <= p[1] <= y1)
+        return out
+
+    def guard_margins(self, w: WorldView) -> dict[str, Margin]:
+        """The margins of this ``guard`` (its xy bounds too), each side against ``guard_scale_m``."""
+        (x0, x1), (y0, y1) = self.guard_xy
+        s = self.guard_scale_m
+        out = {}
+        for n in self.guarded_objects:
+            p = w.pose(n)
+            out[f"{n}_on_table"] = margin_all(margin_above(p[2], self.guard_min_z, "m", s),
+                                              margin_above(p[0], x0, "m", s), margin_below(p[0], x1, "m", s),
+                                              margin_above(p[1], y0, "m", s), margin_below(p[1], y1, "m", s))
         return out
 
 

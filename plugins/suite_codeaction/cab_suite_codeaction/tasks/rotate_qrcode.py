@@ -34,7 +34,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box, sphere
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_normalize, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
 
 from ..assets_handover import QR_BOARD_HALF, qr_board
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
@@ -73,6 +73,8 @@ class RotateQrcodeVerifier(Verifier):
         self.board = info["board"]["name"]
         self.arms = list(info["arms"])
         self.z_max = float(info["on_table_z"])
+        # on_table's tolerance: the threshold's height above the centre of the board lying flat (3 mm)
+        self.z_band = self.z_max - (float(info["table_top_z"]) + float(info["board"]["half_size"][2]))
         self.target = np.asarray(TARGET_QUAT_MESH, float)
         self.guarded_objects = (self.board,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
@@ -88,9 +90,15 @@ class RotateQrcodeVerifier(Verifier):
         values = {"quat_err_max": float(err.max()), "board_z": float(p[2]), "board_yaw": yaw_of(p[3:])}
         values.update({f"q_mesh_{k}": float(v) for k, v in zip("wxyz", q)})
         values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        margins = {
+            "oriented": margin_within(q - self.target, QUAT_TOL, "quaternion component"),
+            "on_table": margin_below(p[2], self.z_max, "m", self.z_band),
+            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                          for g in grips.values())),
+        }
         return Evaluation(success=oriented and on_table and open_,
                           predicates={"oriented": oriented, "on_table": on_table, "grippers_open": open_},
-                          values=values)
+                          values=values, margins=margins)
 
 
 class RotateQrcode(CodeActionTask):

@@ -34,7 +34,7 @@ from cab_core.analysis.checkpoints import SpatialRule, box, sphere
 from cab_core.geometry import mat_to_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.scene import Body
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
 
 from ..assets_tools import (SCANNER_MASS, SCANNER_VARIANTS, TEABOX_MASS, TEABOX_VARIANTS, Z_TO_X,
                             footprint_distance, scanner_geometry, scanner_shapes, teabox_shapes)
@@ -108,9 +108,16 @@ class ScanObjectVerifier(Verifier):
         closed = all(g < GRIPPER_CLOSED for g in grips.values())
         values = {"beam_distance": d, **{f"lateral_d{ax}": float(v) for ax, v in zip("xyz", lateral)},
                   **{f"gripper_{a}": float(g) for a, g in grips.items()}}
+        half = MAX_DISTANCE / 2  # scan_distance: either end of (0, MAX_DISTANCE), against its half-width
+        margins = {
+            "object_on_beam": margin_within(lateral, LATERAL_TOL, "m"),
+            "scan_distance": margin_all(margin_above(d, 0.0, "m", half), margin_below(d, MAX_DISTANCE, "m", half)),
+            "grippers_closed": margin_all(*(margin_below(g, GRIPPER_CLOSED, "gripper command")
+                                            for g in grips.values())),
+        }
         return Evaluation(success=on_beam and close and closed,
                           predicates={"object_on_beam": on_beam, "scan_distance": close, "grippers_closed": closed},
-                          values=values)
+                          values=values, margins=margins)
 
 
 def scan_tcp_reference(info: dict, obj_xyz) -> np.ndarray:

@@ -31,7 +31,8 @@ from cab_core.analysis.checkpoints import SpatialRule, annulus
 from cab_core.geometry import mat_to_quat, quat_to_mat
 from cab_core.scene import Body, Material, Shape, cache_dir
 from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView
+from cab_core.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
+                               margin_within)
 
 from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
@@ -76,19 +77,24 @@ def bowl_body(name: str, pose) -> Body:
     return Body(name, list(bowl_shapes(str(cache_dir()))), pose=tuple(pose), kind="dynamic", mass=BOWL_MASS)
 
 
-def stack_predicates(ps: list[np.ndarray], z_bias: float = 0.0) -> tuple[dict[str, bool], dict[str, float]]:
+def stack_predicates(ps: list[np.ndarray], z_bias: float = 0.0
+                     ) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
+    """The stack's predicates, the measured values and the predicates' margins."""
     order = sorted(range(len(ps)), key=lambda i: ps[i][2])
     s = [ps[i] for i in order]
     preds = {}
     values = {}
+    margins = {}
     for k in range(len(s) - 1):
         d = s[k + 1][:2] - s[k][:2]
         preds[f"pair_aligned_{k}{k + 1}"] = bool(np.all(np.abs(d) < XY_TOLERANCE))
+        margins[f"pair_aligned_{k}{k + 1}"] = margin_within(d, XY_TOLERANCE, "m")
         values[f"pair_{k}{k + 1}_dx"], values[f"pair_{k}{k + 1}_dy"] = float(d[0]), float(d[1])
     dz = [float(p[2] - (t + z_bias)) for p, t in zip(s, HEIGHT_TARGETS)]
     preds["heights_ok"] = all(v < HEIGHT_TOLERANCE for v in dz)
+    margins["heights_ok"] = margin_all(*(margin_below(v, HEIGHT_TOLERANCE, "m") for v in dz))
     values.update({f"level{k}_dz": v for k, v in enumerate(dz)})
-    return preds, values
+    return preds, values, margins
 
 
 class StackBowlsThreeVerifier(Verifier):
@@ -103,11 +109,13 @@ class StackBowlsThreeVerifier(Verifier):
 
     def evaluate(self, w: WorldView) -> Evaluation:
         ps = [np.asarray(w.pose(n)[:3], float) for n in self.names]
-        preds, values = stack_predicates(ps, self.z_bias)
+        preds, values, margins = stack_predicates(ps, self.z_bias)
         grips = {a: w.gripper_command(a) for a in self.arms}
         preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
+        margins["grippers_open"] = margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
+                                                for g in grips.values()))
         values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values)
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class StackBowlsThree(CodeActionTask):
