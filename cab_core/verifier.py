@@ -67,6 +67,21 @@ class WorldView:
         return False
 
 
+    def gripper_holds(self, arm: str, obj: str) -> bool:
+        """Every finger of ``arm``'s gripper touches ``obj`` (one finger touching is a push, not
+        a hold)."""
+        fingers = {f"robot/{l}" for l in self._emb.arms[arm].gripper.finger_links}
+        touching = set()
+        for c in self._sim.get_contacts():
+            if c.impulse <= 0:
+                continue
+            if c.a in fingers and _match(c.b, obj):
+                touching.add(c.a)
+            elif c.b in fingers and _match(c.a, obj):
+                touching.add(c.b)
+        return bool(fingers) and touching == fingers
+
+
 def _match(name: str, pattern: str) -> bool:
     return name == pattern or (pattern.endswith("/") and name.startswith(pattern)) or name.startswith(pattern + "/")
 

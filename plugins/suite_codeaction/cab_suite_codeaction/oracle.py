@@ -96,6 +96,26 @@ class Hands:
         self.grip(0.0)
         self.move(dz=lift, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
 
+    def pick_held(self, world, name: str, aim, lift: float = 0.10, tries: int = 3) -> None:
+        """Pick ``name`` and make sure it is held. ``aim(pose) -> (grasp_xyz, quat)`` from the
+        object's pose. Once hovering above it, the pose is read again and the aim renewed if the
+        object moved (the arm's planned path may have brushed it); after the lift, every finger must
+        touch it, else the gripper opens and the pick starts over from where it lies."""
+        for _ in range(tries):
+            xyz, q = aim(world.pose(name))
+            self.reach([xyz[0], xyz[1], xyz[2] + self.hover], q, "hover above pick")
+            xyz2, q2 = aim(world.pose(name))
+            if np.linalg.norm(np.subtract(xyz2, xyz)) > 0.003 or abs(float(np.dot(q2, q))) < 0.9995:
+                xyz, q = xyz2, q2
+                self.reach([xyz[0], xyz[1], xyz[2] + self.hover], q, "hover above pick again")
+            self.descend_to(float(xyz[2]), "descend to grasp")
+            self.grip(0.0)
+            self.move(dz=lift, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
+            if world.gripper_holds(self.arm, name):
+                return
+            self.grip(1.0)
+        raise OracleFailed(f"{name}: not held after {tries} picks")
+
     def place(self, xyz, quat=None, retreat: float = 0.08) -> None:
         """Carry above, descend, release, retreat upward."""
         x, y, z = (float(v) for v in xyz)

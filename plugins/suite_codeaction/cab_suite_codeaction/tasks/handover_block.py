@@ -203,11 +203,27 @@ class HandoverBlock(CodeActionTask):
         up = np.asarray(transform_point(held, b["left_grasp_point"]), float) - held[:3]
         reach("left", hc + [0.0, 0.0, float(np.linalg.norm(up))], top_down_quat([1.0, 0.0, 0.0]), "to the handover")
 
-        # 3. right arm: from the front round the lower part (fingers open along x)
-        low = transform_point(world.pose(name), b["right_grasp_point"])
-        reach("right", low + [0.0, -0.10, 0.0], tcp_quat([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]), "in front of the block")
-        move("right", low - world.tcp_pose("right")[:3], "round the block")
-        grip("right", 0.0)
+        # 3. right arm: from the front round the lower part, fingers open along the block's face
+        # line nearest to x (the block may have turned a little in the left hand); the left lets go
+        # only once the right fingers hold it, else the right backs off and aims again
+        for attempt in range(3):
+            held = world.pose(name)
+            faces = [yaw_axis(held[3:], (1, 0, 0)), yaw_axis(held[3:], (0, 1, 0))]
+            opening = max(faces, key=lambda f: abs(f[0]))
+            opening = opening if opening[0] < 0 else -opening
+            approach = np.array([-opening[1], opening[0], 0.0])  # horizontal, at right angles
+            approach = approach if approach[1] > 0 else -approach
+            low = transform_point(held, b["right_grasp_point"])
+            reach("right", low - 0.10 * approach, tcp_quat(approach, opening), "in front of the block")
+            low = transform_point(world.pose(name), b["right_grasp_point"])  # it may have swung meanwhile
+            move("right", low - world.tcp_pose("right")[:3], "round the block", ok=tolerant)
+            grip("right", 0.0)
+            if world.gripper_holds("right", name):
+                break
+            grip("right", 1.0)
+            move("right", -0.10 * approach, "back off to aim again", ok=tolerant)
+        else:
+            raise OracleFailed("the right hand did not get hold of the block in three tries")
         grip("left", 1.0)
         move("left", (0.0, 0.0, 0.10), "left hand up", ok=tolerant)
 

@@ -151,8 +151,9 @@ class StackBlocksThree(CodeActionTask):
         return rules
 
     def oracle(self, call, world: WorldView) -> None:
-        """Each cube is picked top-down by the arm on its side (fingers across two faces) and put
-        on the stack in the cleared area in front of the robot, bottom to top."""
+        """Each cube is picked top-down by the arm on its side (fingers across two faces; aimed again
+        if the arm's way there pushed it, picked again if it is not held) and put on the stack in the
+        cleared area in front of the robot, bottom to top."""
         info = world.info
         half = float(info["block_half_size"])
         tx, ty = (float(v) for v in info["stack_target_xy"])
@@ -162,10 +163,13 @@ class StackBlocksThree(CodeActionTask):
             pose = world.pose(name)
             arm = "left" if pose[0] < 0 else "right"
             hands = Hands(call, arm)
-            faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
             now = world.tcp_pose(arm)
-            q = top_down_quat(closest_opening(now[3:], faces))
-            hands.pick([pose[0], pose[1], pose[2] + GRASP_ABOVE_CENTRE], q, lift=0.06 + 2 * half * level)
+
+            def aim(p):
+                faces = [yaw_axis(p[3:], (1, 0, 0)), yaw_axis(p[3:], (0, 1, 0))]
+                return [p[0], p[1], p[2] + GRASP_ABOVE_CENTRE], top_down_quat(closest_opening(now[3:], faces))
+
+            hands.pick_held(world, name, aim, lift=0.06 + 2 * half * level)
             # where the held cube sits relative to the TCP decides where the TCP must go
             held = world.pose(name)[:3] - world.tcp_pose(arm)[:3]
             z = base_z + 2 * half * level + 0.004
