@@ -316,3 +316,38 @@ def test_attempts_served_over_mcp_group_by_their_configuration_name(sweep, tmp_p
                                                ["mcp_client (mcp, sapien)", "–", "0/1"],
                                                ["my-agent (mcp, sapien)", "agent-b/2.5, agent-c/0.1", "0/1"]]
     assert "| mcp:agent-a (mcp, sapien) | agent-a/1.0 | 0/2 |" in (tmp_path / "report.md").read_text()
+
+
+def test_verdict_margins_and_borderline_flags(sweep, tmp_path):
+    """Every real record carries its deciding margin; the report counts borderline verdicts per
+    configuration from them, names the attempts, and shows each attempt's margin. One oracle record
+    is edited to a deciding margin of 4 % (what another machine could flip)."""
+    for r in results(sweep):
+        d = r["verdict"]["margin"]
+        if r["model"] == "oracle":
+            assert r["verdict"]["success"] and d["fraction"] > rep.BORDERLINE_FRACTION and not d["borderline"]
+            assert d["predicate"] in r["verdict"]["margins"]
+    src = attempt_dir(sweep, TASKS[1], "oracle", 1)
+    d = tmp_path / "tight"
+    shutil.copytree(src, d, ignore=shutil.ignore_patterns("*.mp4", "view.html"))
+    shutil.copytree(attempt_dir(sweep, TASKS[1], "oracle", 2), tmp_path / "wide",
+                    ignore=shutil.ignore_patterns("*.mp4", "view.html"))
+    res = json.loads((d / "result.json").read_text())
+    res["verdict"]["margin"] = {"predicate": "green_on_red", "fraction": 0.04, "borderline": True, "threshold": 0.1}
+    (d / "result.json").write_text(json.dumps(res))
+    old = tmp_path / "old"  # a record written before margins existed
+    shutil.copytree(src, old, ignore=shutil.ignore_patterns("*.mp4", "view.html"))
+    res = json.loads((old / "result.json").read_text())
+    del res["verdict"]["margin"], res["verdict"]["margins"]
+    (old / "result.json").write_text(json.dumps(res))
+    r = rep.write(tmp_path, tmp_path / "out")
+    b = cfg(r, "oracle")["borderline"]
+    assert b["successes"] == 1 and b["failures"] == 0 and b["unrecorded"] == 1 and b["attempts"] == ["tight"]
+    assert b["min_success_margin"] == pytest.approx(0.04)
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "| oracle (direct, sapien) | 1/3 | 0/0 | 4.0% | 1 |" in md
+    assert "Borderline verdicts (deciding margin under 10% of its tolerance): tight (oracle (direct, sapien))" in md
+    page = (tmp_path / "out" / "report.html").read_text()
+    assert "borderline 4.0% (green_on_red)" in page
+    view = (tmp_path / "tight" / "view.html").read_text()
+    assert "BORDERLINE: 4.0% of its tolerance (green_on_red" in view and "margins measured at the final" in view
