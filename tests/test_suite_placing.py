@@ -147,9 +147,13 @@ def test_place_bread_skillet_layouts(builds):
         assert abs(_wrap(_yaw(skillet[3:]) - base)) <= np.pi / 6 + 1e-9
         assert info["skillet_arm"] == ("right" if side > 0 else "left")
         assert info["bread_arm"] == ("left" if bread[0] < 0 else "right")
-        # the handle points toward the robot's side of the table and outward
+        # the handle points toward the robot's side of the table and outward (+-30 degrees about
+        # 50 degrees outward of -y), and a hand sliding onto it from beyond its end is within reach
         d = quat_to_mat(skillet[3:])[:, 0]
-        assert d[1] < -0.3 and d[0] * side > 0
+        assert d[1] < -0.17 and d[0] * side > 0
+        pbs = importlib.import_module("cab_suite_codeaction.tasks.place_bread_skillet")
+        reach = pbs.wrist_to_shoulder(skillet, info["skillet"], pbs.SHOULDER_XY[info["skillet_arm"]])
+        assert reach >= pbs.MIN_WRIST_SHOULDER
 
 
 def test_place_cans_plasticbox_layouts(builds):

@@ -54,6 +54,22 @@ def closest_opening(current_quat, candidates: list[np.ndarray]) -> np.ndarray:
     return best
 
 
+def finger_reach(opening: float) -> float:
+    """aloha_agilex: TCP to a finger's outer side along the opening line at gripper command
+    ``opening`` (the pads' clearance is 0.11 * opening - 0.018 m)."""
+    return 0.024 + 0.055 * opening
+
+
+def fingers_clear(centre_xy, line, opening: float, obstacles, margin: float = 0.01) -> bool:
+    """Whether both fingers, opened to ``opening`` along the horizontal ``line`` about
+    ``centre_xy``, stay ``margin`` clear of every obstacle ``(centre_xy, radius)``."""
+    reach = finger_reach(opening)
+    c = np.asarray(centre_xy, float)[:2]
+    d = np.asarray(line, float)[:2]
+    return all(np.linalg.norm(c + s * reach * d - np.asarray(o, float)[:2]) > r + margin
+               for s in (-1.0, 1.0) for o, r in obstacles)
+
+
 def expect(result: dict, what: str, ok=("SUCCESS",)) -> dict:
     if "error" in result:
         raise OracleFailed(f"{what}: {result['error']}")

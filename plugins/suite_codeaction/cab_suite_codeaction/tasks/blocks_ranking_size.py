@@ -40,7 +40,7 @@ from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, mar
 
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
                       srgb, table_top_z, vec, yaw_of)
-from ..oracle import Hands, OracleFailed, closest_opening, top_down_quat, yaw_axis
+from ..oracle import Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
 
 NAME = "blocks_ranking_size"
 HALF_RANGES = ((0.030, 0.033), (0.024, 0.027), (0.018, 0.021))  # block1 (largest) .. block3
@@ -59,12 +59,6 @@ PARK_X = 0.28  # |x| an arm's TCP withdraws to after its placement
 HOVER = 0.22  # reference solution: TCP height above a grasp or place spot before the straight descent
 PLACE_TRIES = 3  # reference solution: a block found off its row spot after a placement is moved again
 PLACE_TOL_M = 0.015  # how far from its row spot (x, y) a placed block may lie
-
-
-def finger_reach(opening: float) -> float:
-    """aloha_agilex: TCP to a finger's outer side along the opening line at gripper command
-    ``opening`` (the pads' clearance is 0.11 * opening - 0.018 m)."""
-    return 0.024 + 0.055 * opening
 
 
 def block_colours(rng: np.random.Generator) -> list[tuple[float, float, float]]:
@@ -248,9 +242,7 @@ class BlocksRankingSize(CodeActionTask):
                           for o in blocks if o["name"] != name]
 
                 def clear(line: np.ndarray, opening: float) -> bool:
-                    reach = finger_reach(opening)
-                    return all(np.linalg.norm(pose[:2] + s * reach * line[:2] - c) > r + 0.01
-                               for s in (-1.0, 1.0) for c, r in others)
+                    return fingers_clear(pose[:2], line, opening, others)
 
                 faces.sort(key=lambda f: -abs(f[1]))
                 line = next((f for f in faces if clear(f, 1.0)), None)

@@ -12,7 +12,15 @@ Randomisation (per seed; FACTS B.6)
     task). Skillet model 0-3 on the opposite side: x in [0.15, 0.25] (bread on the left) or
     [-0.25, -0.15], y in [-0.2, 0.05], yaw +-pi/6 about a base heading that points the handle
     50 deg outward from straight toward the robot (upstream's base orientation belongs to its
-    mesh; this pan's handle then stays within the arms' reach).
+    mesh; this pan's handle then stays within the arms' reach). The skillet pose (not its model)
+    is redrawn until, seen from above, the point 20 cm beyond the handle's end along the handle
+    lies at least 0.24 m from the skillet arm's shoulder (the joint-2 axis at (+-0.22, -0.70)):
+    a hand that slides onto the handle from beyond its end has its wrist about there, and a
+    handle that points at the arm from near the table's front edge leaves the elbow no room
+    (at 0.19 m, seed 100 before this rule, the approach needs the elbow past its 2.85 rad
+    limit; at 0.19-0.22 m it comes within 0.05 rad of it; from 0.24 m it keeps about 0.08 rad
+    or more). About 5 % of first draws are redrawn; the rest, the catalog seed among them,
+    keep their instance.
 
 Success (final state; CodeActionBench's subclass)
     ``bread_over_pan``: |bread x - pan point x| < 0.035 and |bread y - pan point y| < 0.035 (the
@@ -37,7 +45,8 @@ from cab_core.task import SceneInstance, rng_for
 from cab_core.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..assets_placing import BREAD_MASS, SKILLET_MASS, SKILLETS, bread_shapes, skillet_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
+                      table_top_z, yaw_of)
 from ..oracle import Hands, closest_opening, tcp_quat, top_down_quat, yaw_axis
 from .place_bread_basket import grasp_tcp_dz, pick_top_down, place_at
 
@@ -46,8 +55,25 @@ BREAD_IDS = (0, 1, 3, 5, 6)
 XY_TOLERANCE = 0.035
 Z_TOLERANCE = 0.06
 HANDLE_OUTWARD = np.deg2rad(50.0)  # base heading of the handle: from -y toward the skillet's side
+# reach rule (Randomisation): the wrist of a hand sliding onto the handle from beyond its end sits
+# about WRIST_BEYOND_END (horizontally) beyond the handle's end; it must keep MIN_WRIST_SHOULDER
+# from that arm's shoulder (aloha_agilex joint-2 axis, seen from above)
+SHOULDER_XY = {"left": (-0.22, -0.70), "right": (0.22, -0.70)}
+WRIST_BEYOND_END = 0.20
+MIN_WRIST_SHOULDER = 0.24
 RELEASE_GAP = 0.005  # bread bottom above the pan floor when the expert lets go
 TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
+
+
+def wrist_to_shoulder(pose, sdims: dict, shoulder_xy) -> float:
+    """Seen from above: distance from ``shoulder_xy`` to the point WRIST_BEYOND_END beyond the
+    handle's end along the handle of a skillet at ``pose`` (the reach rule of ``build``)."""
+    pose = np.asarray(pose, dtype=float)
+    axis_local = np.asarray(sdims["handle_axis"], float)
+    end = transform_point(pose, np.asarray(sdims["handle_start"], float) + float(sdims["handle_length"]) * axis_local)
+    axis = (quat_to_mat(pose[3:]) @ axis_local)[:2]
+    wrist = end[:2] + WRIST_BEYOND_END * axis / np.linalg.norm(axis)
+    return float(np.linalg.norm(wrist - np.asarray(shoulder_xy, float)))
 
 
 class PlaceBreadSkilletVerifier(Verifier):
@@ -102,8 +128,15 @@ class PlaceBreadSkillet(CodeActionTask):
         base_heading = -np.pi / 2 + side * HANDLE_OUTWARD  # the handle's direction (body +x)
         q0 = (float(np.cos(base_heading / 2)), 0.0, 0.0, float(np.sin(base_heading / 2)))
         xlim = (0.15, 0.25) if side > 0 else (-0.25, -0.15)
-        skillet_pose = rand_pose(rng, xlim, (-0.2, 0.05), (top + 0.0005,), rotate_rand=True,
-                                 rotate_lim=(0.0, 0.0, np.pi / 6), qpos=q0)
+        shoulder = np.asarray(SHOULDER_XY["right" if side > 0 else "left"])
+
+        def reachable(pose: np.ndarray) -> bool:
+            return wrist_to_shoulder(pose, sdims, shoulder) >= MIN_WRIST_SHOULDER
+
+        skillet_pose = sample_until(
+            lambda: rand_pose(rng, xlim, (-0.2, 0.05), (top + 0.0005,), rotate_rand=True,
+                              rotate_lim=(0.0, 0.0, np.pi / 6), qpos=q0),
+            reachable, what="skillet (handle within the arm's reach)")
 
         scene.bodies.append(Body("bread", bshapes, pose=tuple(bread_pose), kind="dynamic", mass=BREAD_MASS))
         scene.bodies.append(Body("skillet", sshapes, pose=tuple(skillet_pose), kind="dynamic", mass=SKILLET_MASS,

@@ -30,7 +30,7 @@ from cab_core.task import SceneInstance, rng_for
 from cab_core.analysis.checkpoints import SpatialRule, box, sphere
 from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
 
-from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
+from ..oracle import Hands, closest_opening, finger_reach, fingers_clear, top_down_quat, yaw_axis
 from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, base_scene, pose_list,
                       rand_pose, sample_until, table_top_z, yaw_of)
 
@@ -43,6 +43,7 @@ CLEAR_RADIUS = 0.15
 MIN_PAIR_DIST = 0.10
 TOLERANCE = (0.025, 0.025, 0.012)
 GRIPPER_OPEN = 0.8
+PARK_X = 0.28  # reference solution: |x| an arm's TCP withdraws to after its placement
 GRASP_ABOVE_CENTRE = 0.012  # the expert grasps a cube top-down with the TCP this far above its centre
 COLOURS = (("red", RED), ("green", GREEN), ("blue", BLUE))  # bottom -> top of the goal stack
 
@@ -151,8 +152,9 @@ class StackBlocksThree(CodeActionTask):
         return rules
 
     def oracle(self, call, world: WorldView) -> None:
-        """Each cube is picked top-down by the arm on its side (fingers across two faces; aimed again
-        if the arm's way there pushed it, picked again if it is not held) and put on the stack in the
+        """Each cube is picked top-down by the arm on its side (fingers across the two faces needing
+        the least wrist roll, or the other two where an open finger would land on another cube;
+        aimed again if the arm's way there pushed it, picked again if it is not held) and put on the stack in the
         cleared area in front of the robot, bottom to top."""
         info = world.info
         half = float(info["block_half_size"])
@@ -165,9 +167,18 @@ class StackBlocksThree(CodeActionTask):
             hands = Hands(call, arm)
             now = world.tcp_pose(arm)
 
-            def aim(p):
+            def aim(p, name=name):
+                # fingers across the faces needing the least wrist roll, unless an open finger would
+                # come down on another cube: then across the other two, or whichever is clearer
                 faces = [yaw_axis(p[3:], (1, 0, 0)), yaw_axis(p[3:], (0, 1, 0))]
-                return [p[0], p[1], p[2] + GRASP_ABOVE_CENTRE], top_down_quat(closest_opening(now[3:], faces))
+                first = closest_opening(now[3:], faces)
+                faces.sort(key=lambda f: -abs(float(np.dot(f, first))))
+                others = [(world.pose(o["name"])[:2], half * np.sqrt(2)) for o in info["blocks"].values()
+                          if o["name"] != name]
+                line = next((f for f in faces if fingers_clear(p[:2], f, 1.0, others)),
+                            max(faces, key=lambda f: min(np.linalg.norm(p[:2] + s * finger_reach(1.0) * f[:2] - c)
+                                                         - r for s in (-1, 1) for c, r in others)))
+                return [p[0], p[1], p[2] + GRASP_ABOVE_CENTRE], top_down_quat(closest_opening(now[3:], [line]))
 
             hands.pick_held(world, name, aim, lift=0.06 + 2 * half * level)
             # where the held cube sits relative to the TCP decides where the TCP must go
@@ -179,9 +190,15 @@ class StackBlocksThree(CodeActionTask):
                 below = world.pose(info["blocks"][info["stack_order"][level - 1]]["name"])[:3]
                 target = np.array([below[0], below[1], z])
             hands.place(target - held, None)
-            # step aside so the other arm can reach the stack
-            hands.move(dx=-0.18 if arm == "left" else 0.18, dy=-0.05, dz=0.04, what="clear the stack",
-                       ok=("SUCCESS", "ABORTED", "FAILED"))
+            # step aside, well out to the arm's side, so the other arm can reach the stack (its wrist
+            # meets a parked arm's otherwise); a planned move where the straight one cannot go
+            park_x = -PARK_X if arm == "left" else PARK_X
+            r = hands.move(dx=float(np.clip(park_x - world.tcp_pose(arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05,
+                           what="clear the stack", ok=("SUCCESS", "ABORTED", "FAILED"))
+            if r["status"] == "FAILED":
+                at = world.tcp_pose(arm)
+                hands.reach([park_x, at[1] - 0.05, at[2] + 0.05], None, "clear the stack", ok=("SUCCESS", "ABORTED",
+                                                                                              "FAILED"))
         call("done", report="stacked blue on green on red", success_claim=True)
 
 
