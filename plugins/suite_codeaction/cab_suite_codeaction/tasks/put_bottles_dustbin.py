@@ -29,13 +29,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.geometry import transform_point
 from cab_core.task import SceneInstance, rng_for
 from cab_core.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
                                margin_within)
 
 from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info
 from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
-from ..oracle import Hands, tcp_quat, world_point
+from ..oracle import Hands, OracleFailed, tcp_quat, world_point
 
 NAME = "put_bottles_dustbin"
 TABLE_X = 0.3
@@ -56,6 +57,10 @@ PRE_GRASP = 0.10
 LIFT = 0.10
 DROP_CLEARANCE = 0.06  # the held bottle's base above the dustbin's rim when let go
 DROP_Y = (-0.10, 0.0, 0.10)  # where along the dustbin the three bottles are let go
+HAND_CLEAR = 0.07  # the empty hand's TCP this far above the standing bottles' tops (its lowest
+# part, the gripper housing, 3 cm below the TCP)
+CARRY_CLEAR = 0.05  # the held bottle's base this far above the standing bottles' tops while carried
+PICK_TRIES = 2
 
 
 class PutBottlesDustbinVerifier(Verifier):
@@ -175,32 +180,74 @@ class PutBottlesDustbin(CodeActionTask):
 
     # -- reference solution ---------------------------------------------------------------------
     def oracle(self, call, world: WorldView) -> None:
-        """The left arm does all three bottles, the one nearest the dustbin first: the others then
-        all stand to the right of the one being carried (never under its way to the dustbin) and
-        off its approach line, which comes from the front-left (0.8 rad right of straight ahead):
-        a side grasp of the body, a lift, a carry to above the dustbin, let go 6 cm above the rim
-        (the three at different places along y) and rise. The right arm first moves out of the left
-        arm's way when a bottle stands on its side (22 calls)."""
+        """The left arm does all three bottles, the one nearest along the approach first. The
+        approach comes from the front-left (0.8 rad right of straight ahead) and the open hand
+        sweeps a band 17 cm wide (the finger rail) from 20 cm behind the bottle: taken in this order,
+        every bottle still standing is ahead of the one being taken, never in that band (by x, a
+        bottle standing just in front of the one taken, the pair's 13 cm apart, was hit). Each pick:
+        above the approach's start, high enough to pass over every standing bottle, straight down,
+        in, a side grasp of the body, a lift until the held bottle's base clears every standing
+        bottle's top (it may now be carried over them), a check that every finger touches it (else
+        it is grasped again), across to above the dustbin at that height, down until its base is 6
+        cm above the rim (the three at different places along y), let go, and straight up to
+        above the bottles again. The right arm first moves out of the left arm's way when a bottle
+        stands on its side (28 calls)."""
         info = world.info
         q = tcp_quat(APPROACH, (-APPROACH[1], APPROACH[0], 0.0))  # the gripper's z axis up
         tolerant = ("SUCCESS", "ABORTED", "FAILED")
         if any(world.pose(info[k]["name"])[0] > 0.05 for k in info["bottles"]):
             Hands(call, "right").move(dx=0.15, dy=-0.05, dz=0.05, what="right arm aside", ok=tolerant)
         hands = Hands(call, "left")
-        order = sorted(info["bottles"], key=lambda k: world.pose(info[k]["name"])[0])
-        for i, key in enumerate(order):
+        left = list(info["bottles"])
+        for i in range(len(info["bottles"])):
+            key = min(left, key=lambda k: float(world.pose(info[k]["name"])[:2] @ APPROACH[:2]))
             b = info[key]
-            g = _grasp_tcp(world.pose(b["name"]), b)
-            hands.reach(g - PRE_GRASP * APPROACH, q, "before the bottle")
-            hands.move(*(g - world.tcp_pose("left")[:3]), what="around the bottle")
-            hands.grip(0.0)
-            hands.move(dz=LIFT, what="lift", ok=tolerant)
-            held = world.pose(b["name"])[:3] - world.tcp_pose("left")[:3]
-            hands.reach(_drop_tcp(info, b, held, DROP_Y[i]), None, "over the dustbin")
+            name = b["name"]
+            hover_z = _tops(world, info, left) + HAND_CLEAR
+            left.remove(key)
+            carry_top = _tops(world, info, left) + CARRY_CLEAR  # what the held bottle must pass over
+            for _ in range(PICK_TRIES):
+                g = _grasp_tcp(world.pose(name), b)
+                pre = g - PRE_GRASP * APPROACH
+                hands.reach([pre[0], pre[1], max(pre[2], hover_z)], q, "above the approach to the bottle")
+                hands.move(dz=pre[2] - world.tcp_pose("left")[2], what="down before the bottle")
+                g = _grasp_tcp(world.pose(name), b)  # where it stands now
+                hands.move(*(g - world.tcp_pose("left")[:3]), what="around the bottle")
+                hands.grip(0.0)
+                base = _base_z(world, b)
+                hands.move(dz=max(LIFT, carry_top - base), what="lift", ok=tolerant)
+                if world.gripper_holds("left", name):
+                    break
+                # not held: open, back out along the approach and up, and take it again
+                hands.grip(1.0)
+                hands.move(*(-PRE_GRASP * APPROACH), what="back out", ok=tolerant)
+            else:
+                raise OracleFailed(f"{name}: not held after {PICK_TRIES} grasps")
+            tcp = world.tcp_pose("left")[:3]
+            held = world.pose(name)[:3] - tcp
+            drop = _drop_tcp(info, b, held, DROP_Y[i])
+            hands.reach([drop[0], drop[1], max(drop[2], float(tcp[2]))], None, "above the dustbin")
+            hands.move(dz=drop[2] - world.tcp_pose("left")[2], what="down over the dustbin", ok=tolerant)
             hands.grip(1.0)
-            # up and clear of the table's edge before the next bottle (the hand is below its top)
-            hands.move(dz=0.15, what="rise", ok=tolerant)
+            # straight up, over the standing bottles' tops, before the next one (the hand is below the
+            # table top here)
+            up = _tops(world, info, left) + HAND_CLEAR if left else world.tcp_pose("left")[2] + 0.15
+            hands.move(dz=max(0.15, up - world.tcp_pose("left")[2]), what="rise", ok=tolerant)
         call("done", report="dropped the three bottles into the dustbin", success_claim=True)
+
+
+def _tops(world: WorldView, info: dict, keys) -> float:
+    """The highest top of the bottles ``keys`` as they stand (the table top if none)."""
+    tops = [float(world.pose(info[k]["name"])[2]) + info[k]["height"] / 2 for k in keys]
+    return max(tops, default=float(info["table_top_z"]))
+
+
+def _base_z(world: WorldView, b: dict) -> float:
+    """The lowest point of a bottle's base circle (it may lean)."""
+    p = world.pose(b["name"])
+    r, h = b["body_radius"], b["height"]
+    return float(min(transform_point(p, (r * np.cos(t), r * np.sin(t), -h / 2))[2]
+                     for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)))
 
 
 def _grasp_tcp(pose, b: dict) -> np.ndarray:
