@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cab_core.verifier import (BORDERLINE_FRACTION, Margin, deciding_margin, margin_above, margin_all, margin_any,
-                               margin_below, margin_within)
+from cab_core.verifier import (BORDERLINE_FRACTION, Evaluation, Margin, Verifier, deciding_margin, margin_above,
+                               margin_all, margin_any, margin_below, margin_within)
 
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False)
 positive = st.floats(min_value=1e-3, max_value=1e3, allow_nan=False)
@@ -85,3 +85,48 @@ def test_record_is_plain_data():
     r = margin_within([0.01], 0.025, "m").as_record()
     assert r == {"slack": pytest.approx(0.015), "scale": 0.025, "fraction": pytest.approx(0.6), "unit": "m",
                  "measured": pytest.approx(0.01), "threshold": 0.025}
+
+
+
+class Rising(Verifier):
+    """A latched event on a quantity the test sets: it holds above 1.0 (tolerance 0.5)."""
+    scoring = "latch"
+
+    def __init__(self):
+        self.x = 0.0
+
+    def evaluate(self, w):
+        m = margin_above(self.x, 1.0, "m", 0.5)
+        return Evaluation(success=self.x > 1.0, predicates={"high": self.x > 1.0}, margins={"high": m})
+
+
+def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
+    from cab_core.episode import VerdictTracker
+
+    v = Rising()
+    t = VerdictTracker(v, world=None, timestep=0.01)  # the window: 1 simulated second, 100 steps
+    path = {1: 0.5, 2: 1.01, 3: 1.2, 50: 1.4, 60: 0.9, 99: 1.3, 150: 1.49}  # 1.49: after the window
+    for step in range(1, 160):
+        v.x = path.get(step, v.x)
+        t.poll(step)
+    assert t.latched and t.latched_at_step == 2
+    f = t.final()
+    assert f["success"] is True and f["margins_at"] == "latch" and f["margins_at_step"] == 50
+    assert f["margins"]["high"]["fraction"] == pytest.approx(0.8)
+    assert f["margin"] == {"predicate": "high", "fraction": pytest.approx(0.8), "borderline": False,
+                           "threshold": BORDERLINE_FRACTION}
+    assert f["predicates"] == {"high": True}  # the final state, as before
+
+
+def test_an_event_that_never_latched_has_no_deciding_margin():
+    from cab_core.episode import VerdictTracker
+
+    v = Rising()
+    t = VerdictTracker(v, world=None, timestep=0.01)
+    for step in range(1, 50):
+        v.x = 0.99
+        t.poll(step)
+    f = t.final()
+    assert f["success"] is False and f["margins_at"] == "final"
+    assert f["margins"]["high"]["fraction"] == pytest.approx(-0.02)
+    assert f["margin"]["predicate"] is None and f["margin"]["borderline"] is False
