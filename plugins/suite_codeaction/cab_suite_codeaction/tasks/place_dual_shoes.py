@@ -69,6 +69,16 @@ LIFT = 0.12
 PLACE_X = -0.02  # shoe origin x at release: the heel (at +x) keeps room for the open fingers
 RELEASE_DROP = 0.004  # the sole is let go this far above the box floor
 PRE_GRIP = 0.5  # half-open fingers straddle the heel counter with 1.5 cm to spare on each side
+# where each arm's TCP waits (world x) while the other one works over the box: the right arm, its
+# shoe in hand, while the left one places (the left arm's wrist and open fingers reach x ~ 0.15);
+# the left arm, empty, while the right one carries its shoe, whose toe swings round the TCP
+RIGHT_WAIT_X = 0.28
+LEFT_PARK_X = -0.32
+# each shoe is set down this far outward (y) of its place: the 6.6 cm wide shoes then stand 2.6 cm
+# apart (not 1.4), so one nudged while its gripper lets go cannot lean on the other; the box's inner
+# walls stay 1.1 cm away
+PLACE_SPREAD = 0.006
+MAX_STEP = 0.3  # the longest move_delta (longer ones are clamped)
 
 
 def _qnorm(q) -> np.ndarray:
@@ -246,9 +256,11 @@ class PlaceDualShoes(CodeActionTask):
     # -- reference solution -------------------------------------------------------------------
     def oracle(self, call, world: WorldView) -> None:
         """Both arms pinch their shoe's heel counter top-down at once (fingers along the shoe, one
-        inside the heel cavity, one behind the heel) and lift; the left arm turns its shoe toe-left
-        and sets it down in the near place, opens and steps aside; the right arm puts its shoe in
-        the far place the same way (18 tool calls)."""
+        inside the heel cavity, one behind the heel) and lift (a shoe not held is picked again);
+        the right arm waits with its shoe at x >= RIGHT_WAIT_X while the left arm turns its shoe
+        toe-left, sets it down in the near place, opens and parks at x = LEFT_PARK_X; the right arm
+        puts its shoe in the far place the same way. Each lets go half open and opens fully
+        once risen clear of its shoe (21-22 tool calls)."""
         info = world.info
         grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
         target_q = np.asarray(info["target_quat"], float)
@@ -294,20 +306,44 @@ class PlaceDualShoes(CodeActionTask):
             hands[a].grip(0.0)
         call("move_both_delta", left_delta=[0.0, 0.0, LIFT], right_delta=[0.0, 0.0, LIFT])
 
+        # a shoe that slipped out is picked again where it lies (heel aimed from its present pose)
+        def aim(a: str):
+            return lambda pose: (transform_point(pose, grasp), pick_quat(a))
+
+        for a in arms:
+            if not world.gripper_holds(a, shoe_of[a]):
+                hands[a].grip(PRE_GRIP)
+                hands[a].pick_held(world, shoe_of[a], aim(a), lift=LIFT)
+
+        # the right arm waits out of the left arm's way (a heel picked near the box would leave its
+        # wrist where the left wrist comes down to place)
+        wait_dx = RIGHT_WAIT_X - float(world.tcp_pose("right")[0])
+        if wait_dx > 0.01:
+            hands["right"].move(dx=wait_dx, what="wait aside with the right shoe", ok=tolerant)
+
         # 2. one after the other: carry over the place (turning the toe to -x), set down, let go
-        for arm, aside in (("left", -0.20), ("right", 0.20)):
+        for arm in arms:
             s = np.asarray(world.pose(shoe_of[arm]), float)
             held = pose_mul(pose_inv(s), world.tcp_pose(arm))  # the TCP in the shoe frame
-            px, py = PLACE_X + box[0] - BOX_XY[0], place_of[arm][1]
+            spread = -PLACE_SPREAD if arm == "left" else PLACE_SPREAD
+            px, py = PLACE_X + box[0] - BOX_XY[0], place_of[arm][1] + spread
             shoe_goal = np.array([px, py, float(info["box"]["floor_top_z"]) + RELEASE_DROP, *target_q])
             tcp_goal = pose_mul(shoe_goal, held)
             h = hands[arm]
             h.reach(tcp_goal[:3] + up, tcp_goal[3:], f"carry the {arm} shoe over the box")
             h.descend_to(float(tcp_goal[2]), f"set the {arm} shoe down", ok=tolerant)
-            h.grip(1.0)
+            # let go half open: a fully open inner finger ends under the front of the heel opening
+            # and can catch the collar on the way up (the shoe is then lifted with the gripper);
+            # the fingers open fully once clear above the shoe
+            h.grip(PRE_GRIP)
             h.move(dz=0.10, what="rise", ok=tolerant)
-            if arm == "left":
-                h.move(dx=aside, what="out of the way", ok=tolerant)
+            h.grip(1.0)
+            if arm == "left":  # well clear of the right shoe's swing on its way to the box
+                for _ in range(2):  # move_delta goes at most MAX_STEP at a time
+                    dx = LEFT_PARK_X - float(world.tcp_pose(arm)[0])
+                    if dx > -0.01:
+                        break
+                    h.move(dx=max(dx, -MAX_STEP), what="out of the way", ok=tolerant)
         call("done", report="put both shoes into the shoe box side by side, toes pointing left, and let go",
              success_claim=True)
 
