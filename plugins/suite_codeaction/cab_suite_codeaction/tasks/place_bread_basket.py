@@ -36,7 +36,7 @@ from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_ab
 
 from ..assets_placing import BREAD_BASKET_MASS, BREAD_BASKETS, BREAD_MASS, bread_basket_shapes, bread_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
-from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
+from ..oracle import Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
 
 NAME = "place_bread_basket"
 BASKET_XY = (0.0, -0.2)
@@ -50,6 +50,12 @@ FOOTPRINT_GAP = 0.01
 SLOT_GAP = 0.004  # between a placed bread's side and the basket's long axis
 TIP_BELOW_TCP = 0.0354  # fingertips ahead of the TCP (aloha_agilex)
 TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
+CORNER_R = 0.035  # a rectangular basket's floor corner radius (assets_placing.rounded_rect)
+SLOT_TURN = np.deg2rad(np.arange(-45.0, 45.1, 3.0))  # slot axes tried, from the basket's long axis
+FOOT_CLEAR = 0.008  # a bread's footprint (bounding box) inside the basket floor's outline
+SETTLE = 0.8  # how far a released bread moves from where it hung towards the TCP (PyBullet, SAPIEN)
+PICK_TRIES = 2
+SETTLED_MARGIN = 0.008  # a released bread resting closer than this to the tolerance is put in again
 
 
 def grasp_tcp_dz(height: float, table_top: float, centre_z: float) -> float:
@@ -104,6 +110,57 @@ def rects_apart(a: tuple, b: tuple, gap: float) -> bool:
             if pa.min() - pb.max() >= gap or pb.min() - pa.max() >= gap:
                 return True
     return False
+
+
+def floor_margin(bk: dict, x: float, y: float) -> float:
+    """How far (m, approximately) the point (x, y) of the basket frame lies inside its floor's
+    outline (negative: outside)."""
+    hx, hy = (float(v) for v in bk["inner_half_size"])
+    if bk["shape"] == "oval":
+        return float((1.0 - np.hypot(x / hx, y / hy)) * min(hx, hy))
+    ax, ay = abs(x), abs(y)
+    m = min(hx - ax, hy - ay)
+    if ax > hx - CORNER_R and ay > hy - CORNER_R:
+        m = min(m, CORNER_R - float(np.hypot(ax - (hx - CORNER_R), ay - (hy - CORNER_R))))
+    return float(m)
+
+
+def slot_fit(bk: dict, turn: float, breads: list[dict]) -> tuple[float, float]:
+    """How far inside the basket floor's outline (m) the breads' footprints and the outer finger,
+    opened, lie when the breads are laid in their slots along the axis ``turn`` from the basket's
+    long axis (either bread on either side)."""
+    e, p = np.array([np.cos(turn), np.sin(turn)]), np.array([-np.sin(turn), np.cos(turn)])
+    foot = finger = np.inf
+    for b in breads:
+        length, width = b["size"][0], b["size"][1]
+        off = width / 2 + SLOT_GAP
+        for side in (-1.0, 1.0):
+            foot = min(foot, *(floor_margin(bk, *(side * (off + sw * width / 2) * e + sl * length / 2 * p))
+                               for sw in (-1, 1) for sl in (-1, 1)))
+            finger = min(finger, floor_margin(bk, *(side * (off + finger_reach(1.0)) * e)))
+    return float(foot), float(finger)
+
+
+def slot_turn(bk: dict, basket_yaw: float, breads: list[dict], tol: float) -> float:
+    """The slot axis (the line the breads are laid side by side along, each lying across it), as a
+    turn from the basket's long axis. The verifier's tolerance is a square in the world's x and y,
+    so a slot offset along a world axis has the least room (seeds 106 and 108 on PyBullet: a 7-8 cm
+    wide bread laid 4.4 cm out along a basket lying square to the table came to rest 0.1-2.4 mm past
+    the 5 cm), one along a world diagonal the most. Of the turns that keep the breads' footprints
+    ``FOOT_CLEAR`` inside the floor and the opened outer finger no further out than along the long
+    axis, the one with the most room in the world's x and y (the least turn within 1 mm of it)."""
+    foot0, finger0 = slot_fit(bk, 0.0, breads)
+    off = max(b["size"][1] / 2 + SLOT_GAP for b in breads)
+    best, best_room = 0.0, -np.inf
+    for d in sorted(SLOT_TURN, key=abs):
+        foot, finger = slot_fit(bk, d, breads)
+        if d and (foot < min(FOOT_CLEAR, foot0) or finger < min(0.0, finger0)):
+            continue
+        phi = basket_yaw + d
+        room = tol - off * max(abs(np.cos(phi)), abs(np.sin(phi)))
+        if room > best_room + 0.001:
+            best, best_room = float(d), room
+    return best
 
 
 class PlaceBreadBasketVerifier(Verifier):
@@ -240,66 +297,110 @@ class PlaceBreadBasket(CodeActionTask):
 
     # --- reference solution ----------------------------------------------------------------------
     def oracle(self, call, world: WorldView) -> None:
-        """Each bread is picked top-down across its width by the arm on its side, turned so that it
-        lies across the basket, and laid on the basket floor beside the basket's long axis; the
-        second one is let go just above the first one's top, so the fingers clear it. Breads on
-        both sides are both picked up first (one per arm), then placed one after the other; the
-        first arm steps aside before the second places."""
+        """Each bread is picked top-down across its width by the arm on its side (a grasp that does
+        not hold it, every finger touching, is tried again), turned so that it lies across the slot
+        axis, and laid on the basket floor beside that axis; the second one is let go just above
+        the first one's top, so the fingers clear it. Breads on both sides are both picked up first
+        (one per arm), then placed one after the other; the first arm steps aside before the second
+        places. A bread that came to rest near the edge of the tolerance is picked again and put in
+        once more.
+
+        The slot axis is the basket's long axis turned towards a world diagonal as far as the
+        basket's floor allows (``slot_turn``): the verifier's tolerance is a square in the world's x
+        and y. A bread hangs a few mm off-centre between the fingers (PyBullet, SAPIEN: 4-14 mm,
+        MuJoCo ~1 mm) and on release settles most of the way back under the TCP (72-94 % on
+        PyBullet and SAPIEN), so the TCP, not the bread as held, is aimed at the slot (less
+        ``1 - SETTLE`` of the bread's offset)."""
         info = world.info
         bk = info["basket"]
         floor = float(bk["floor_top_z"])
+        tol = float(info["xy_tolerance"])
+        z_min = float(info["bread_min_z"])
         breads = sorted(info["breads"], key=lambda b: b["pose"][0])  # left to right
         arms = ["left" if world.pose(b["name"])[0] < 0 else "right" for b in breads]
+        turn = slot_turn(bk, yaw_of(world.pose(bk["name"])[3:]), breads, tol)
 
-        def pick(b: dict, arm: str) -> None:
-            pick_top_down(call, world, arm, b["name"], float(b["grasp_tcp_dz"]))
+        def slot_axis() -> np.ndarray:
+            u = yaw_axis(world.pose(bk["name"])[3:], (1.0, 0.0, 0.0))
+            c, s = np.cos(turn), np.sin(turn)
+            return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1], 0.0])
 
-        placed_heights: list[float] = []
-        used_slots: list[float] = []
+        def pick(b: dict, arm: str, dz: float) -> None:
+            for _ in range(PICK_TRIES):
+                pick_top_down(call, world, arm, b["name"], dz)
+                if world.gripper_holds(arm, b["name"]):
+                    return
+                Hands(call, arm).grip(1.0)
+            raise OracleFailed(f"{b['name']}: not held after {PICK_TRIES} picks")
+
+        placed_heights: dict[str, float] = {}
+        slots: dict[str, float] = {}
 
         def place(b: dict, arm: str) -> None:
-            # slot: beside the basket's long axis, on the arm's side if still free
-            bp = world.pose(bk["name"])
-            u = yaw_axis(bp[3:], (1.0, 0.0, 0.0))
-            side = 1.0 if (u[0] >= 0) == (arm == "right") else -1.0
-            if side in used_slots:
-                side = -side
-            used_slots.append(side)
+            # slot: beside the slot axis, on the arm's side if still free
+            w = slot_axis()
+            if b["name"] not in slots:
+                side = 1.0 if (w[0] >= 0) == (arm == "right") else -1.0
+                if side in slots.values():
+                    side = -side
+                slots[b["name"]] = side
+            side = slots[b["name"]]
             width, height = b["size"][1], b["size"][2]
-            # fingers open along the basket's long axis: the bread lies across the basket
+            others = [h for n, h in placed_heights.items() if n != b["name"]]
+            # fingers open along the slot axis: the bread lies across it
             tcp = world.tcp_pose(arm)
-            qr = top_down_quat(closest_opening(tcp[3:], [u]))
+            qr = top_down_quat(closest_opening(tcp[3:], [w]))
 
             def target(held: np.ndarray) -> np.ndarray:
                 bp = world.pose(bk["name"])
-                centre = bp[:3] + side * (width / 2 + SLOT_GAP) * u
+                centre = bp[:3] + side * (width / 2 + SLOT_GAP) * slot_axis()
                 z_tcp = bp[2] + floor + 0.004 + height / 2 - held[2]
-                if placed_heights:  # fingertips above the bread already in the basket
-                    z_tcp = max(z_tcp, bp[2] + floor + max(placed_heights) + TIP_BELOW_TCP + 0.006)
-                return np.array([centre[0] - held[0], centre[1] - held[1], z_tcp])
+                if others:  # fingertips above the bread already in the basket
+                    z_tcp = max(z_tcp, bp[2] + floor + max(others) + TIP_BELOW_TCP + 0.006)
+                xy = centre[:2] - (1.0 - SETTLE) * held[:2]
+                return np.array([xy[0], xy[1], z_tcp])
 
             # the bread relative to the TCP as held, turned with the wrist (estimate; measured again
             # once the wrist has turned)
             held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(b["name"])[:3] - tcp[:3]))
             place_at(call, world, arm, target(held0), qr,
                      refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
-            placed_heights.append(height)
+            placed_heights[b["name"]] = height
+
+        def settled(b: dict) -> bool:
+            p = world.pose(b["name"])
+            d = np.asarray(p[:2]) - np.asarray(world.pose(bk["name"])[:2])
+            return bool(np.max(np.abs(d)) < tol - SETTLED_MARGIN and p[2] > z_min + 0.005)
+
+        def put_again(b: dict, arm: str) -> None:
+            """Pick the bread where it lies (the fingertips 3 mm above what it rests on) and put it
+            in its slot once more."""
+            if settled(b):
+                return
+            p = world.pose(b["name"])
+            rest = p[2] - b["size"][2] / 2  # its bottom
+            dz = float(max(0.010, rest + TIP_BELOW_TCP + 0.003 - p[2]))
+            pick(b, arm, dz)
+            place(b, arm)
 
         def aside(arm: str) -> None:
             Hands(call, arm).move(dx=-0.18 if arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
 
         if len(breads) == 2 and arms[0] != arms[1]:
-            pick(breads[0], arms[0])
-            pick(breads[1], arms[1])
+            pick(breads[0], arms[0], float(breads[0]["grasp_tcp_dz"]))
+            pick(breads[1], arms[1], float(breads[1]["grasp_tcp_dz"]))
             place(breads[0], arms[0])
+            put_again(breads[0], arms[0])
             aside(arms[0])
             place(breads[1], arms[1])
+            put_again(breads[1], arms[1])
         else:
             for k, (b, arm) in enumerate(zip(breads, arms)):
                 if k and arms[k - 1] != arm:
                     aside(arms[k - 1])
-                pick(b, arm)
+                pick(b, arm, float(b["grasp_tcp_dz"]))
                 place(b, arm)
+                put_again(b, arm)
         call("done", report="put every piece of bread into the basket", success_claim=True)
 
 
