@@ -54,8 +54,7 @@ def check_recorded_margins(rows):
         preds = {**verdict["predicates"], **verdict["final_requirements"], **verdict["guard"]}
         if verdict["margins_at"] == "latch":  # the event's predicates all held when it latched
             preds = {**preds, **{k: True for k in verdict["predicates"]}}
-        check_margins_agree(preds, verdict["margins"])
-        assert verdict["margins"], x["task"]
+        check_margins_agree(preds, verdict["margins"])  # an idle attempt may have none: no contact, no distance
         d = verdict["margin"]
         assert set(d) == {"predicate", "fraction", "borderline", "threshold"}
         if x["agent"] == "oracle":
