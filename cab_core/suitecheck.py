@@ -14,8 +14,6 @@ import sys
 import time
 from pathlib import Path
 
-from .verifier import BORDERLINE_FRACTION
-
 
 def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
     """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
@@ -52,17 +50,17 @@ def run_one(config: dict, out: str, settings) -> dict:
     info = task_info(task)
     identity = {"task": task, "seed": seed, "attempt": 1, "sim": sim, "model": agent}
     t0 = time.monotonic()
+    row = {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb}
     try:
         r = AttemptSupervisor(config, Path(out), identity, settings).run()
     except Exception as e:  # report, never stop the whole check
-        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb, "error": repr(e),
-                "wall_s": time.monotonic() - t0}
+        return {**row, "error": repr(e), "wall_s": time.monotonic() - t0}
     if is_infrastructure_failure(r):
-        return {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb,
-                "wall_s": time.monotonic() - t0, "error": f"infrastructure failure: {r['termination'].get('detail')}"}
+        return {**row, "wall_s": time.monotonic() - t0,
+                "error": f"infrastructure failure: {r['termination'].get('detail')}"}
     ck = r.get("checkpoints") or {}
     return {
-        "task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb, "dir": out,
+        **row, "dir": out,
         "success": bool(r["verdict"].get("success")), "termination": r["termination"]["reason"],
         "margin": (r["verdict"].get("margin") or {}).get("fraction"),
         "margin_predicate": (r["verdict"].get("margin") or {}).get("predicate"),
@@ -90,9 +88,11 @@ def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None
     from .catalog import task_info
     from .sweep_supervisor import SupervisorConfig, close_workers
 
+    if not isinstance(seeds, dict):
+        seeds = {t: seeds if seeds is not None else [task_info(t).seed] for t in tasks}
     jobs_list = []
     for t in tasks:
-        for s in (seeds.get(t, ()) if isinstance(seeds, dict) else seeds if seeds is not None else [task_info(t).seed]):
+        for s in seeds.get(t, ()):
             for sim in sims:
                 for a in agents:
                     for k in (range(1, perturb + 1) if perturb else [None]):
@@ -119,6 +119,8 @@ def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None
 
 
 def verdict(rows: list[dict]) -> dict:
+    from .verifier import BORDERLINE_FRACTION  # numpy: not at start-up
+
     o = [r for r in rows if r["agent"] == "oracle"]
     i = [r for r in rows if r["agent"] == "idle"]
     within = lambda r: "error" not in r and r["success"] and r["calls"] <= r["calls_limit"] and r["sim_s"] <= r["sim_s_limit"]
