@@ -338,9 +338,14 @@ class OpenMicrowave(CodeActionTask):
 
         # 5. sweep the inner face open: fingertips along chords at 0.25 m from the hinge, 3 cm
         # inside the face (the door lags the chord's end angle by ~0.12 rad)
+        # where the oven stands far left the right arm cannot follow a chord's end at 0.25 m: it
+        # pushes on along a chord nearer the hinge (a shorter arc for the hand, the same angle)
         for q in (1.2, 1.65):
-            target = door_point(q, [0.25, 0.03, mid]) - left * tip
-            pusher.move(*(target - world.tcp_pose("right")[:3]), what="push the door open", ok=tolerant)
+            for radius in (0.25, 0.17):
+                target = door_point(q, [radius, 0.03, mid]) - left * tip
+                r = pusher.move(*(target - world.tcp_pose("right")[:3]), what="push the door open", ok=tolerant)
+                if r["status"] == "SUCCESS":
+                    break
         call("done", report="opened the microwave door wide: pulled it by the handle, then pushed its inner "
                             "face open", success_claim=True)
 

@@ -79,11 +79,20 @@ LEFT_PARK_X = -0.32
 # walls stay 1.1 cm away
 PLACE_SPREAD = 0.006
 MAX_STEP = 0.3  # the longest move_delta (longer ones are clamped)
+# over the box, a shoe turned in the grip by more than this (largest quaternion component off the
+# target, the verifier's measure) is aimed again, at most REAIM_TRIES reaches in all
+REAIM_QUAT_ERROR = 0.03
+REAIM_TRIES = 3
 
 
 def _qnorm(q) -> np.ndarray:
     q = np.asarray(q, float)
     return -q if q[0] < 0 else q
+
+
+def _quat_error(q, target) -> float:
+    """The verifier's orientation measure: the largest quaternion component off the target."""
+    return float(np.max(np.abs(_qnorm(q) - np.asarray(target, float))))
 
 
 class PlaceDualShoesVerifier(Verifier):
@@ -323,14 +332,19 @@ class PlaceDualShoes(CodeActionTask):
 
         # 2. one after the other: carry over the place (turning the toe to -x), set down, let go
         for arm in arms:
-            s = np.asarray(world.pose(shoe_of[arm]), float)
-            held = pose_mul(pose_inv(s), world.tcp_pose(arm))  # the TCP in the shoe frame
             spread = -PLACE_SPREAD if arm == "left" else PLACE_SPREAD
             px, py = PLACE_X + box[0] - BOX_XY[0], place_of[arm][1] + spread
             shoe_goal = np.array([px, py, float(info["box"]["floor_top_z"]) + RELEASE_DROP, *target_q])
-            tcp_goal = pose_mul(shoe_goal, held)
             h = hands[arm]
-            h.reach(tcp_goal[:3] + up, tcp_goal[3:], f"carry the {arm} shoe over the box")
+            # the shoe, held by its heel, can turn in the grip while it is carried: the TCP's goal
+            # is aimed again from where the shoe hangs once over the box
+            for _ in range(REAIM_TRIES):
+                s = np.asarray(world.pose(shoe_of[arm]), float)
+                held = pose_mul(pose_inv(s), world.tcp_pose(arm))  # the TCP in the shoe frame
+                tcp_goal = pose_mul(shoe_goal, held)
+                h.reach(tcp_goal[:3] + up, tcp_goal[3:], f"carry the {arm} shoe over the box")
+                if _quat_error(world.pose(shoe_of[arm])[3:], target_q) < REAIM_QUAT_ERROR:
+                    break
             h.descend_to(float(tcp_goal[2]), f"set the {arm} shoe down", ok=tolerant)
             # let go half open: a fully open inner finger ends under the front of the heel opening
             # and can catch the collar on the way up (the shoe is then lifted with the gripper);
