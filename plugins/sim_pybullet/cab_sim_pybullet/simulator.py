@@ -89,16 +89,6 @@ PHYSICS_DEFAULTS: dict[str, float] = {
     # (blocks_ranking_size); at 0.003 the block held for a handover resists the other hand's
     # fingers so stiffly that they shove it aside (handover_block); 0.002 does both tasks.
     "spinning_friction_m": 0.002,
-    # Most force (N) of the coupling that keeps a gripper's two fingers equally open. With a
-    # motor on each finger, two fingers squeezing an object both push at their force limit and
-    # nothing keeps the pair centred: under the arm's accelerations they slide together along the
-    # opening line and a small block drops out (blocks_ranking_size at held-out seeds); PhysX's
-    # spring drive re-centres such a pair by itself. Here, as in the real gripper (one motor, a
-    # linkage), one motor drives the first finger with twice gripper_force_n and a gear constraint
-    # makes the second follow, so each finger squeezes with gripper_force_n and the pair cannot
-    # slide. The coupling carries half the motor's force in a squeeze: keep this well above
-    # gripper_force_n.
-    "finger_coupling_n": 400.0,
     # Diffuse and specular coefficients of TinyRenderer's light (the ambient one comes from the scene).
     "light_diffuse": 0.6,
     "light_specular": 0.0,
@@ -478,25 +468,9 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
                 c.setJointMotorControl2(mb.uid, j, pybullet.POSITION_CONTROL,
                                         targetPosition=c.getJointState(mb.uid, j)[0],
                                         force=self._physics["arm_force_nm"])
-        self._couple_fingers(emb, by_name)
         self._targets = np.zeros(len(order))
         self._vtargets = np.zeros(len(order))
         self._apply_targets(start)
-
-    def _couple_fingers(self, emb: EmbodimentSpec, by_name: dict[str, int]) -> None:
-        """A gear constraint per gripper keeps its second finger joint at the first one's position;
-        the second finger's motor is off (see ``finger_coupling_n``)."""
-        c, uid = self._c, self._robot.uid
-        self._finger_pairs: list[tuple[int, int, int]] = []  # (constraint, slot of a, slot of b)
-        for arm in sorted(emb.arms):
-            a, b = (by_name[n] for n in emb.arms[arm].gripper.joints)
-            cid = c.createConstraint(uid, a, uid, b, pybullet.JOINT_GEAR, [0, 1, 0], [0, 0, 0], [0, 0, 0])
-            # gearRatio -1: both joints move the same way (a positive ratio reverses the second)
-            c.changeConstraint(cid, gearRatio=-1.0, erp=0.2, maxForce=self._physics["finger_coupling_n"])
-            sa, sb = self._drive_idx.index(a), self._drive_idx.index(b)
-            self._force[sa] = 2.0 * self._physics["gripper_force_n"]
-            self._force[sb] = 0.0
-            self._finger_pairs.append((cid, sa, sb))
 
     def _filter_self_collisions(self, emb: EmbodimentSpec) -> None:
         """Links of one arm never collide with each other nor with the robot's body; the two arms
@@ -603,9 +577,6 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
         v = np.zeros(len(t)) if v is None else v
-        for cid, sa, sb in self._finger_pairs:  # the second finger keeps its target's offset
-            self._c.changeConstraint(cid, gearRatio=-1.0, erp=0.2, relativePositionTarget=float(t[sa] - t[sb]),
-                                     maxForce=self._physics["finger_coupling_n"])
         self._c.setJointMotorControlArray(self._robot.uid, self._drive_idx, pybullet.POSITION_CONTROL,
                                           targetPositions=t.tolist(), targetVelocities=v.tolist(),
                                           positionGains=self._kp, velocityGains=[1.0] * len(t),
