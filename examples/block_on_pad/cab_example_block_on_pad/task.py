@@ -46,8 +46,8 @@ INFO = TaskInfo(
     budget_tool_calls=30,
     budget_sim_s=40.0,
     category="Example (third-party plugin)",
-    reference_solution_api_calls=11,
-    reference_solution_sim_s=12.0,
+    reference_solution_api_calls=12,
+    reference_solution_sim_s=10.0,
     subgoals=("Block lifted off the table.", "Block resting on the pad."),
     spatial_checkpoints=(
         {"name": "Grasp block", "arm": "Either", "condition_cm": "$d_3\\leq 2$.", "prerequisite": "--"},
