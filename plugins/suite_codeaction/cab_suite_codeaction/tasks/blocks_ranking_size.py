@@ -227,7 +227,7 @@ class BlocksRankingSize(CodeActionTask):
         tolerant = ("SUCCESS", "ABORTED", "FAILED")
         turned: set[str] = set()
         for i, b in enumerate(blocks):
-            for _ in range(PLACE_TRIES):  # a block that slipped out on the way is picked up again
+            for attempt in range(PLACE_TRIES):  # a block that slipped out on the way is picked up again
                 name, h = b["name"], halves[i]
                 pose = world.pose(name)
                 arm = "left" if pose[0] < 0 else "right"
@@ -245,6 +245,8 @@ class BlocksRankingSize(CodeActionTask):
                     return fingers_clear(pose[:2], line, opening, others)
 
                 faces.sort(key=lambda f: -abs(f[1]))
+                if attempt % 2:  # picked up again: across the other two faces (the same grasp
+                    faces.reverse()  # lost it once, and would the same way again)
                 line = next((f for f in faces if clear(f, 1.0)), None)
                 if line is None:  # open just enough for this block, 1.2 cm to spare on each side
                     narrow = min(1.0, (2 * h + 2 * 0.012 + 0.018) / 0.11)
