@@ -69,12 +69,14 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
 
 def run_attempt(spec: AttemptSpec) -> dict:
     """Build everything through the plugin registry, run the harness, score, record."""
+    from .observers import select as select_observers
     from .plugins import all_tasks, create
 
     tasks = all_tasks()
     if spec.task not in tasks:
         raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
                           f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
+    observers = select_observers(spec.record)  # an unknown name is refused before anything starts
     harness = create("harnesses", spec.harness, {**spec.harness_cfg, "name": spec.harness})
     preflight = getattr(harness, "preflight", None)
     if preflight is not None:  # credentials and endpoints are checked before any simulator starts
@@ -86,7 +88,7 @@ def run_attempt(spec: AttemptSpec) -> dict:
         emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
         planner = create("planners", spec.planner, spec.planner_cfg)
         sim = create("simulators", spec.sim, spec.sim_cfg)
-        episode = Episode(spec, tasks[spec.task], sim, planner, emb)
+        episode = Episode(spec, tasks[spec.task], sim, planner, emb, observers)
     except BaseException:
         close = getattr(harness, "close", None)
         if close is not None:
