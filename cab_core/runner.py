@@ -43,8 +43,11 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
     if not isinstance(attempt, int) or attempt < 1:
         raise ConfigError(f"attempt must be a positive integer, got {attempt!r}")
     harness = c["harness"]["name"]
-    if harness == "auto":
-        harness = c["model"].get("harness") or "reference"
+    if harness == "auto":  # the harness the model config asks for
+        harness = c["model"].get("harness")
+        if not harness:
+            raise ConfigError(f"model {c['model']['name']!r} names no harness (model.harness); "
+                              "give one with harness=<name> (cab-plugins lists the installed harnesses)")
     unknown = sorted(set(b) - set(BUDGET_KEYS))
     if unknown:
         raise ConfigError(f"unknown budget key(s) {', '.join(unknown)}; valid: {', '.join(BUDGET_KEYS)}")
