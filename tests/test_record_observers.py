@@ -14,7 +14,7 @@ from cab_core import hookimpl
 from cab_core.cli import normalise_overrides
 from cab_core.errors import ConfigError, PluginError
 from cab_core.observers import ReadOnlyDict, freeze, select
-from cab_core.plugins import build_plugin_manager, plugin_manager
+from cab_core.plugins import build_plugin_manager, distribution_versions, plugin_manager
 from cab_core.runner import attempt_spec, run_attempt
 
 
@@ -118,6 +118,11 @@ def test_observers_follow_the_record_and_one_that_raises_is_detached(installed, 
     assert on_disk[2]["kind"] != "changed" and keeper.events[2]["kind"] == on_disk[2]["kind"]
     warnings = [r.getMessage() for r in caplog.records if "record observer" in r.getMessage()]
     assert len(warnings) == 2 and "'broken'" in warnings[0] and "'meddler'" in warnings[1]
+
+    # versions: the core's and every installed plugin's distribution, read from the entry points
+    packages = res["versions"]["packages"]
+    assert {**distribution_versions(), "numpy": packages["numpy"]}.items() <= packages.items()
+    assert "cab-sim-mujoco" in packages and "cab-harness-mcp" in packages
 
     # the same attempt with no observer: the same verdict and the same calls
     plain = run_attempt(_spec(tmp_path / "b", []))
