@@ -106,9 +106,10 @@ def cab_record_observers() -> dict[str, Callable[[dict], Any]]:
     ``attempt_dir`` (the folder, where it may write files of its own); it returns an object whose
     optional ``on_event(event)`` receives every event of the attempt, in order, after the recorder
     has written it, and whose optional ``on_result(result)`` receives the final result after
-    ``result.json`` is written; each a read-only deep copy. An observer that raises is logged once
+    ``result.json`` is written; each a read-only deep copy. ``on_event`` runs while the recorder
+    holds the record (events stay in order): keep it quick. An observer that raises is logged once
     and detached; the attempt and its verdict are unaffected (:mod:`cab_core.observers`). Called
-    once per process. All results are merged."""
+    as each attempt starts. All results are merged."""
 
 
 # --- configuration ----------------------------------------------------------------------------
