@@ -207,20 +207,26 @@ class SweepManifestCallback(Callback):
 
 
 def plugins_main() -> None:
-    """List installed plugins, their versions and what each provides."""
+    """List installed plugins, their versions and what each provides (disabled ones as disabled:
+    CAB_DISABLE_PLUGINS=name1,name2)."""
     import argparse
 
+    from .errors import CabError
     from .plugins import describe
 
     ap = argparse.ArgumentParser(prog="cab-plugins", description=plugins_main.__doc__)
     ap.add_argument("--json", action="store_true", help="print JSON")
     a = ap.parse_args()
-    rows = describe()
+    try:
+        rows = describe()
+    except CabError as e:  # a broken plugin: one line naming it and the fix
+        print(f"cab-plugins: {e}", file=sys.stderr)
+        sys.exit(1)
     if a.json:
         print(json.dumps(rows, indent=2))
         return
     for r in rows:
-        print(f"{r['plugin']:<22} {r['distribution']} {r['version']}")
+        print(f"{r['plugin']:<22} {r['distribution']} {r['version']}" + ("  (disabled)" if r["disabled"] else ""))
         for kind, names in r["provides"].items():
             if names:
                 print(f"    {kind:<18} {', '.join(names)}")

@@ -172,13 +172,19 @@ class VerdictTracker:
 class Episode:
     """The episode host for one attempt. Use as a context manager or call ``close()``."""
 
-    def __init__(self, spec: AttemptSpec, task: Task, sim, planner, embodiment, observers=()):
+    def __init__(self, spec: AttemptSpec, task: Task, sim, planner, embodiment, observers=None):
+        """``observers``: the record observers (:func:`cab_core.observers.select`); None: those
+        ``spec.record`` selects among the installed ones."""
         self.spec = spec
         self.task = task
         self.sim = sim
         self.planner = planner
         self.emb = embodiment
         self.out = Path(spec.output_dir)
+        if observers is None:
+            from .observers import select
+
+            observers = select(spec.record)
         self.recorder = Recorder(self.out, observers)
         self.ended = False
         self.termination: dict | None = None
@@ -501,9 +507,10 @@ class Episode:
             return {"error": repr(e)}
 
     def versions(self) -> dict:
-        pk = {}
-        for d in ("cab", "cab-sim-sapien", "cab-planner-mplib", "cab-embodiment-aloha", "cab-suite-codeaction",
-                  "numpy", "pydantic", "hydra-core", "pluggy"):
+        from .plugins import distribution_versions
+
+        pk = distribution_versions()  # the core's own and the installed plugins' distributions
+        for d in ("numpy", "pydantic", "hydra-core", "pluggy"):
             try:
                 pk[d] = metadata.version(d)
             except metadata.PackageNotFoundError:

@@ -6,7 +6,7 @@ declared as an entry point in group ``cab`` of its package::
     [project.entry-points.cab]
     my_sim = "my_package.plugin"
 
-cab's own plugins (SAPIEN, mplib, the CodeActionBench suite...) are loaded the same way.
+The plugins that ship with cab are loaded the same way; the core names none of them.
 
 Registration hooks return a mapping ``name -> factory``; they are called once, when the plugin
 manager is first asked for that kind of plugin (never at import). A name registered twice is a
@@ -33,19 +33,19 @@ hookimpl = pluggy.HookimplMarker("cab")
 
 @hookspec
 def cab_simulators() -> dict[str, Callable[[dict], "Simulator"]]:
-    """Simulator backends: ``{"sapien": factory}``; ``factory(cfg)`` returns an unbuilt
+    """Simulator backends: ``{"my_sim": factory}``; ``factory(cfg)`` returns an unbuilt
     :class:`cab_core.simulator.Simulator`. Called once per process. All results are merged."""
 
 
 @hookspec
 def cab_planners() -> dict[str, Callable[[dict], "Planner"]]:
-    """Motion planners: ``{"mplib": factory}``; ``factory(cfg)`` returns a
+    """Motion planners: ``{"my_planner": factory}``; ``factory(cfg)`` returns a
     :class:`cab_core.planner.Planner` (not yet set up). Called once per process."""
 
 
 @hookspec
 def cab_embodiments() -> dict[str, Callable[[dict], "EmbodimentSpec"]]:
-    """Robots: ``{"aloha_agilex": factory}``; ``factory(cfg)`` generates the robot description if
+    """Robots: ``{"my_robot": factory}``; ``factory(cfg)`` generates the robot description if
     needed and returns an :class:`cab_core.embodiment.EmbodimentSpec`. Called once per process."""
 
 
@@ -54,7 +54,7 @@ def cab_embodiments() -> dict[str, Callable[[dict], "EmbodimentSpec"]]:
 
 @hookspec
 def cab_task_suites() -> dict[str, Callable[[], dict[str, "Task"]]]:
-    """Task suites: ``{"codeaction": loader}``; ``loader()`` returns ``{task_name: Task}``.
+    """Task suites: ``{"my_suite": loader}``; ``loader()`` returns ``{task_name: Task}``.
     Task names are unique across suites. Called once per process."""
 
 
@@ -63,8 +63,9 @@ def cab_task_suites() -> dict[str, Callable[[], dict[str, "Task"]]]:
 
 @hookspec
 def cab_harnesses() -> dict[str, Callable[[dict], Any]]:
-    """Harnesses drive an agent through one attempt's tool session: ``direct`` (model-free
-    agents), ``reference`` (model providers + context policy), ``mcp`` (an external MCP client).
+    """Harnesses drive an agent through one attempt's tool session: ``{"my_harness": factory}``
+    (the core's own is ``direct``, for the model-free agents of :func:`cab_agents`; others drive a
+    model through a provider and a context policy, or serve an external agent).
     ``factory(cfg)`` returns an object with ``run(episode, model_cfg) -> None`` and, optionally,
     ``preflight(model_cfg) -> None``, called before any simulator starts (credentials, endpoints);
     it raises ``ConfigError`` naming what is missing. Also optional: ``before_build(spec)``, called
@@ -80,25 +81,35 @@ def cab_agents() -> dict[str, Callable[[dict], Any]]:
 
 @hookspec
 def cab_model_providers() -> dict[str, Callable[[dict], Any]]:
-    """Model providers for the reference harness (``anthropic``, ``openai``, ``google``,
-    ``openai_compatible``). ``factory(cfg)`` returns a provider client with capability flags.
-    Implemented by a later issue; declared here so the contract is complete."""
+    """Model providers: ``{"my_api": factory}``; a harness that talks to a model API creates the
+    one the model config names with ``cab_core.plugins.create("model_providers", name, model_cfg)``.
+    ``factory(cfg)`` returns a provider client with capability flags; the contract of the client is
+    the harness's that uses it."""
 
 
 @hookspec
 def cab_context_policies() -> dict[str, Callable[[dict], Any]]:
-    """Context policies for the reference harness (``reference``: two image rounds, 8 verbatim
-    units, 128-record ledger). Implemented by a later issue."""
+    """Context policies: ``{"my_policy": factory}``, what a model-driven harness sends the model
+    of an attempt's history; such a harness creates the one the model config names with
+    ``cab_core.plugins.create("context_policies", name, cfg)``."""
 
 
 # --- records ----------------------------------------------------------------------------------
 
 
 @hookspec
-def cab_record_observers() -> list[Callable[[dict], Any]]:
-    """Observers of an attempt's record: each factory(cfg) returns an object whose
-    ``on_event(event: Mapping)`` receives every frozen event as it is appended, and whose
-    ``on_result(result: Mapping)`` receives the final result. Results are concatenated."""
+def cab_record_observers() -> dict[str, Callable[[dict], Any]]:
+    """Observers of an attempt's record: ``{"my_observer": factory}``. The config key
+    ``record.observers`` picks them: null (the default) every installed one, a list of names those,
+    a mapping ``name -> config`` those with their config. ``factory(cfg)`` is called once the
+    attempt's folder exists, with ``cfg`` = the observer's config plus ``name`` and
+    ``attempt_dir`` (the folder, where it may write files of its own); it returns an object whose
+    optional ``on_event(event)`` receives every event of the attempt, in order, after the recorder
+    has written it, and whose optional ``on_result(result)`` receives the final result after
+    ``result.json`` is written; each a read-only deep copy. ``on_event`` runs while the recorder
+    holds the record (events stay in order): keep it quick. An observer that raises is logged once
+    and detached; the attempt and its verdict are unaffected (:mod:`cab_core.observers`). Called
+    as each attempt starts. All results are merged."""
 
 
 # --- configuration ----------------------------------------------------------------------------

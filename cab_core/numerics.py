@@ -1,7 +1,7 @@
 """The numeric settings that decide an attempt's physics, the same on every machine.
 
-The same code, seed and package versions gave a different verdict on another CPU (issue 14: the
-PyBullet oracle of ``blocks_ranking_size``). Measured here (AMD EPYC, AVX2): numpy's OpenBLAS picks
+The same code, seed and package versions gave a different verdict on another CPU (issue 14: one
+task's oracle on one simulator backend). Measured here (AMD EPYC, AVX2): numpy's OpenBLAS picks
 its kernels by CPU at load time (``Zen`` here; ``SkylakeX`` with AVX-512 on a recent Intel Xeon,
 ``Haswell``, ...), and kernels differ in the order they sum in: the same oracle attempt with
 ``OPENBLAS_CORETYPE=Zen`` and ``=Prescott`` gives different privileged snapshots (59 and 60 calls),

@@ -1,11 +1,16 @@
 """The plugin manager: entry points of group ``cab``, built on demand, never at import.
 
-Set ``CAB_DISABLE_PLUGIN_AUTOLOAD=1`` to load no entry points (hermetic tests register plugins
-by hand with :func:`plugin_manager`'s ``extra``).
+Entry points are loaded one at a time: one that fails to import or to register is a
+:class:`~cab_core.errors.PluginError` of one line naming its distribution, the entry point, the
+error and the fix. ``CAB_DISABLE_PLUGINS=name1,name2`` disables plugins by entry point name or
+distribution name (as pytest's ``-p no:NAME``): they are blocked in the plugin manager and never
+imported (``cab-plugins`` lists them as disabled). ``CAB_DISABLE_PLUGIN_AUTOLOAD=1`` loads no entry
+points at all (hermetic tests register plugins by hand with :func:`build_plugin_manager`'s ``extra``).
 """
 from __future__ import annotations
 
 import os
+import re
 from functools import lru_cache
 from importlib import metadata
 from typing import Any, Callable
@@ -17,7 +22,7 @@ from .errors import ConfigError, PluginError
 
 GROUP = "cab"
 KINDS = ("simulators", "planners", "embodiments", "task_suites", "harnesses", "agents",
-         "model_providers", "context_policies")
+         "model_providers", "context_policies", "record_observers")
 
 
 def build_plugin_manager(extra: list[Any] | None = None, autoload: bool | None = None) -> pluggy.PluginManager:
@@ -25,15 +30,88 @@ def build_plugin_manager(extra: list[Any] | None = None, autoload: bool | None =
     pm.add_hookspecs(hookspecs)
     if autoload is None:
         autoload = os.environ.get("CAB_DISABLE_PLUGIN_AUTOLOAD", "") in ("", "0")
-    if autoload:
-        try:
-            pm.load_setuptools_entrypoints(GROUP)
-        except Exception as e:  # a broken plugin must not be silent
-            raise PluginError(f"loading entry points of group {GROUP!r} failed: {e}") from e
+    loaded = _load_entry_points(pm) if autoload else {}
     for p in extra or []:
         pm.register(p)
-    pm.check_pending()
+    try:
+        pm.check_pending()
+    except pluggy.PluginValidationError as e:  # a hook no spec declares (a misspelt name)
+        if id(e.plugin) in loaded:
+            raise _broken(loaded[id(e.plugin)], e) from e
+        raise
     return pm
+
+
+DISABLE_ENV = "CAB_DISABLE_PLUGINS"
+
+
+def _canonical(name: str) -> str:
+    """A distribution name as packaging compares them (PEP 503): ``Cab_Sim.X`` -> ``cab-sim-x``."""
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def disabled_names() -> set[str]:
+    """The names in ``CAB_DISABLE_PLUGINS`` (comma-separated; blanks ignored)."""
+    return {n.strip() for n in os.environ.get(DISABLE_ENV, "").split(",") if n.strip()}
+
+
+def _dist_name(ep: metadata.EntryPoint) -> str | None:
+    dist = getattr(ep, "dist", None)
+    return dist.name if dist is not None else None
+
+
+def is_disabled(ep: metadata.EntryPoint, disabled: set[str] | None = None) -> bool:
+    """Whether ``CAB_DISABLE_PLUGINS`` names this entry point or its distribution."""
+    disabled = disabled_names() if disabled is None else disabled
+    dist = _dist_name(ep)
+    return ep.name in disabled or (dist is not None and _canonical(dist) in {_canonical(n) for n in disabled})
+
+
+def _broken(ep: metadata.EntryPoint, e: BaseException) -> PluginError:
+    """The one line that names a plugin that cannot be loaded, and the fix."""
+    dist = _dist_name(ep)
+    what = f"distribution {dist}" if dist else "an unnamed distribution"
+    error = " ".join(f"{type(e).__name__}: {e}".split())
+    fix = f"pip install --force-reinstall {dist}" if dist else "reinstall it"
+    return PluginError(f"plugin {ep.name!r} ({what}, entry point {ep.name} = {ep.value} in group {GROUP!r}) "
+                       f"failed to load: {error}; fix: {fix}, or disable it with {DISABLE_ENV}={ep.name}")
+
+
+def _load_entry_points(pm: pluggy.PluginManager) -> dict[int, metadata.EntryPoint]:
+    """Pluggy's ``load_setuptools_entrypoints``, one entry point at a time so that a broken one is
+    named (pluggy's own loop stops at the first failure, without saying which). Disabled names are
+    blocked with pluggy's ``set_blocked``: a later registration under that name is refused too.
+    Returns the entry point of each plugin loaded, by the plugin's id."""
+    disabled = disabled_names()
+    loaded = {}
+    for ep in metadata.entry_points(group=GROUP):
+        if is_disabled(ep, disabled):
+            pm.set_blocked(ep.name)
+        if pm.has_plugin(ep.name) or pm.is_blocked(ep.name):
+            continue
+        try:
+            plugin = ep.load()
+            pm.register(plugin, name=ep.name)
+        except Exception as e:  # a broken plugin is named, in one line
+            raise _broken(ep, e) from e
+        loaded[id(plugin)] = ep
+    return loaded
+
+
+def distribution_versions() -> dict[str, str]:
+    """``{distribution: version}`` of the core's own distribution and of every distribution that
+    provides an installed, not disabled, entry point of group ``cab`` (from importlib.metadata)."""
+    core, plugins = {}, {}
+    disabled = disabled_names()
+    for ep in metadata.entry_points(group=GROUP):
+        dist = getattr(ep, "dist", None)
+        if dist is None:
+            continue
+        if ep.module.split(".")[0] == __package__:
+            core[dist.name] = dist.version
+        elif not is_disabled(ep, disabled):
+            plugins[dist.name] = dist.version
+    return {**core, **dict(sorted(plugins.items()))}
 
 
 @lru_cache(maxsize=1)
@@ -82,16 +160,20 @@ def all_tasks(pm: pluggy.PluginManager | None = None) -> dict[str, Any]:
 
 
 def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
-    """Installed plugins, their distribution versions and what each provides."""
+    """Installed plugins, their distribution versions and what each provides; a plugin disabled
+    with ``CAB_DISABLE_PLUGINS`` is listed with ``disabled: True`` and provides nothing."""
     pm = pm or plugin_manager()
     dists = {}
+    disabled = []
     for ep in metadata.entry_points(group=GROUP):
-        try:
-            dists[ep.name] = (ep.dist.name, ep.dist.version) if ep.dist else ("?", "?")
-        except Exception:
-            dists[ep.name] = ("?", "?")
+        dist = getattr(ep, "dist", None)
+        dists[ep.name] = (dist.name, dist.version) if dist is not None else ("?", "?")
+        if pm.is_blocked(ep.name):
+            disabled.append(ep.name)
     rows = []
     for name, plugin in pm.list_name_plugin():
+        if plugin is None:  # blocked: listed below
+            continue
         provides: dict[str, list[str]] = {}
         for kind in KINDS:
             hook = getattr(pm.hook, f"cab_{kind}")
@@ -100,5 +182,10 @@ def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
                     provides[kind] = sorted((impl.function() or {}).keys())
         hooks = sorted(h.name for h in pm.get_hookcallers(plugin) or [])
         dist, ver = dists.get(name, ("(registered in code)", ""))
-        rows.append({"plugin": name, "distribution": dist, "version": ver, "provides": provides, "hooks": hooks})
+        rows.append({"plugin": name, "distribution": dist, "version": ver, "provides": provides, "hooks": hooks,
+                     "disabled": False})
+    for name in disabled:
+        dist, ver = dists[name]
+        rows.append({"plugin": name, "distribution": dist, "version": ver, "provides": {}, "hooks": [],
+                     "disabled": True})
     return rows

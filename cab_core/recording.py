@@ -16,9 +16,11 @@ import os
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 import numpy as np
+
+from .observers import Observers
 
 RECORD_VERSION = "cab-record/1"
 
@@ -78,6 +80,9 @@ class VideoWriter:
 
 
 class Recorder:
+    """Writes one attempt's record. ``observers`` (:class:`cab_core.observers.ObserverSpec`) are
+    created once the folder exists and follow the record as it is written (:mod:`cab_core.observers`)."""
+
     def __init__(self, root: Path, observers: Iterable[Any] = ()):
         self.root = Path(root)
         if (self.root / "events.jsonl").exists() or (self.root / "result.json").exists():
@@ -92,23 +97,26 @@ class Recorder:
         self._snap = open(self.root / "privileged" / "snapshots.jsonl", "a", buffering=1)
         self._seq = 0
         self._lock = threading.Lock()
-        self._observers = list(observers)
         self._programs = 0
         self.video: VideoWriter | None = None
         self.t0 = time.monotonic()
+        self.observers = Observers()
+        self._detached(self.observers.create(list(observers), str(self.root)))
 
     # -- events -------------------------------------------------------------------------------
     def event(self, kind: str, **data: Any) -> dict:
         with self._lock:
             self._seq += 1
             ev = {"seq": self._seq, "kind": kind, "t_wall": round(time.monotonic() - self.t0, 4), **data}
-            self._events.write(dumps(ev) + "\n")
-        frozen = json.loads(dumps(ev))
-        for ob in self._observers:
-            fn: Callable | None = getattr(ob, "on_event", None)
-            if fn:
-                fn(frozen)
+            line = dumps(ev)
+            self._events.write(line + "\n")
+            faults = self.observers.dispatch("on_event", line)  # in order, after the event is written
+        self._detached(faults)
         return ev
+
+    def _detached(self, faults: list[tuple[str, str, str]]) -> None:
+        for name, stage, error in faults:
+            self.event("observer_detached", observer=name, stage=stage, error=error)
 
     def snapshot(self, label: str, state: dict) -> None:
         with self._lock:
@@ -139,11 +147,7 @@ class Recorder:
         if self.video is not None:
             self.video.close()
         write_json_atomic(self.root / "result.json", result)
-        frozen = json.loads(dumps(result))
-        for ob in self._observers:
-            fn = getattr(ob, "on_result", None)
-            if fn:
-                fn(frozen)
+        self.observers.dispatch("on_result", dumps(result))  # a fault is logged (the record is complete)
         self.close()
 
     def close(self) -> None:

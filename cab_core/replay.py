@@ -105,7 +105,8 @@ def execute(attempt: Attempt, out: Path) -> ReplayAgent:
     agent = ReplayAgent(recorded_calls(attempt.events))
     episode = Episode(spec, tasks[spec.task], create("simulators", spec.sim, spec.sim_cfg),
                       create("planners", spec.planner, spec.planner_cfg),
-                      create("embodiments", spec.embodiment, spec.embodiment_cfg))
+                      create("embodiments", spec.embodiment, spec.embodiment_cfg),
+                      observers=[])  # a replay re-checks the record; the original's observers need not be installed
     try:
         agent.run(episode)
         term = attempt.result["termination"]

@@ -43,8 +43,11 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
     if not isinstance(attempt, int) or attempt < 1:
         raise ConfigError(f"attempt must be a positive integer, got {attempt!r}")
     harness = c["harness"]["name"]
-    if harness == "auto":
-        harness = c["model"].get("harness") or "reference"
+    if harness == "auto":  # the harness the model config asks for
+        harness = c["model"].get("harness")
+        if not harness:
+            raise ConfigError(f"model {c['model']['name']!r} names no harness (model.harness); "
+                              "give one with harness=<name> (cab-plugins lists the installed harnesses)")
     unknown = sorted(set(b) - set(BUDGET_KEYS))
     if unknown:
         raise ConfigError(f"unknown budget key(s) {', '.join(unknown)}; valid: {', '.join(BUDGET_KEYS)}")
@@ -69,12 +72,14 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
 
 def run_attempt(spec: AttemptSpec) -> dict:
     """Build everything through the plugin registry, run the harness, score, record."""
+    from .observers import select as select_observers
     from .plugins import all_tasks, create
 
     tasks = all_tasks()
     if spec.task not in tasks:
         raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
                           f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
+    observers = select_observers(spec.record)  # an unknown name is refused before anything starts
     harness = create("harnesses", spec.harness, {**spec.harness_cfg, "name": spec.harness})
     preflight = getattr(harness, "preflight", None)
     if preflight is not None:  # credentials and endpoints are checked before any simulator starts
@@ -86,7 +91,7 @@ def run_attempt(spec: AttemptSpec) -> dict:
         emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
         planner = create("planners", spec.planner, spec.planner_cfg)
         sim = create("simulators", spec.sim, spec.sim_cfg)
-        episode = Episode(spec, tasks[spec.task], sim, planner, emb)
+        episode = Episode(spec, tasks[spec.task], sim, planner, emb, observers)
     except BaseException:
         close = getattr(harness, "close", None)
         if close is not None:

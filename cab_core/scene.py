@@ -40,14 +40,14 @@ class Sphere:
 
 @dataclass(frozen=True)
 class Capsule:
-    """Axis along local x (SAPIEN's convention); backends convert."""
+    """Axis along local x (the scene description's convention); backends convert."""
     radius: float
     half_length: float
 
 
 @dataclass(frozen=True)
 class Cylinder:
-    """Axis along local x (SAPIEN's convention); backends convert."""
+    """Axis along local x (the scene description's convention); backends convert."""
     radius: float
     half_length: float
 

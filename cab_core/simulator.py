@@ -1,5 +1,5 @@
-"""The simulator contract. SAPIEN, PyBullet and MuJoCo backends implement it; the core never
-imports a simulator. All poses are world-frame [x,y,z,qw,qx,qy,qz]; cameras use OpenCV axes.
+"""The simulator contract. Simulator backends (plugins, hook ``cab_simulators``) implement it; the
+core never imports a simulator. All poses are world-frame [x,y,z,qw,qx,qy,qz]; cameras use OpenCV axes.
 
 Naming: rigid bodies and articulated objects keep their ``SceneSpec`` names; robot links are
 reported as ``"robot/<link>"``, links of an articulated object as ``"<object>/<link>"``, the ground

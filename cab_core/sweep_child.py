@@ -3,7 +3,7 @@
 One attempt: reads ``{"config": <plain resolved config>, "output_dir": <attempt dir>}`` as JSON on
 stdin, runs the attempt and exits. A warm worker (``--worker``): reads such jobs one JSON line at a
 time, each with ``"log"``, the file its output goes to, and answers each on its standard output with
-one JSON line ``{"status": S, "rss_mb": M}``; the renderer (SAPIEN's Vulkan device, its BRDF table,
+one JSON line ``{"status": S, "rss_mb": M}``; the renderer (its device, its precomputed tables,
 compiled pipelines) and the imported plugins live on from one attempt to the next, each attempt
 builds its world fresh. The status, or the one-attempt process's exit status:
 

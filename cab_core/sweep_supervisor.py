@@ -9,7 +9,7 @@ most ``max_retries`` more times. If every try fails, ``result.json`` says so and
 reports exclude it and a resumed sweep runs it again. Configuration problems are not retried.
 
 Warm workers (``sweep.warm_workers``, on by default): the attempt runs in a worker process that has
-run earlier attempts of this launcher process and keeps its renderer and imports (SAPIEN's set-up
+run earlier attempts of this launcher process and keeps its renderer and imports (a renderer's set-up
 drops from seconds to a fraction of one); each attempt builds its world fresh. A worker is replaced
 after any try that is not a clean attempt (crash, hang, host fault), after
 ``sweep.worker_max_attempts`` attempts, and when its resident memory exceeds

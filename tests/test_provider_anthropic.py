@@ -204,7 +204,7 @@ def test_paper_config_preflight_names_the_variable(name, env, monkeypatch):
     import yaml
 
     from cab_harness_reference.loop import ReferenceHarness
-    from cab_harness_reference.pricing import rates
+    from cab_core.pricing import rates
 
     cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
     assert cfg["harness"] == "reference" and cfg["provider"] == "anthropic" and cfg["max_output_tokens"] == 128000

@@ -189,6 +189,8 @@ def test_result_cap_truncation_markers(sb):
             assert r[f"{MARK}__"]["fields"] == ["value"] and r[f"{MARK}__"]["original_bytes"] > 32768
     r = ok(sb.run("result = list(range(15000))"))
     assert r[f"{MARK}__"]["fields"] == ["value"] and r["value"][:3] == [0, 1, 2]
+    # the child's own cuts (it cannot import the host's marker) carry the same marker
+    assert ok(sb.run("result = np.zeros((2000, 2000))"))["value"][f"{MARK}_array__"]["shape"] == [2000, 2000]
     # the same input truncates the same way
     assert sb.run("result = list(range(50000))") == sb.run("result = list(range(50000))")
 

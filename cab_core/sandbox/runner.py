@@ -358,7 +358,7 @@ _MAX_NODES = 20000
 _MAX_STR = 20000  # one string
 _MAX_CHARS = 200000  # all strings together
 _MAX_ARRAY = 20000
-_TRUNC = "__codeaction_truncated"
+_TRUNC = "__cab_truncated"  # the marker of cab_core.sandbox.truncate.MARK (this file imports nothing of cab_core)
 
 
 def to_jsonable(value, np, budget=None, depth=0):

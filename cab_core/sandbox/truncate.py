@@ -2,14 +2,14 @@
 
 Fields are shrunk in a fixed order (value, interrupted_action, internal_trace, stdout, obs_ids,
 images_withheld, error) through fixed levels, so the same result always truncates the same way.
-Every cut leaves an explicit ``__codeaction_truncated_*__`` marker, and the result gets a top-level
-``__codeaction_truncated__`` entry naming the fields that were cut and the original size.
+Every cut leaves an explicit ``__cab_truncated_*__`` marker, and the result gets a top-level
+``__cab_truncated__`` entry naming the fields that were cut and the original size.
 """
 from __future__ import annotations
 
 import json
 
-MARK = "__codeaction_truncated"
+MARK = "__cab_truncated"  # also in sandbox/runner.py, which cannot import it
 _ORDER = ("value", "interrupted_action", "internal_trace", "stdout", "obs_ids", "images_withheld", "error")
 _LEVELS = ((256, 4096), (64, 1024), (16, 256), (4, 64), (1, 16), (0, 0))
 

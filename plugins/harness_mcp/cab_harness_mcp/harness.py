@@ -36,10 +36,9 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from cab_core import stdio
+from cab_core.agent_io import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.agent_record import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
-
-from cab_harness_reference.loop import result_images, run_code_limits
 
 from .bridge import CallBridge, Job
 from .server import build_server, instructions_text, tool_list, tool_result
@@ -183,8 +182,6 @@ class McpHarness:
             return
         s = self.settings
         self.preflight(spec.model_cfg)
-        from cab_harness_reference.prompt import first_user_message, system_prompt
-
         from cab_core.catalog import task_info
 
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}

@@ -6,58 +6,20 @@ the provider (``retry.py``): a retried request never repeats an executed action.
 waiting time is credited back to the wall budget."""
 from __future__ import annotations
 
-import io
 import json
-import logging
 import time
 
-import numpy as np
-
+from cab_core.agent_io import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.errors import AttemptEnded, CabError, ConfigError
+from cab_core.pricing import cost, usage_dict
 
 from .context import ContextOverflow, ReferenceContextPolicy
-from .pricing import cost, usage_dict
-from .prompt import NUDGE, first_user_message, system_prompt
 from .types import Capabilities, Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
-
-log = logging.getLogger(__name__)
 
 MAX_NO_TOOL_TURNS = 3
 CANCELLED = "cancelled: an earlier action in this response aborted"
 MALFORMED_KEY = "__malformed_json_arguments__"
-
-
-def png_bytes(image: np.ndarray) -> bytes:
-    from PIL import Image as PILImage
-
-    buf = io.BytesIO()
-    PILImage.fromarray(np.asarray(image, dtype=np.uint8)).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def result_images(episode, obs_ids: list[str], cap: int) -> tuple[list[tuple[str, bytes]], list[str]]:
-    """The images one tool result carries: the last ``cap`` distinct observations as PNG, and the
-    ids withheld (over the cap, or unreadable: reported, never fatal). Shared by every harness
-    that shows a model its observations (this loop, the MCP server)."""
-    ids = list(dict.fromkeys(obs_ids))
-    keep = min(len(ids), max(0, int(cap or 0)))
-    withheld = ids[:len(ids) - keep]
-    shown = []
-    for oid in ids[len(ids) - keep:]:
-        try:
-            shown.append((oid, png_bytes(episode.image(oid))))
-        except Exception as e:  # an observation that cannot be read is reported, not fatal
-            withheld.append(oid)
-            log.warning("observation %s unavailable: %r", oid, e)
-    return shown, withheld
-
-
-def run_code_limits(spec) -> dict:
-    """The run_code limits the system prompt states, from an attempt's spec."""
-    rc = dict(getattr(spec, "sandbox", None) or {})
-    if spec is not None:
-        rc["max_internal_calls"] = spec.run_code_max_internal_calls
-    return rc
+NUDGE = "Respond with tool calls."  # the user message after a response without a tool call
 
 
 def _provider_name(model_cfg: dict) -> str:

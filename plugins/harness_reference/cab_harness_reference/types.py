@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal, Union
 
+from cab_core.pricing import Usage  # noqa: F401  (a Response's usage; providers import it from here)
+
 Role = Literal["system", "user", "assistant", "tool"]
 
 
@@ -66,15 +68,6 @@ class ToolSpec:
     name: str
     description: str
     parameters: dict  # JSON Schema
-
-
-@dataclass
-class Usage:
-    input_tokens: int = 0
-    output_tokens: int = 0
-    reasoning_tokens: int = 0
-    cache_read_tokens: int = 0
-    cache_write_tokens: int = 0
 
 
 @dataclass

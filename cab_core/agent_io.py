@@ -1,12 +1,18 @@
-"""The initial prompt of the reference harness (FACTS A.10; paper Appendix "Initial prompt"):
-role, environment facts with the harness-parameter JSON, both budgets, run_code limits and the
-termination rules. The first user message is the task instruction alone."""
+"""What every harness tells and shows its agent, in one place: the initial prompt (the system
+prompt and the first user message; FACTS A.10, paper Appendix "Initial prompt": role, environment
+facts with the harness-parameter JSON, both budgets, run_code limits and the termination rules;
+the first user message is the task instruction alone), the run_code limits it states, and which
+images a tool result carries to the agent. A harness that uses these gives its agent the same
+prompt and the same images as any other."""
 from __future__ import annotations
 
+import io
 import json
+import logging
 
-PROMPT_VERSION = "cab-reference-prompt/1"
+import numpy as np
 
+log = logging.getLogger(__name__)
 
 def _budget_lines(budget: dict) -> list[str]:
     calls = budget.get("tool_calls_limit", budget.get("tool_calls_remaining"))
@@ -27,7 +33,7 @@ def system_prompt(budget: dict, harness_parameters: dict | None = None, run_code
     """``budget`` is ``episode.ledger.remaining()``; ``run_code`` holds the sandbox limits
     (``timeout_s``, ``max_internal_calls``, ``max_images``, ``result_cap_bytes``, ``stdout_cap``)."""
     if harness_parameters is None:
-        from cab_core.robot.motion import HARNESS_PARAMETERS as harness_parameters
+        from .robot.motion import HARNESS_PARAMETERS as harness_parameters
     rc = {"timeout_s": 180, "max_internal_calls": 500, "max_images": 6, "result_cap_bytes": 32768, "stdout_cap": 8000}
     rc.update({k: v for k, v in (run_code or {}).items() if v is not None})
     params = json.dumps(harness_parameters, sort_keys=True, default=str)
@@ -90,4 +96,33 @@ def first_user_message(instruction: str) -> str:
     return instruction.strip()
 
 
-NUDGE = "Respond with tool calls."
+def png_bytes(image: np.ndarray) -> bytes:
+    from PIL import Image as PILImage
+
+    buf = io.BytesIO()
+    PILImage.fromarray(np.asarray(image, dtype=np.uint8)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def result_images(episode, obs_ids: list[str], cap: int) -> tuple[list[tuple[str, bytes]], list[str]]:
+    """The images one tool result carries: the last ``cap`` distinct observations as PNG, and the
+    ids withheld (over the cap, or unreadable: reported, never fatal)."""
+    ids = list(dict.fromkeys(obs_ids))
+    keep = min(len(ids), max(0, int(cap or 0)))
+    withheld = ids[:len(ids) - keep]
+    shown = []
+    for oid in ids[len(ids) - keep:]:
+        try:
+            shown.append((oid, png_bytes(episode.image(oid))))
+        except Exception as e:  # an observation that cannot be read is reported, not fatal
+            withheld.append(oid)
+            log.warning("observation %s unavailable: %r", oid, e)
+    return shown, withheld
+
+
+def run_code_limits(spec) -> dict:
+    """The run_code limits the system prompt states, from an attempt's spec."""
+    rc = dict(getattr(spec, "sandbox", None) or {})
+    if spec is not None:
+        rc["max_internal_calls"] = spec.run_code_max_internal_calls
+    return rc

@@ -1,5 +1,5 @@
-"""API-equivalent cost per request from the model config's ``pricing`` block (USD per million
-tokens)::
+"""Token usage and its API-equivalent cost, shared by every harness that drives a priced model:
+the cost of a request from the model config's ``pricing`` block (USD per million tokens)::
 
     pricing: {input_per_mtok: 5.0, output_per_mtok: 25.0, cache_read_per_mtok: 0.5, cache_write_per_mtok: 6.25}
 
@@ -9,11 +9,20 @@ include reasoning tokens (``reasoning_tokens`` is the part of them spent reasoni
 reporting only). Missing rates cost 0; a cache rate left out falls back to the input rate."""
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 
-from cab_core.errors import ConfigError
+from .errors import ConfigError
 
-from .types import Usage
+
+@dataclass
+class Usage:
+    """Tokens of one request (or a total), in the convention above."""
+    input_tokens: int = 0
+    output_tokens: int = 0
+    reasoning_tokens: int = 0
+    cache_read_tokens: int = 0
+    cache_write_tokens: int = 0
+
 
 _KEYS = ("input_per_mtok", "output_per_mtok", "cache_read_per_mtok", "cache_write_per_mtok")
 
