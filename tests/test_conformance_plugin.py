@@ -73,7 +73,8 @@ def test_every_installed_simulator_and_task_is_collected(project, registered):
     want = (["test_own.py::test_own"]
             + [f"cab-conformance::test_simulator[{s}-{c}]" for s in sims for c in ALL_CHECKS]
             + [f"cab-conformance::test_simulator_physics_only[{s}-{c}]" for s in sims for c in NO_PICTURES]
-            + [f"cab-conformance::test_task[{t}-{s}]" for t in ("t1", "t2") for s in sims])
+            + [f"cab-conformance::test_task[{t}-{s}]" for t in ("t1", "t2") for s in sims]
+            + [f"cab-conformance::test_task_determinism[{t}-{s}]" for t in ("t1", "t2") for s in sims])
     assert got == want
     assert len(ALL_CHECKS) >= 12 and "snapshot_restore_exact" in ALL_CHECKS and "cameras" not in NO_PICTURES
 
@@ -85,6 +86,8 @@ def test_groups_and_restrictions(project, registered):
                    + [f"cab-conformance::test_simulator_physics_only[beta-{c}]" for c in NO_PICTURES])
     got = collected(project, "--cab-conformance=tasks", "--cab-tasks=t2", "-k", "not test_own")
     assert got == ["cab-conformance::test_task[t2-alpha]", "cab-conformance::test_task[t2-beta]"]
+    got = collected(project, "--cab-conformance=determinism", "--cab-sims=alpha", "-k", "not test_own")
+    assert got == ["cab-conformance::test_task_determinism[t1-alpha]", "cab-conformance::test_task_determinism[t2-alpha]"]
     got = collected(project, "--cab-conformance=sims,tasks", "--cab-sims=alpha", "--cab-tasks=t1", "-k", "t1 or timestep")
     assert got == ["cab-conformance::test_simulator[alpha-timestep]",
                    "cab-conformance::test_simulator_physics_only[alpha-timestep]",
@@ -94,14 +97,14 @@ def test_groups_and_restrictions(project, registered):
 def test_nothing_installed_is_one_skip_that_says_so(project, registered):
     registered()
     result = project.runpytest_inprocess("-p", "no:cacheprovider", "--cab-conformance", "-rs", "-k", "not test_own")
-    result.assert_outcomes(skipped=3)
+    result.assert_outcomes(skipped=4)
     result.stdout.fnmatch_lines(["*no simulator selected or installed*"])
 
 
 @pytest.mark.parametrize("args, message", [
     (["--cab-conformance", "--cab-sims=gamma"], "--cab-sims: unknown simulator gamma; installed: alpha, beta"),
     (["--cab-conformance", "--cab-tasks=t1,t9"], "--cab-tasks: unknown task t9; installed: t1, t2"),
-    (["--cab-conformance=simz"], "--cab-conformance: unknown group simz; groups: sims, tasks, all*"),
+    (["--cab-conformance=simz"], "--cab-conformance: unknown group simz; groups: sims, tasks, determinism, all*"),
     (["--cab-conformance", "test_own.py"], "--cab-conformance: unknown group test_own.py;*"),
     (["--cab-sims=alpha"], "--cab-sims needs --cab-conformance"),
     (["--cab-conformance", "--cab-jobs=0"], "--cab-jobs must be at least 1, got 0"),
@@ -195,3 +198,15 @@ def test_check_pair_refuses_over_budget_errors_and_subgoals_at_start(tmp_path):
         edit(res.rows)
         with pytest.raises(AssertionError, match=message):
             tc.check_pair(res)
+
+
+@pytest.mark.sim
+def test_determinism_check_fails_a_restore_that_restores_nothing(tmp_path, monkeypatch):
+    """The check passes on MuJoCo's world of click_bell, and fails once restore_state is a no-op."""
+    pytest.importorskip("mujoco")
+    from cab_sim_mujoco.simulator import MujocoSimulator
+
+    tc.check_determinism_and_restore("click_bell", "mujoco", tmp_path / "real")
+    monkeypatch.setattr(MujocoSimulator, "restore_state", lambda self, state: None)
+    with pytest.raises(AssertionError, match="click_bell on mujoco: qpos differs after restore_state"):
+        tc.check_determinism_and_restore("click_bell", "mujoco", tmp_path / "broken")

@@ -29,7 +29,7 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
         params = [pytest.param(s, c, id=f"{s}-{sc.check_id(c)}") for s in sims for c in checks]
         metafunc.parametrize(("cab_sim", "cab_check"), params or [
             pytest.param(None, None, id="none", marks=pytest.mark.skip(reason="no simulator selected or installed"))])
-    elif name == "test_task":
+    elif name in ("test_task", "test_task_determinism"):
         params = [pytest.param(t, s, id=f"{t}-{s}") for t in tasks for s in sims]
         metafunc.parametrize(("cab_task", "cab_sim"), params or [
             pytest.param(None, None, id="none",
@@ -95,3 +95,9 @@ def test_task(cab_task: str, cab_sim: str, cab_task_results) -> None:
     """At the catalog seed the oracle succeeds within budgets, attaining every subgoal, and the idle
     agent fails with no subgoal satisfied at the start; both verdicts record consistent margins."""
     tc.check_pair(cab_task_results(cab_task, cab_sim))
+
+
+def test_task_determinism(cab_task: str, cab_sim: str, tmp_path) -> None:
+    """Two builds of the task's world give identical privileged snapshots after settling and after
+    the same motion; a saved state restores exactly and replays the motion."""
+    tc.check_determinism_and_restore(cab_task, cab_sim, tmp_path)

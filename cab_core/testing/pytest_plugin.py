@@ -12,10 +12,14 @@ registry, :mod:`cab_core.plugins`):
   within its budgets and attains its subgoals, the idle agent fails, both record consistent
   margins (``test_task[<task>-<sim>]``, :mod:`cab_core.testing.task_conformance`). The attempts of
   all selected items run in one batch, ``--cab-jobs`` at a time in warm workers, when the first one
-  runs.
+  runs;
+* group ``determinism``: every task x every simulator, on the task's world at its catalog seed set
+  up as an attempt sets it up: two builds in one process give identical privileged snapshots after
+  settling and after the same arm motion, and a saved state restores exactly and replays the motion
+  (``test_task_determinism[<task>-<sim>]``, about a second each, in this process).
 
-Options: ``--cab-conformance[=GROUPS]`` (comma-separated: ``sims``, ``tasks``; ``all``, the default,
-is both), ``--cab-sims=A,B`` and ``--cab-tasks=X,Y`` (restrict to these; default: every installed
+Options: ``--cab-conformance[=GROUPS]`` (comma-separated: ``sims``, ``tasks``, ``determinism``;
+``all``, the default, is every group), ``--cab-sims=A,B`` and ``--cab-tasks=X,Y`` (restrict to these; default: every installed
 one; an unknown name is a usage error listing the installed ones), ``--cab-jobs=N`` (parallel
 attempts of the task checks; default: the number of cores). The items carry the marker
 ``cab_conformance``; ``-k`` selects among them as usual.
@@ -28,7 +32,7 @@ from pathlib import Path
 
 import pytest
 
-GROUPS = ("sims", "tasks")
+GROUPS = ("sims", "tasks", "determinism")
 NODE = "cab-conformance"  # the node id the items are collected under
 
 
@@ -46,8 +50,8 @@ SELECTION = pytest.StashKey[Selection]()
 def pytest_addoption(parser: pytest.Parser) -> None:
     g = parser.getgroup("cab", "cab conformance suites (cab_core.testing)")
     g.addoption("--cab-conformance", nargs="?", const="all", default=None, metavar="GROUPS",
-                help="add cab's conformance checks over the installed plugins: sims, tasks or all "
-                     "(comma-separated; default all)")
+                help="add cab's conformance checks over the installed plugins: sims, tasks, determinism "
+                     "or all (comma-separated; default all)")
     g.addoption("--cab-sims", default=None, metavar="A,B",
                 help="only these simulators (default: every installed one)")
     g.addoption("--cab-tasks", default=None, metavar="X,Y",
@@ -97,7 +101,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
     sims = _restrict("simulator", "--cab-sims", _names(config.getoption("cab_sims")), list(registry("simulators")))
     tasks: tuple[str, ...] = ()
-    if "tasks" in chosen or config.getoption("cab_tasks") is not None:
+    if {"tasks", "determinism"} & set(chosen) or config.getoption("cab_tasks") is not None:
         tasks = _restrict("task", "--cab-tasks", _names(config.getoption("cab_tasks")), list(all_tasks()))
     config.stash[SELECTION] = Selection(chosen, sims, tasks, jobs or os.cpu_count() or 1)
 
@@ -107,7 +111,7 @@ def pytest_report_header(config: pytest.Config) -> list[str] | None:
     if sel is None:
         return None
     return [f"cab conformance: {', '.join(sel.groups)}; simulators: {', '.join(sel.sims) or '(none)'}"
-            + (f"; tasks: {len(sel.tasks)}" if "tasks" in sel.groups else "")]
+            + (f"; tasks: {len(sel.tasks)}" if sel.tasks else "")]
 
 
 class _Suite(pytest.Module):
@@ -125,7 +129,8 @@ class _Suite(pytest.Module):
 
 
 # test functions of the suite module by group
-_GROUP_OF = {"test_simulator": "sims", "test_simulator_physics_only": "sims", "test_task": "tasks"}
+_GROUP_OF = {"test_simulator": "sims", "test_simulator_physics_only": "sims", "test_task": "tasks",
+             "test_task_determinism": "determinism"}
 
 
 @pytest.hookimpl(tryfirst=True)  # before -k / -m deselect among the items
