@@ -210,3 +210,19 @@ def test_determinism_check_fails_a_restore_that_restores_nothing(tmp_path, monke
     monkeypatch.setattr(MujocoSimulator, "restore_state", lambda self, state: None)
     with pytest.raises(AssertionError, match="click_bell on mujoco: qpos differs after restore_state"):
         tc.check_determinism_and_restore("click_bell", "mujoco", tmp_path / "broken")
+
+
+def test_a_batch_that_cannot_run_fails_its_items_without_running_again(project, registered, monkeypatch):
+    registered(FakeWorldPlugins())
+    calls = []
+
+    def run_attempts(pairs, jobs, out):
+        calls.append(list(pairs))
+        raise RuntimeError("no Hydra config for simulator alpha")
+
+    monkeypatch.setattr(tc, "run_attempts", run_attempts)
+    rec = project.inline_run("-p", "no:cacheprovider", "--cab-conformance=tasks", "--cab-sims=alpha", "-k", "not test_own")
+    passed, _, failed = rec.listoutcomes()
+    assert calls == [[("t1", "alpha"), ("t2", "alpha")]] and not passed
+    assert [r.nodeid for r in failed] == ["cab-conformance::test_task[t1-alpha]", "cab-conformance::test_task[t2-alpha]"]
+    assert all("no Hydra config for simulator alpha" in str(r.longrepr) for r in failed)

@@ -72,9 +72,12 @@ def cab_task_results(request: pytest.FixtureRequest, tmp_path_factory: pytest.Te
     """``results(task, sim)``: the suite check's rows of that pair. The first call runs the attempts
     of every ``test_task`` item of this session (those left after ``-k``/``-m``) in one batch."""
     cache: dict[tuple[str, str], tc.PairResult] = {}
+    broken: dict[tuple[str, str], BaseException] = {}  # a batch that could not run fails its items once
     sel = selection(request.config)
 
     def results(task: str, sim: str) -> tc.PairResult:
+        if (task, sim) in broken:
+            raise RuntimeError(f"the batch of task attempts with {task} on {sim} could not run") from broken[(task, sim)]
         if (task, sim) not in cache:
             pairs = []
             for item in request.session.items:
@@ -85,7 +88,11 @@ def cab_task_results(request: pytest.FixtureRequest, tmp_path_factory: pytest.Te
                         pairs.append(pair)
             if (task, sim) not in pairs:
                 pairs.append((task, sim))
-            cache.update(tc.run_attempts(pairs, sel.jobs if sel else 1, tmp_path_factory.mktemp("cab-tasks")))
+            try:
+                cache.update(tc.run_attempts(pairs, sel.jobs if sel else 1, tmp_path_factory.mktemp("cab-tasks")))
+            except Exception as e:
+                broken.update((p, e) for p in pairs)
+                raise
         return cache[(task, sim)]
 
     return results

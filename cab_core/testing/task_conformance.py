@@ -1,6 +1,8 @@
 """Conformance checks every task passes on every simulator: at the task's catalog seed its oracle
 succeeds within the catalog's budgets and attains every subgoal, the idle agent fails with no
-subgoal satisfied at the start, and both verdicts record their margins consistently.
+subgoal satisfied at the start, and both verdicts record their margins consistently
+(:func:`check_pair`); the task's world is deterministic and its saved states restore
+(:func:`check_determinism_and_restore`).
 
 The attempts run as ``cab-suite-check`` runs them (:func:`cab_core.suitecheck.check`: composed by
 Hydra as ``cab task=T sim=S model=oracle|idle`` composes them, supervised, in warm workers, ``jobs``
@@ -9,7 +11,7 @@ at a time); :func:`run_attempts` runs a batch of ``(task, sim)`` pairs and retur
 
     from cab_core.testing import task_conformance as tc
 
-    for pair, res in tc.run_attempts([("click_bell", "mujoco")], jobs=2, out=Path("out")).items():
+    for pair, res in tc.run_attempts([("my_task", "my_sim")], jobs=2, out=Path("out")).items():
         tc.check_pair(res)
 """
 from __future__ import annotations
@@ -110,21 +112,20 @@ MOTION_STEPS = 250
 def _episode(task: str, sim: str, out: Path):
     """The world of ``cab task=T sim=S model=idle`` at the task's catalog seed, set up as an attempt
     sets it up (built, robot at home, settled), physics only, no video."""
+    from ..episode import Episode
     from ..plugins import all_tasks, create
     from ..runner import attempt_spec
     from ..suitecheck import attempt_configs
-    from ..episode import Episode
 
-    from ..catalog import task_info
-
-    [cfg] = attempt_configs([(task, task_info(task).seed, "idle", str(out), sim)], cold=False)
+    t = all_tasks()[task]
+    [cfg] = attempt_configs([(task, t.info.seed, "idle", str(out), sim)], cold=False)
     cfg["sim"] = {**cfg["sim"], "render": False}
     cfg["record"] = {**(cfg.get("record") or {}), "video": False}
     spec = attempt_spec(cfg, out)
     emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
     planner = create("planners", spec.planner, spec.planner_cfg)
     world = create("simulators", spec.sim, spec.sim_cfg)
-    return Episode(spec, all_tasks()[task], world, planner, emb)
+    return Episode(spec, t, world, planner, emb)
 
 
 def _drive(ep, base, steps: int) -> None:
