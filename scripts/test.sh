@@ -6,7 +6,9 @@ bash scripts/install.sh
 bash scripts/install-node-tools.sh   # MCP Inspector, Claude Code, Codex CLI: the MCP harness tests drive them
 . .venv/bin/activate
 set +e
-python -m pytest -q -p no:cacheprovider "$@"
+# --cab-conformance: the conformance suites of cab_core.testing (its pytest plugin) over every installed
+# simulator and task, as a plugin author runs them on theirs
+python -m pytest -q -p no:cacheprovider --cab-conformance=all "$@"
 rc=$?
 set -e
 if [ "$rc" -eq 5 ]; then

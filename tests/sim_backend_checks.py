@@ -1,7 +1,7 @@
 """Checks the simulator backend tests (tests/test_sim_<backend>.py) share, beyond the conformance
-suite of :mod:`cab_core.testing.sim_conformance`: how a backend is run through that suite with and
-without a renderer, its plugin registration, options, the physics-only mode and the snapshot,
-contact and shutdown guarantees every backend gives.
+suite of :mod:`cab_core.testing.sim_conformance` (which ``pytest --cab-conformance`` runs on every
+installed backend, with and without a renderer): plugin registration, options, the physics-only
+mode and the snapshot, contact and shutdown guarantees every backend gives.
 
 Each check takes the backend's simulator factories (``rendering``: a simulator that renders,
 ``physics_only``: one built with ``render: false``), so a test module states only what is its own.
@@ -13,41 +13,13 @@ from typing import Callable
 import pytest
 
 from cab_core.errors import RendererUnavailable, SimulatorError
-from cab_core.scene import SceneSpec
 from cab_core.simulator import Simulator
 from cab_core.testing import sim_conformance as sc
 
 SimFactory = Callable[[], Simulator]
 
 
-def render_diagnosis(rendering: SimFactory) -> str | None:
-    """None if this machine can render with the backend, else the RendererUnavailable diagnosis."""
-    sim = rendering()
-    try:
-        sim.build(SceneSpec(), sc.make_embodiment())
-    except RendererUnavailable as e:
-        return str(e)
-    finally:
-        sim.close()
-    return None
-
-
-def conformance(check, diagnosis: str | None, rendering: SimFactory, physics_only: SimFactory) -> None:
-    """One suite check on a rendering build; without a renderer (``diagnosis`` says why) on a
-    physics-only build, and the checks that need pictures are skipped."""
-    if diagnosis is None:
-        check(rendering)
-    elif check in sc.NEEDS_RENDERER:
-        pytest.skip(f"needs a renderer: {diagnosis}")
-    else:
-        check(physics_only)
-
-
-def conformance_physics_only(physics_only: SimFactory) -> None:
-    """Everything but images also holds without a renderer."""
-    for check in sc.CHECKS:
-        if check not in sc.NEEDS_RENDERER:
-            check(physics_only)
+render_diagnosis = sc.render_diagnosis  # None where the backend renders here, else why not
 
 
 def registered_through_entry_point(backend: str, cls: type) -> None:

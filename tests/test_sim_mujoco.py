@@ -1,5 +1,7 @@
-"""The MuJoCo backend: the shared simulator conformance suite, plus MuJoCo-specific checks (GL
-backend choice and diagnosis, physics-only mode, options, snapshot guarantees beyond the suite)."""
+"""The MuJoCo backend: MuJoCo-specific checks (GL
+backend choice and diagnosis, physics-only mode, options, snapshot guarantees beyond the suite).
+The shared conformance suite (cab_core.testing.sim_conformance) runs on this backend through
+`pytest --cab-conformance` (scripts/test.sh turns it on)."""
 from __future__ import annotations
 
 import numpy as np
@@ -29,16 +31,6 @@ def physics_only():
 def render_available() -> str | None:
     """None if this machine can render with MuJoCo, else the diagnosis."""
     return checks.render_diagnosis(rendering)
-
-
-@pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
-def test_conformance(check, render_available):
-    checks.conformance(check, render_available, rendering, physics_only)
-
-
-def test_conformance_physics_only():
-    """Everything but images also holds without a GL context."""
-    checks.conformance_physics_only(physics_only)
 
 
 def test_registered_through_entry_point():

@@ -1,6 +1,8 @@
-"""The PyBullet backend: the shared simulator conformance suite, plus PyBullet-specific checks
+"""The PyBullet backend: PyBullet-specific checks
 (camera projection against PyBullet's own renderer, renderer choice, physics-only mode, options,
-mass properties, the snapshot guarantees this backend gives beyond the suite)."""
+mass properties, the snapshot guarantees this backend gives beyond the suite).
+The shared conformance suite (cab_core.testing.sim_conformance) runs on this backend through
+`pytest --cab-conformance` (scripts/test.sh turns it on)."""
 from __future__ import annotations
 
 import numpy as np
@@ -27,16 +29,6 @@ def rendering():
 
 def physics_only():
     return PybulletSimulator({"render": False})
-
-
-@pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
-def test_conformance(check):
-    checks.conformance(check, None, rendering, physics_only)
-
-
-def test_conformance_physics_only():
-    """Everything but images also holds without visual shapes."""
-    checks.conformance_physics_only(physics_only)
 
 
 def test_registered_through_entry_point():

@@ -1,6 +1,8 @@
-"""The SAPIEN backend: the shared simulator conformance suite, plus SAPIEN-specific checks
+"""The SAPIEN backend: SAPIEN-specific checks
 (camera conventions against SAPIEN's own matrices, renderer diagnosis, physics-only mode, the
-snapshot guarantees this backend gives beyond the suite)."""
+snapshot guarantees this backend gives beyond the suite).
+The shared conformance suite (cab_core.testing.sim_conformance) runs on this backend through
+`pytest --cab-conformance` (scripts/test.sh turns it on)."""
 from __future__ import annotations
 
 import numpy as np
@@ -31,16 +33,6 @@ def physics_only():
 def render_available() -> str | None:
     """None if this machine can render with SAPIEN, else the diagnosis."""
     return checks.render_diagnosis(rendering)
-
-
-@pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
-def test_conformance(check, render_available):
-    checks.conformance(check, render_available, rendering, physics_only)
-
-
-def test_conformance_physics_only():
-    """Everything but images also holds without a render system."""
-    checks.conformance_physics_only(physics_only)
 
 
 def test_registered_through_entry_point():

@@ -6,13 +6,12 @@ a cube, a ball, a cylinder, a kinematic capsule, a convex mesh, a static post, a
 articulated box with a hinged lid, and a fixed camera) and runs each check against a backend's
 *factory*: a zero-argument callable that returns a fresh, unbuilt simulator able to render.
 
-A backend's test module parametrises over :data:`CHECKS`, one test per check::
+``pytest --cab-conformance=sims`` runs every check on every installed simulator
+(:mod:`cab_core.testing.pytest_plugin`); by hand, one check is a call::
 
     from cab_core.testing import sim_conformance as sc
 
-    @pytest.mark.parametrize("check", sc.CHECKS, ids=sc.check_id)
-    def test_conformance(check):
-        check(lambda: MySimulator({"render": True}))
+    sc.check_contacts(lambda: MySimulator({"render": True}))
 
 Checks in :data:`NEEDS_RENDERER` capture images; the rest also pass on a physics-only build.
 Behaviour the suite pins down beyond the contract's docstrings: ``set_object_pose`` zeroes the
@@ -696,6 +695,21 @@ NEEDS_RENDERER: tuple[Callable[[SimFactory], None], ...] = (check_seeded_reset_i
 
 def check_id(check: Callable) -> str:
     return check.__name__.removeprefix("check_")
+
+
+def render_diagnosis(factory: SimFactory) -> str | None:
+    """None if ``factory``'s simulator renders on this machine, else its RendererUnavailable
+    diagnosis (run the checks of :data:`NEEDS_RENDERER` only where this is None)."""
+    from ..errors import RendererUnavailable
+
+    sim = factory()
+    try:
+        sim.build(SceneSpec(), make_embodiment())
+    except RendererUnavailable as e:
+        return str(e)
+    finally:
+        sim.close()
+    return None
 
 
 def run_all(factory: SimFactory) -> dict[str, str]:

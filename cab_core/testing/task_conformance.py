@@ -1,0 +1,192 @@
+"""Conformance checks every task passes on every simulator: at the task's catalog seed its oracle
+succeeds within the catalog's budgets and attains every subgoal, the idle agent fails with no
+subgoal satisfied at the start, and both verdicts record their margins consistently
+(:func:`check_pair`); the task's world is deterministic and its saved states restore
+(:func:`check_determinism_and_restore`).
+
+The attempts run as ``cab-suite-check`` runs them (:func:`cab_core.suitecheck.check`: composed by
+Hydra as ``cab task=T sim=S model=oracle|idle`` composes them, supervised, in warm workers, ``jobs``
+at a time); :func:`run_attempts` runs a batch of ``(task, sim)`` pairs and returns one
+:class:`PairResult` per pair, and :func:`check_pair` asserts on it. Outside pytest::
+
+    from cab_core.testing import task_conformance as tc
+
+    for pair, res in tc.run_attempts([("my_task", "my_sim")], jobs=2, out=Path("out")).items():
+        tc.check_pair(res)
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+AGENTS = ("oracle", "idle")
+
+
+@dataclass
+class PairResult:
+    """The suite check's rows of one task on one simulator, by agent."""
+
+    task: str
+    sim: str
+    rows: dict[str, dict] = field(default_factory=dict)
+
+
+def run_attempts(pairs: list[tuple[str, str]], jobs: int, out: Path) -> dict[tuple[str, str], PairResult]:
+    """Run the oracle and the idle agent of every ``(task, sim)`` pair at the task's catalog seed.
+    Pairs are grouped so that the tasks shared by several simulators run in one batch."""
+    from ..suitecheck import check
+
+    by_sim: dict[str, list[str]] = {}
+    for task, sim in pairs:
+        if task not in by_sim.setdefault(sim, []):
+            by_sim[sim].append(task)
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for sim, tasks in by_sim.items():
+        groups.setdefault(tuple(tasks), []).append(sim)
+    results = {(t, s): PairResult(t, s) for t, s in pairs}
+    for i, (tasks, sims) in enumerate(groups.items()):
+        for row in check(list(tasks), None, max(1, jobs), Path(out) / f"batch-{i}", AGENTS, tuple(sims)):
+            res = results.get((row["task"], row["sim"]))
+            if res is not None:
+                res.rows[row["agent"]] = row
+    return results
+
+
+def margins_agree(predicates: dict, margins: dict) -> None:
+    """Every margin (a record: slack, scale, fraction) belongs to a predicate and has its sign:
+    inside its threshold (slack > 0) exactly where the predicate holds."""
+    assert set(margins) <= set(predicates), f"margins of no predicate: {sorted(set(margins) - set(predicates))}"
+    for k, m in margins.items():
+        assert m["scale"] > 0 and math.isfinite(m["slack"]), (k, m)
+        assert abs(m["fraction"] - m["slack"] / m["scale"]) < 1e-9, (k, m)
+        if m["slack"] != 0:
+            assert (m["slack"] > 0) == predicates[k], (k, m, predicates[k])
+
+
+def recorded_margins_agree(row: dict) -> None:
+    """The attempt's verdict records its predicates' margins with their signs, and what decided it;
+    an oracle success is decided by a thresholded predicate of its task."""
+    verdict = json.loads((Path(row["dir"]) / "result.json").read_text())["verdict"]
+    preds = {**verdict["predicates"], **verdict["final_requirements"], **verdict["guard"]}
+    if verdict["margins_at"] == "latch":  # the event's predicates all held when it latched
+        preds = {**preds, **{k: True for k in verdict["predicates"]}}
+    margins_agree(preds, verdict["margins"])  # an idle attempt may have none: no contact, no distance
+    d = verdict["margin"]
+    assert set(d) == {"predicate", "fraction", "borderline", "threshold"}, d
+    if row["agent"] == "oracle":
+        assert d["predicate"] in verdict["margins"] and d["fraction"] > 0, (row["task"], d)
+        assert row["margin"] == d["fraction"], (row["margin"], d)
+
+
+def _ran(res: PairResult, agent: str) -> dict:
+    row = res.rows.get(agent)
+    assert row is not None, f"{res.task} on {res.sim}: the {agent} attempt did not run"
+    assert "error" not in row, f"{res.task} on {res.sim}: the {agent} attempt failed: {row['error']}"
+    return row
+
+
+def check_pair(res: PairResult) -> None:
+    """The oracle succeeds within budgets with every subgoal attained; the idle agent fails with no
+    subgoal satisfied at the start; both record consistent margins."""
+    where = f"{res.task} on {res.sim}"
+    o = _ran(res, "oracle")
+    assert o["success"], f"{where}: the oracle failed ({o['termination']}); records in {o['dir']}"
+    assert o["calls"] <= o["calls_limit"], f"{where}: the oracle used {o['calls']} calls of {o['calls_limit']}"
+    assert o["sim_s"] <= o["sim_s_limit"], f"{where}: the oracle used {o['sim_s']} simulated s of {o['sim_s_limit']}"
+    assert all(o["subgoals"]), f"{where}: subgoals attained by the oracle: {o['subgoals']}"
+    assert not o.get("checkpoint_error"), f"{where}: checkpoints: {o['checkpoint_error']}"
+    i = _ran(res, "idle")
+    assert not i["success"], f"{where}: the idle agent succeeded; records in {i['dir']}"
+    assert not any(i["subgoals_at_start"]), f"{where}: a subgoal holds at the start: {i['subgoals_at_start']}"
+    recorded_margins_agree(o)
+    recorded_margins_agree(i)
+
+
+# -- determinism and save/restore on a task's own world ---------------------------------------------
+
+MOTION_STEPS = 250
+
+
+def _episode(task: str, sim: str, out: Path):
+    """The world of ``cab task=T sim=S model=idle`` at the task's catalog seed, set up as an attempt
+    sets it up (built, robot at home, settled), physics only, no video."""
+    from ..episode import Episode
+    from ..plugins import all_tasks, create
+    from ..runner import attempt_spec
+    from ..suitecheck import attempt_configs
+
+    t = all_tasks()[task]
+    [cfg] = attempt_configs([(task, t.info.seed, "idle", str(out), sim)], cold=False)
+    cfg["sim"] = {**cfg["sim"], "render": False}
+    cfg["record"] = {**(cfg.get("record") or {}), "video": False}
+    spec = attempt_spec(cfg, out)
+    emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
+    planner = create("planners", spec.planner, spec.planner_cfg)
+    world = create("simulators", spec.sim, spec.sim_cfg)
+    return Episode(spec, t, world, planner, emb)
+
+
+def _drive(ep, base, steps: int) -> None:
+    """Every arm joint along its own sine about ``base`` (0.15 rad), the grippers closing and
+    opening, one target per step."""
+    import numpy as np
+
+    order = ep.emb.joint_order()
+    grip = {j for a in ep.emb.arms.values() for j in a.gripper.joints}
+    for i in range(steps):
+        t = i * ep.sim.timestep
+        tgt = np.array(base, float)
+        for k, j in enumerate(order):
+            tgt[k] = base[k] * (0.5 + 0.5 * math.cos(3.0 * t)) if j in grip else base[k] + 0.15 * math.sin(2.0 * t + k)
+        ep.sim.set_drive_targets(tgt)
+        ep.sim.step(1)
+
+
+def _state(ep) -> dict:
+    import numpy as np
+
+    s = {"qpos": np.asarray(ep.sim.get_qpos(), float), "qvel": np.asarray(ep.sim.get_qvel(), float)}
+    for n in ep.sim.object_names():
+        s[n] = np.concatenate([ep.sim.get_object_pose(n), ep.sim.get_object_velocity(n), ep.sim.get_object_qpos(n)])
+    return s
+
+
+def check_determinism_and_restore(task: str, sim: str, out: Path) -> None:
+    """On the task's world at its catalog seed (:func:`_episode`): two builds in one process, each
+    saving its state after settling and then moving the arms alike, give identical privileged
+    snapshots after settling and after the motion; the saved state restores exactly, and the motion
+    replayed from it agrees within 1e-6. (Taking a snapshot may change a backend's next steps, so
+    both builds take one.)"""
+    import numpy as np
+
+    def run(name: str, replay: bool) -> None:
+        ep = _episode(task, sim, Path(out) / name)
+        try:
+            snap = ep.sim.save_state()
+            start = _state(ep)
+            base = ep.sim.get_drive_targets().copy()
+            _drive(ep, base, MOTION_STEPS)
+            ep._snapshot("moved")
+            if not replay:
+                return
+            moved = _state(ep)
+            ep.sim.restore_state(snap)
+            restored = _state(ep)
+            for k in start:
+                assert np.array_equal(start[k], restored[k]), f"{task} on {sim}: {k} differs after restore_state"
+            _drive(ep, base, MOTION_STEPS)
+            replayed = _state(ep)
+            for k in moved:
+                d = float(np.max(np.abs(moved[k] - replayed[k]), initial=0.0))
+                assert d <= 1e-6, f"{task} on {sim}: the motion replayed from the saved state differs by {d:g} at {k}"
+        finally:
+            ep.close()
+
+    run("a", replay=True)
+    run("b", replay=False)
+    snaps = [(Path(out) / x / "privileged" / "snapshots.jsonl").read_text().splitlines()[:2] for x in "ab"]
+    assert [json.loads(s)["label"] for s in snaps[0]] == ["start", "moved"], snaps[0]
+    for label, x, y in zip(("after settling", "after the motion"), *snaps):
+        assert x == y, f"{task} on {sim}: a second build gives another privileged snapshot {label}"
