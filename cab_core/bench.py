@@ -38,7 +38,7 @@ def _pct(xs: list[float], p: float) -> float:
 
 
 def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
-    from .catalog import task_info
+    from .plugins import task_info
     from .episode import AttemptSpec, Episode
     from .plugins import all_tasks, create
 

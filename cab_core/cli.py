@@ -12,9 +12,9 @@ GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment")
 
 
 def scene_seed(seed, task: str) -> int:
-    """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the catalog's fixed seed of
-    the task), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
-    from .catalog import task_info
+    """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the task's fixed seed,
+    from its suite's catalog), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
+    from .plugins import task_info
 
     return task_info(task).seed if seed is None else seed
 

@@ -26,8 +26,8 @@ def _plain(cfg: Any) -> dict:
 
 
 def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
-    """Validate a composed config into one AttemptSpec (budgets and seed from the catalog)."""
-    from .catalog import task_info
+    """Validate a composed config into one AttemptSpec (budgets and seed from the task's suite)."""
+    from .plugins import task_info
 
     c = _plain(cfg)
     for key in ("task", "sim", "embodiment", "planner", "harness", "model"):
@@ -73,8 +73,7 @@ def run_attempt(spec: AttemptSpec) -> dict:
 
     tasks = all_tasks()
     if spec.task not in tasks:
-        raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
-                          f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
+        raise ConfigError(f"unknown task {spec.task!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")
     harness = create("harnesses", spec.harness, {**spec.harness_cfg, "name": spec.harness})
     preflight = getattr(harness, "preflight", None)
     if preflight is not None:  # credentials and endpoints are checked before any simulator starts

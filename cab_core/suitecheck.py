@@ -41,7 +41,7 @@ def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
 def run_one(config: dict, out: str, settings) -> dict:
     """One attempt, supervised (crashes, hangs and runaway memory are retried as infrastructure
     failures); returns a compact summary."""
-    from .catalog import task_info
+    from .plugins import task_info
     from .sweep_records import is_infrastructure_failure
     from .sweep_supervisor import AttemptSupervisor
 
@@ -85,7 +85,7 @@ def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None
     ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
     ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.perturb``). ``seeds``: one
     list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
-    from .catalog import task_info
+    from .plugins import task_info
     from .sweep_supervisor import SupervisorConfig, close_workers
 
     if not isinstance(seeds, dict):
