@@ -72,9 +72,10 @@ def option_keys(option: str) -> list[str]:
     """The keys of a config option, as its file declares them."""
     import yaml
 
-    import cab_core.conf
+    import cab_harness_mcp
 
-    path = os.path.join(os.path.dirname(cab_core.conf.__file__), option + ".yaml")
+    assert option == "harness/mcp"  # the option files live with their plugins
+    path = os.path.join(os.path.dirname(cab_harness_mcp.__file__), "conf", option + ".yaml")
     with open(path) as f:
         return [k for k in yaml.safe_load(f) if k != "defaults"]
 
