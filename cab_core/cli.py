@@ -8,7 +8,7 @@ import sys
 from hydra.experimental.callback import Callback
 from omegaconf import OmegaConf
 
-GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment")
+GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment", "experiment")
 
 
 def scene_seed(seed, task: str) -> int:

@@ -56,6 +56,11 @@ def register_task_configs(search_path: Any) -> list[str]:
     files = ConfigRepository(config_search_path=search_path)  # the file sources only: ConfigStore comes after
     shipped = set(files.get_group_options("task", ObjectType.CONFIG)) if files.group_exists("task") else set()
     store = ConfigStore.instance()
+    group = store.repo.get("task", {})
+    for name in shipped:  # registered before a config dir shipping its yaml was on the path: the yaml is the option
+        node = group.get(f"{name}.yaml")
+        if node is not None and node.provider == "cab":
+            del group[f"{name}.yaml"]
     names = [n for n in task_names() if n not in shipped]
     for name in names:
         store.store(group="task", name=name, node={"name": name}, provider="cab")
@@ -76,6 +81,6 @@ def default_selection(groups: tuple[str, ...] = DEFAULT_GROUPS) -> dict[str, str
     for g in groups:
         node = cfg.get(g)
         if node is None or not node.get("name"):
-            raise ConfigError(f"the default configuration selects no {g}; give one (e.g. --{g} <name>)")
+            raise ConfigError(f"the default configuration selects no {g} (its primary config leaves {g}: null)")
         out[g] = str(node.name)
     return out
