@@ -56,12 +56,10 @@ def register_task_configs(search_path: Any) -> list[str]:
     files = ConfigRepository(config_search_path=search_path)  # the file sources only: ConfigStore comes after
     shipped = set(files.get_group_options("task", ObjectType.CONFIG)) if files.group_exists("task") else set()
     store = ConfigStore.instance()
-    group = store.repo.get("task", {})
-    for name in shipped:  # registered before a config dir shipping its yaml was on the path: the yaml is the option
-        node = group.get(f"{name}.yaml")
-        if node is not None and node.provider == "cab":
-            del group[f"{name}.yaml"]
     names = [n for n in task_names() if n not in shipped]
+    group = store.repo.get("task", {})
+    for key in [k for k, node in group.items() if getattr(node, "provider", None) == "cab" and k[:-len(".yaml")] not in names]:
+        del group[key]  # no longer installed, or a config dir now ships its yaml (the yaml is the option)
     for name in names:
         store.store(group="task", name=name, node={"name": name}, provider="cab")
     return names

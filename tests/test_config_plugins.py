@@ -185,3 +185,44 @@ def test_default_selection_is_the_composed_defaults():
 
     assert default_selection() == {"sim": "sapien", "embodiment": "aloha_agilex", "planner": "mplib"}
     assert default_selection(("task",)) == {"task": "beat_block_hammer"}
+
+
+@pytest.fixture
+def new_suite():
+    """A task suite registered in-process with one task no file names: ``block_on_pad``."""
+    from cab_core.task import Task, TaskInfo
+
+    class BlockOnPad(Task):
+        info = TaskInfo(name="block_on_pad", instruction="Put the block on the pad.", seed=4, scoring="final",
+                        budget_tool_calls=12, budget_sim_s=65.0)
+
+        def build(self, seed, embodiment):
+            raise NotImplementedError
+
+        def verifier(self, instance):
+            raise NotImplementedError
+
+        def oracle(self, call, world):
+            raise NotImplementedError
+
+    class Suite:
+        @cab_core.hookimpl
+        def cab_task_suites(self):
+            return {"pads": lambda: {"block_on_pad": BlockOnPad()}}
+
+    pm = plugins.plugin_manager()
+    suite = Suite()
+    pm.register(suite, name="test_pads")
+    plugins._installed_tasks.cache_clear()
+    yield
+    pm.unregister(suite)
+    plugins._installed_tasks.cache_clear()
+
+
+def test_a_new_suites_task_needs_no_yaml_and_no_core_edit(new_suite, tmp_path):
+    assert plugins.task_info("block_on_pad").seed == 4
+    cfg = _compose(["task=block_on_pad", "model=idle"])
+    assert dict(cfg.task) == {"name": "block_on_pad"}
+    spec = attempt_spec(cfg, tmp_path)
+    assert (spec.task, spec.seed, spec.budget_tool_calls, spec.budget_sim_seconds, spec.budget_wall_seconds) == (
+        "block_on_pad", 4, 12, 65.0, 720.0)
