@@ -68,13 +68,19 @@ def register_task_configs(search_path: Any) -> list[str]:
 DEFAULT_GROUPS = ("sim", "embodiment", "planner")
 
 
-def default_selection(groups: tuple[str, ...] = DEFAULT_GROUPS) -> dict[str, str]:
-    """The option of each of ``groups`` that plain ``cab`` composes (the project's default
-    composition where installed). A group the default leaves unset is a :class:`ConfigError`."""
+def composed(overrides: list[str] | None = None):
+    """The configuration plain ``cab`` composes with these overrides (Hydra's compose API; not
+    inside a running Hydra app)."""
     from hydra import compose, initialize_config_module
 
     with initialize_config_module(version_base=None, config_module=CORE_CONFIG_MODULE):
-        cfg = compose(config_name="config")
+        return compose(config_name="config", overrides=list(overrides or []))
+
+
+def default_selection(groups: tuple[str, ...] = DEFAULT_GROUPS) -> dict[str, str]:
+    """The option of each of ``groups`` that plain ``cab`` composes (the project's default
+    composition where installed). A group the default leaves unset is a :class:`ConfigError`."""
+    cfg = composed()
     out = {}
     for g in groups:
         node = cfg.get(g)

@@ -35,7 +35,9 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
            f"sweep.threads_per_attempt={threads}"]
     if mode == "cold":
         cmd.append("sweep.warm_workers=false")
-        if sim == "sapien":
+        from .config import composed
+
+        if "brdf_cache" in composed([f"sim={sim}"]).sim:  # a simulator that caches its BRDF table: off
             cmd.append("sim.brdf_cache=false")
     load0 = os.getloadavg()[0]
     t0 = time.monotonic()
