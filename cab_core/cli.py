@@ -86,12 +86,12 @@ def main() -> None:
     import os
 
     from .cmdline import check_command_line
-    from .errors import ConfigError
+    from .errors import ConfigError, PluginError
 
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
     try:
         args = check_command_line(sys.argv[1:])
-    except ConfigError as e:
+    except (ConfigError, PluginError) as e:  # PluginError: a plugin's config dirs or tasks (cab_core.config)
         _refuse(str(e))
     single = args is not None and not (args.multirun or args.cfg)
     if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:

@@ -149,19 +149,22 @@ def test_the_cores_config_names_no_plugin_of_the_project():
         text = f.read_text()
         words = set(text.replace(":", " ").replace(",", " ").split())
         assert not (words & names), (f.name, words & names)
-    defaults = yaml.safe_load((core_conf / "cab.yaml").read_text())["defaults"]
+    defaults = yaml.safe_load((core_conf / "config.yaml").read_text())["defaults"]
     assert {"sim": None, "embodiment": None, "planner": None, "task": None} == {
         k: v for d in defaults if isinstance(d, dict) for k, v in d.items() if k in ("sim", "embodiment", "planner", "task")}
 
 
-def test_the_cores_settings_alone_need_each_plugin_group_chosen(tmp_path):
-    cfg = _compose(config_name="cab")  # the core's settings without the project's composition
-    assert "sim" not in cfg and "task" not in cfg and cfg.model.name == "oracle"
+def test_the_cores_primary_config_alone_needs_each_plugin_group_chosen(tmp_path, monkeypatch):
+    from hydra_plugins.cab_searchpath import cab_searchpath
+
+    monkeypatch.setattr(cab_searchpath, "PROJECT_PACKAGE", "cab_conf_not_installed")  # the core without the project
+    cfg = _compose()
+    assert "sim" not in cfg and "task" not in cfg and cfg.model.name == "oracle" and cfg.harness.name == "auto"
     with pytest.raises(ConfigError, match=r"^no task selected: add task=<option> \(installed: beat_block_hammer, "):
         attempt_spec(cfg, tmp_path)
     with pytest.raises(ConfigError, match=r"^no sim selected: add sim=<option> \(installed: mujoco, pybullet, sapien\)$"):
-        attempt_spec(_compose(["task=lift_pot"], config_name="cab"), tmp_path)
-    cfg = _compose(["sim=mujoco", "embodiment=aloha_agilex", "planner=mplib", "task=lift_pot"], config_name="cab")
+        attempt_spec(_compose(["task=lift_pot"]), tmp_path)
+    cfg = _compose(["sim=mujoco", "+embodiment=aloha_agilex", "planner=mplib", "task=lift_pot"])
     spec = attempt_spec(cfg, tmp_path)
     assert (spec.sim, spec.task, spec.budget_tool_calls) == ("mujoco", "lift_pot", plugins.task_info("lift_pot").budget_tool_calls)
 
@@ -226,3 +229,8 @@ def test_a_new_suites_task_needs_no_yaml_and_no_core_edit(new_suite, tmp_path):
     spec = attempt_spec(cfg, tmp_path)
     assert (spec.task, spec.seed, spec.budget_tool_calls, spec.budget_sim_seconds, spec.budget_wall_seconds) == (
         "block_on_pad", 4, 12, 65.0, 720.0)
+
+
+def test_a_harness_option_still_selects_its_model():
+    cfg = _compose(["harness=mcp"])
+    assert (cfg.harness.name, cfg.model.name) == ("mcp", "mcp_client")  # conf/harness/mcp.yaml of harness_mcp

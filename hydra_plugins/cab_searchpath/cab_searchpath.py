@@ -12,7 +12,7 @@ from __future__ import annotations
 from hydra.core.config_search_path import ConfigSearchPath, SearchPathQuery
 from hydra.plugins.search_path_plugin import SearchPathPlugin
 
-PROJECT_CONFIG = "pkg://cab_conf"
+PROJECT_PACKAGE = "cab_conf"
 
 
 class CabPluginConfigs(SearchPathPlugin):
@@ -28,7 +28,8 @@ class CabProjectConfig(SearchPathPlugin):
 
         from cab_core.config import is_cab_search_path
 
-        if not is_cab_search_path(search_path) or importlib.util.find_spec("cab_conf") is None:
+        if not is_cab_search_path(search_path) or importlib.util.find_spec(PROJECT_PACKAGE) is None:
             return
-        if all(e.path != PROJECT_CONFIG for e in search_path.get_path()):
-            search_path.prepend("cab-project", PROJECT_CONFIG, anchor=SearchPathQuery(provider="main"))
+        path = f"pkg://{PROJECT_PACKAGE}"
+        if all(e.path != path for e in search_path.get_path()):
+            search_path.prepend("cab-project", path, anchor=SearchPathQuery(provider="main"))
