@@ -38,19 +38,22 @@ def _pct(xs: list[float], p: float) -> float:
 
 
 def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
-    from .catalog import task_info
+    from .config import default_selection
+    from .plugins import task_info
     from .episode import AttemptSpec, Episode
     from .plugins import all_tasks, create
 
     info = task_info(task)
     tasks = all_tasks()
+    d = default_selection(("embodiment", "planner"))
+    emb_name, planner_name = d["embodiment"], d["planner"]
 
     def make(i: int) -> Episode:
-        spec = AttemptSpec(task=task, seed=info.seed, attempt=i + 1, sim=sim_name, embodiment="aloha_agilex",
-                           planner="mplib", harness="direct", model="bench", output_dir=out_dir / f"attempt-{i + 1}",
+        spec = AttemptSpec(task=task, seed=info.seed, attempt=i + 1, sim=sim_name, embodiment=emb_name,
+                           planner=planner_name, harness="direct", model="bench", output_dir=out_dir / f"attempt-{i + 1}",
                            budget_tool_calls=100000, budget_sim_seconds=1e6, budget_wall_seconds=1e6)
         return Episode(spec, tasks[task], create("simulators", sim_name, {"name": sim_name}),
-                       create("planners", "mplib", {}), create("embodiments", "aloha_agilex", {}))
+                       create("planners", planner_name, {}), create("embodiments", emb_name, {}))
 
     resets = []
     for i in range(3):
@@ -139,13 +142,17 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(prog="cab-bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--task", default="beat_block_hammer")
-    ap.add_argument("--sim", default="sapien")
+    ap.add_argument("--sim", default=None, help="simulator(s) (default: the default configuration's)")
     ap.add_argument("-n", type=int, default=30, help="repetitions per tool")
     ap.add_argument("--out", default=None, help="JSON file to write (default: outputs/bench/<time>.json)")
     ap.add_argument("--startup", action="store_true",
                     help="only the start-up of an attempt on each simulator of --sim (comma-separated): cold "
                          "process, warm cache, warm worker (cab_core.bench_startup)")
     a = ap.parse_args()
+    if a.sim is None:
+        from .config import default_selection
+
+        a.sim = default_selection(("sim",))["sim"]
     out = Path(a.out) if a.out else Path("outputs") / "bench" / f"{time.strftime('%Y-%m-%d_%H-%M-%S')}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     if a.startup:

@@ -8,13 +8,13 @@ import sys
 from hydra.experimental.callback import Callback
 from omegaconf import OmegaConf
 
-GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment")
+GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment", "experiment")
 
 
 def scene_seed(seed, task: str) -> int:
-    """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the catalog's fixed seed of
-    the task), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
-    from .catalog import task_info
+    """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the task's fixed seed,
+    from its suite's catalog), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
+    from .plugins import task_info
 
     return task_info(task).seed if seed is None else seed
 
@@ -86,12 +86,12 @@ def main() -> None:
     import os
 
     from .cmdline import check_command_line
-    from .errors import ConfigError
+    from .errors import ConfigError, PluginError
 
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
     try:
         args = check_command_line(sys.argv[1:])
-    except ConfigError as e:
+    except (ConfigError, PluginError) as e:  # PluginError: a plugin's config dirs or tasks (cab_core.config)
         _refuse(str(e))
     single = args is not None and not (args.multirun or args.cfg)
     if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:

@@ -7,15 +7,19 @@ import sys
 from pathlib import Path
 
 
-def render_all(out: Path, tasks: list[str] | None = None, sim_name: str = "sapien") -> list[tuple[str, str]]:
+def render_all(out: Path, tasks: list[str] | None = None, sim_name: str | None = None) -> list[tuple[str, str]]:
+    """``sim_name`` and the robot: the default configuration's (cab_core.config.default_selection)."""
     import numpy as np
     from PIL import Image
 
+    from .config import default_selection
     from .plugins import all_tasks, create
 
     installed = all_tasks()
     names = tasks or list(installed)
-    emb = create("embodiments", "aloha_agilex", {})
+    d = default_selection(("sim", "embodiment"))
+    sim_name = sim_name or d["sim"]
+    emb = create("embodiments", d["embodiment"], {})
     out.mkdir(parents=True, exist_ok=True)
     done = []
     for name in names:

@@ -118,4 +118,7 @@ def cab_record_observers() -> dict[str, Callable[[dict], Any]]:
 @hookspec
 def cab_config_dirs() -> list[str]:
     """Extra Hydra config search paths (``pkg://my_plugin.conf``) holding option files for the
-    groups sim/, model/, harness/, task/, planner/, embodiment/. Results are concatenated."""
+    groups sim/, model/, harness/, task/, planner/, embodiment/. Results are concatenated and
+    appended to the search path of ``cab`` (after the primary config) by the ``cab`` distribution's
+    Hydra search path plugin (cab_core.config). Tasks need no file: every installed task is an
+    option of ``task``; a ``task/<name>.yaml`` shipped here replaces that generated option."""

@@ -159,6 +159,40 @@ def all_tasks(pm: pluggy.PluginManager | None = None) -> dict[str, Any]:
     return tasks
 
 
+@lru_cache(maxsize=1)
+def _installed_tasks() -> dict[str, Any]:
+    return all_tasks()
+
+
+def task_names() -> list[str]:
+    """Names of the installed suites' tasks, in the suites' order (loaded once per process)."""
+    return list(_installed_tasks())
+
+
+def task_info(name: str):
+    """The :class:`~cab_core.task.TaskInfo` of installed task ``name`` (its suite's ``Task.info``).
+    An unknown name raises :class:`ConfigError` listing the choices."""
+    tasks = _installed_tasks()
+    if name not in tasks:
+        raise ConfigError(f"unknown task {name!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")
+    return tasks[name].info
+
+
+def config_dirs(pm: pluggy.PluginManager | None = None) -> list[str]:
+    """Every Hydra config search path the plugins ship (``cab_config_dirs``), in registration order,
+    each once."""
+    pm = pm or plugin_manager()
+    out: list[str] = []
+    for impl in reversed(pm.hook.cab_config_dirs.get_hookimpls()):  # pluggy calls the last registered first
+        res = impl.function() or []
+        owner = pm.get_name(impl.plugin) or repr(impl.plugin)
+        if isinstance(res, str) or not all(isinstance(p, str) and p for p in res):
+            raise PluginError(f"cab_config_dirs of {owner} must return a list of search paths "
+                              f"('pkg://module.conf'), got {res!r}")
+        out += [p for p in res if p not in out]
+    return out
+
+
 def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
     """Installed plugins, their distribution versions and what each provides; a plugin disabled
     with ``CAB_DISABLE_PLUGINS`` is listed with ``disabled: True`` and provides nothing."""

@@ -25,14 +25,27 @@ def _plain(cfg: Any) -> dict:
     return dict(cfg)
 
 
+_GROUP_KINDS = {"sim": "simulators", "embodiment": "embodiments", "planner": "planners", "harness": "harnesses"}
+
+
+def _installed(group: str) -> str:
+    """What the installed plugins offer for an unset config group, in words."""
+    from .plugins import registry, task_names
+
+    names = task_names() if group == "task" else sorted(registry(_GROUP_KINDS[group])) if group in _GROUP_KINDS else []
+    return f"installed: {', '.join(names)}" if names else "none installed" if group != "model" else "see cab --help"
+
+
 def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
-    """Validate a composed config into one AttemptSpec (budgets and seed from the catalog)."""
-    from .catalog import task_info
+    """Validate a composed config into one AttemptSpec (budgets and seed from the task's suite)."""
+    from .plugins import task_info
 
     c = _plain(cfg)
     for key in ("task", "sim", "embodiment", "planner", "harness", "model"):
-        if not isinstance(c.get(key), dict) or not c[key].get("name"):
-            raise ConfigError(f"config group {key!r} is missing or has no name")
+        if c.get(key) is None:
+            raise ConfigError(f"no {key} selected: add {key}=<option> ({_installed(key)})")
+        if not isinstance(c[key], dict) or not c[key].get("name"):
+            raise ConfigError(f"config group {key!r} has no name")
     info = task_info(c["task"]["name"])
     b = c.get("budget") or {}
     seed = c.get("seed")
@@ -77,8 +90,7 @@ def run_attempt(spec: AttemptSpec) -> dict:
 
     tasks = all_tasks()
     if spec.task not in tasks:
-        raise ConfigError(f"task {spec.task!r} is in the catalog but no installed suite implements it; "
-                          f"implemented: {', '.join(sorted(tasks)) or '(none)'}")
+        raise ConfigError(f"unknown task {spec.task!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")
     observers = select_observers(spec.record)  # an unknown name is refused before anything starts
     harness = create("harnesses", spec.harness, {**spec.harness_cfg, "name": spec.harness})
     preflight = getattr(harness, "preflight", None)

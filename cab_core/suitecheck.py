@@ -41,7 +41,7 @@ def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
 def run_one(config: dict, out: str, settings) -> dict:
     """One attempt, supervised (crashes, hangs and runaway memory are retried as infrastructure
     failures); returns a compact summary."""
-    from .catalog import task_info
+    from .plugins import task_info
     from .sweep_records import is_infrastructure_failure
     from .sweep_supervisor import AttemptSupervisor
 
@@ -77,7 +77,7 @@ def run_one(config: dict, out: str, settings) -> dict:
 
 
 def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None, jobs: int, out: Path,
-          agents=("oracle", "idle"), sims: tuple[str, ...] = ("sapien",), cold: bool = False,
+          agents=("oracle", "idle"), sims: tuple[str, ...] | None = None, cold: bool = False,
           perturb: int = 0) -> list[dict]:
     """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
     worker process that runs its attempts one after another (``sweep.warm_workers``), SAPIEN's BRDF
@@ -85,8 +85,13 @@ def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None
     ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
     ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.perturb``). ``seeds``: one
     list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
-    from .catalog import task_info
+    from .plugins import task_info
     from .sweep_supervisor import SupervisorConfig, close_workers
+
+    if sims is None:
+        from .config import default_selection
+
+        sims = (default_selection(("sim",))["sim"],)
 
     if not isinstance(seeds, dict):
         seeds = {t: seeds if seeds is not None else [task_info(t).seed] for t in tasks}
@@ -233,8 +238,9 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel attempts (default: cores)")
     ap.add_argument("--out", default=None, help="records folder (default: outputs/suite-check/<time>)")
     ap.add_argument("--no-idle", action="store_true", help="run only the oracles")
-    ap.add_argument("--sim", default="sapien",
-                    help="comma-separated simulators (default: sapien); several add a cross-simulator table")
+    ap.add_argument("--sim", default=None,
+                    help="comma-separated simulators (default: the default configuration's); several add a "
+                         "cross-simulator table")
     ap.add_argument("--cold", action="store_true",
                     help="a fresh process per attempt and no SAPIEN BRDF cache (start-up as before warm workers)")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
@@ -244,6 +250,10 @@ def main() -> None:
     ap.add_argument("--compare", action="store_true",
                     help="run the check twice, --cold then warm, and print both wall times and the speed-up")
     a = ap.parse_args()
+    if a.sim is None:
+        from .config import default_selection
+
+        a.sim = default_selection(("sim",))["sim"]
     sims = [s.strip() for s in a.sim.split(",") if s.strip()]
     from .plugins import registry
 

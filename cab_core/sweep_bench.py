@@ -21,8 +21,12 @@ from .sweep import completed_results
 
 
 def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool, rnd: int = 1,
-              threads: str = "1", sim: str = "sapien", mode: str = "warm") -> dict:
+              threads: str = "1", sim: str | None = None, mode: str = "warm") -> dict:
     """One timed sweep; returns its figures."""
+    if sim is None:
+        from .config import default_selection
+
+        sim = default_selection(("sim",))["sim"]
     sweep_dir = out / f"round-{rnd}" / f"{model}-{mode}-workers-{workers}"
     cab = os.path.join(os.path.dirname(sys.executable), "cab")
     cmd = [cab, "-m", f"task={task}", f"model={model}", f"sim={sim}",
@@ -31,7 +35,9 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
            f"sweep.threads_per_attempt={threads}"]
     if mode == "cold":
         cmd.append("sweep.warm_workers=false")
-        if sim == "sapien":
+        from .config import composed
+
+        if "brdf_cache" in composed([f"sim={sim}"]).sim:  # a simulator that caches its BRDF table: off
             cmd.append("sim.brdf_cache=false")
     load0 = os.getloadavg()[0]
     t0 = time.monotonic()
@@ -56,7 +62,7 @@ def main() -> None:
     ap.add_argument("--out", required=True, help="directory for the sweeps (must not exist or be empty)")
     ap.add_argument("--task", default="beat_block_hammer")
     ap.add_argument("--model", default="idle,oracle", help="comma-separated agents (default: idle,oracle)")
-    ap.add_argument("--sim", default="sapien")
+    ap.add_argument("--sim", default=None, help="simulator (default: the default configuration's)")
     ap.add_argument("--modes", default="warm", help="comma-separated: warm (default), cold (see above)")
     ap.add_argument("--attempts", type=int, default=6, help="attempts per sweep (same task, attempt=1..N)")
     ap.add_argument("--workers", default="1,2", help="comma-separated worker counts; the first is the baseline")
@@ -66,6 +72,10 @@ def main() -> None:
                     help="repeat, alternating the order of worker counts, so that all see the same background load")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     a = ap.parse_args()
+    if a.sim is None:
+        from .config import default_selection
+
+        a.sim = default_selection(("sim",))["sim"]
     out = Path(a.out)
     if out.exists() and any(out.iterdir()):
         print(f"cab-bench-sweep: {out} is not empty", file=sys.stderr)

@@ -1,7 +1,7 @@
 """Where each attempt of a sweep writes: ``<task>/<model>/<sim>/[<swept>/]seed-<S>/attempt-<A>``.
 
 The task, the model, the simulator, the seed and the attempt number are folders of their own
-(``hydra.sweep.subdir`` in ``conf/config.yaml``). Every other key a sweep varies (``planner=``,
+(``hydra.sweep.subdir`` in ``cab_core/conf/cab.yaml``). Every other key a sweep varies (``planner=``,
 ``budget.tool_calls=``, ``sim.physics.impratio=``, ``sandbox.mode=`` ...) is named in one more
 folder between the simulator and the seed, ``<key>=<value>[,<key>=<value>...]``, keys sorted, each
 key and value made path-safe by percent-encoding every character other than letters, digits and

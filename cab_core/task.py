@@ -1,5 +1,6 @@
 """The task contract. One task per module in a suite; tasks read embodiment declarations and never
-test a robot's name. Instructions, seeds, scoring and budgets come from the catalog."""
+test a robot's name. Instructions, seeds, scoring and budgets are the suite's (``Task.info``); the
+core reads them only through the task-suite hook (cab_core.plugins.task_info)."""
 from __future__ import annotations
 
 from abc import ABC, abstractmethod

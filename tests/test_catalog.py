@@ -1,11 +1,12 @@
-"""The packaged task catalog: identical to the shared spec, complete and well-formed."""
+"""The suite's task catalog: identical to the shared spec, complete and well-formed; the core's
+task lookups (``cab_core.plugins.task_info``/``task_names``) come from the installed suites."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
 
-from cab_core import catalog
+from cab_suite_codeaction import catalog
 from cab_core.errors import ConfigError
 from cab_core.task import TaskInfo
 
@@ -15,8 +16,8 @@ PACKAGED = Path(catalog.__file__).resolve().parent / "data" / "catalog.yaml"
 
 def test_packaged_copy_equals_shared_spec():
     if not SHARED.is_file():
-        pytest.skip(f"{SHARED} not present")
-    assert PACKAGED.read_bytes() == SHARED.read_bytes(), "cab_core/data/catalog.yaml drifted from shared/spec"
+        pytest.skip("the shared spec (../shared/spec/catalog.yaml beside the checkout) is not present")
+    assert PACKAGED.read_bytes() == SHARED.read_bytes(), "cab_suite_codeaction/data/catalog.yaml drifted from shared/spec"
 
 
 def test_25_unique_tasks():
@@ -79,3 +80,24 @@ def test_load_catalog_returns_a_copy():
     a = catalog.load_catalog()
     a["tasks"].clear()
     assert len(catalog.load_catalog()["tasks"]) == 25
+
+
+def test_core_lookups_come_from_the_installed_suite():
+    from cab_core import plugins
+
+    assert sorted(plugins.task_names()) == sorted(catalog.task_names())
+    assert all(plugins.task_info(n) == catalog.task_info(n) for n in catalog.task_names())
+
+
+def test_core_lookup_of_an_unknown_task_is_one_line_with_the_choices():
+    from cab_core import plugins
+
+    with pytest.raises(ConfigError) as e:
+        plugins.task_info("block_on_pad")
+    assert str(e.value) == f"unknown task 'block_on_pad'; choices: {', '.join(sorted(catalog.task_names()))}"
+
+
+def test_the_core_names_no_catalog():
+    import importlib.util
+
+    assert importlib.util.find_spec("cab_core.catalog") is None

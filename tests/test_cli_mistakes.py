@@ -72,9 +72,10 @@ def option_keys(option: str) -> list[str]:
     """The keys of a config option, as its file declares them."""
     import yaml
 
-    import cab_core.conf
+    import cab_harness_mcp
 
-    path = os.path.join(os.path.dirname(cab_core.conf.__file__), option + ".yaml")
+    assert option == "harness/mcp"  # the option files live with their plugins
+    path = os.path.join(os.path.dirname(cab_harness_mcp.__file__), "conf", option + ".yaml")
     with open(path) as f:
         return [k for k in yaml.safe_load(f) if k != "defaults"]
 
@@ -105,7 +106,7 @@ def test_unknown_key_in_a_sweep(tmp_path):
      f"keys under harness (harness=mcp): {', '.join(option_keys('harness/mcp'))}"),
     (["harness.transport=http"], "unknown key 'harness.transport'; valid keys under harness (harness=auto): name"),
     (["+seeds=3"], "unknown key 'seeds'; did you mean seed or sweep? valid top-level keys: seed, attempt, budget, "
-                   "sandbox, record, perturb, sweep, embodiment, harness, model, planner, sim, task"),
+                   "sandbox, record, perturb, sweep, embodiment, experiment, harness, model, planner, sim, task"),
     (["perturb.sed=3"], "unknown key 'perturb.sed'; did you mean perturb.seed? valid keys under perturb: seed, "
                         "position_m, angle_deg, physics_fraction"),
 ])

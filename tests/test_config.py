@@ -64,7 +64,7 @@ def test_bad_seed_is_a_typed_error(tmp_path):
 
 
 def test_every_catalog_task_has_a_task_option():
-    from cab_core.catalog import load_catalog
+    from cab_suite_codeaction.catalog import load_catalog
 
     for t in load_catalog()["tasks"]:
         assert _compose([f"task={t['name']}"]).task.name == t["name"]

@@ -18,7 +18,7 @@ from cab_harness_mcp.harness import McpSettings  # noqa: E402
 from cab_harness_mcp.launchers import TOKEN_ENV, ClaudeCodeLauncher, CodexLauncher  # noqa: E402
 from cab_harness_mcp.transport import HttpServerThread  # noqa: E402
 
-CONF = Path(__file__).resolve().parents[1] / "cab_core" / "conf" / "model"
+CONF = Path(__file__).resolve().parents[1] / "plugins" / "harness_mcp" / "cab_harness_mcp" / "conf" / "model"
 
 
 def model_cfg(name: str) -> dict:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cab_core import geometry
-from cab_core.catalog import task_info
+from cab_suite_codeaction.catalog import task_info
 from cab_core.robot.context import ObservationStore, RobotContext
 from cab_core.robot import motion
 

@@ -196,7 +196,7 @@ def test_wire_merges_followup_user_and_drops_foreign_thinking():
 
 
 # --- configs and preflight ---------------------------------------------------------------------
-CONF = Path(__file__).resolve().parents[1] / "cab_core" / "conf" / "model"
+CONF = Path(__file__).resolve().parents[1] / "plugins" / "harness_reference" / "cab_harness_reference" / "conf" / "model"
 
 
 @pytest.mark.parametrize("name,env", [("opus5", "ANTHROPIC_API_KEY"), ("sonnet5", "ANTHROPIC_API_KEY")])

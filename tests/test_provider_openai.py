@@ -196,8 +196,8 @@ def test_model_configs_build_through_the_plugin(name, cls, key_env):
 
     from cab_harness_reference.plugin import PROVIDERS
 
-    cfg = yaml.safe_load((Path(__file__).resolve().parents[1] / "cab_core" / "conf" / "model"
-                          / f"{name}.yaml").read_text())
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[1] / "plugins" / "harness_reference" / "cab_harness_reference"
+                          / "conf" / "model" / f"{name}.yaml").read_text())
     p = PROVIDERS[cfg["provider"]](cfg)
     assert type(p).__name__ == cls and p.key_env == key_env
     assert p.retry.max_attempts == 3

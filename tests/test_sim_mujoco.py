@@ -43,9 +43,9 @@ def test_hydra_config_builds_the_backend():
 
     import yaml
 
-    import cab_core
+    import cab_sim_mujoco
 
-    cfg = yaml.safe_load((Path(cab_core.__file__).parent / "conf" / "sim" / "mujoco.yaml").read_text())
+    cfg = yaml.safe_load((Path(cab_sim_mujoco.__file__).parent / "conf" / "sim" / "mujoco.yaml").read_text())
     assert cfg["name"] == "mujoco"
     sim = MujocoSimulator(dict(cfg, render=False))
     sim.build(sc.make_scene(), sc.make_embodiment())

@@ -14,7 +14,7 @@ import importlib
 import numpy as np
 import pytest
 
-from cab_core import catalog
+from cab_suite_codeaction import catalog
 from cab_core.analysis.checkpoints import SpatialRule
 from cab_core.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point

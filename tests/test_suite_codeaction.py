@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cab_core.catalog import load_catalog
+from cab_suite_codeaction.catalog import load_catalog
 
-from cab_core import catalog
+from cab_suite_codeaction import catalog
 from cab_core.errors import PluginError
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.plugins import all_tasks, build_plugin_manager, registry

@@ -13,7 +13,7 @@ import importlib
 import numpy as np
 import pytest
 
-from cab_core import catalog
+from cab_suite_codeaction import catalog
 from cab_core.analysis.checkpoints import SpatialRule
 from cab_core.geometry import quat_to_mat, transform_point
 

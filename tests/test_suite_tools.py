@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from cab_core import catalog
+from cab_suite_codeaction import catalog
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.scene import ArticulatedObject
 from cab_core.simulator import Contact

@@ -20,7 +20,7 @@ from cab_core.simulator import Contact
 from cab_core.tools import TOOLS, build_registry, make_tool, schemas, validate_args
 
 # -- the catalog ---------------------------------------------------------------------------------
-CATALOG = yaml.safe_load(resources.files("cab_core").joinpath("data/catalog.yaml").read_text())
+CATALOG = yaml.safe_load(resources.files("cab_suite_codeaction").joinpath("data/catalog.yaml").read_text())
 CATALOG_TOOLS = [t for t in CATALOG["tools"] if t["name"] not in ("run_code", "done")]
 PHYSICS = {"capture_motion_pair", "move_delta", "move_both_delta", "reach_tcp", "reach_both_tcp",
            "probe_contact_along", "set_gripper"}

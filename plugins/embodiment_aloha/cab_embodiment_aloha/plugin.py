@@ -9,3 +9,9 @@ def cab_embodiments():
     from .embodiment import factory
 
     return {"aloha_agilex": factory}
+
+
+@cab_core.hookimpl
+def cab_config_dirs():
+    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
+    return ["pkg://cab_embodiment_aloha.conf"]

@@ -182,7 +182,7 @@ class McpHarness:
             return
         s = self.settings
         self.preflight(spec.model_cfg)
-        from cab_core.catalog import task_info
+        from cab_core.plugins import task_info
 
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
         self.task_prompt = instructions_text(system_prompt(budget, run_code=run_code_limits(spec)),

@@ -40,3 +40,9 @@ def create_codex(cfg: dict | None = None):
 @cab_core.hookimpl
 def cab_harnesses():
     return {"mcp": create_mcp, "claude_code": create_claude_code, "codex": create_codex}
+
+
+@cab_core.hookimpl
+def cab_config_dirs():
+    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
+    return ["pkg://cab_harness_mcp.conf"]

@@ -59,3 +59,9 @@ def cab_model_providers():
 @hookimpl
 def cab_context_policies():
     return {"reference": _reference_policy}
+
+
+@hookimpl
+def cab_config_dirs():
+    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
+    return ["pkg://cab_harness_reference.conf"]

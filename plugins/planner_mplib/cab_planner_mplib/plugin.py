@@ -9,3 +9,9 @@ def cab_planners():
     from .planner import factory
 
     return {"mplib": factory}
+
+
+@cab_core.hookimpl
+def cab_config_dirs():
+    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
+    return ["pkg://cab_planner_mplib.conf"]

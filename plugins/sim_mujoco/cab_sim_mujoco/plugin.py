@@ -24,3 +24,9 @@ def create_simulator(cfg: dict | None = None):
 @cab_core.hookimpl
 def cab_simulators():
     return {"mujoco": create_simulator}
+
+
+@cab_core.hookimpl
+def cab_config_dirs():
+    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
+    return ["pkg://cab_sim_mujoco.conf"]

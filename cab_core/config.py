@@ -1,0 +1,90 @@
+"""How cab's Hydra configuration is found: the plugins' config dirs and the installed tasks.
+
+The core's primary config (``cab_core/conf``) names no plugin. What plugins provide reaches Hydra's
+config search path through a Hydra SearchPathPlugin (``hydra_plugins/cab_searchpath``), which calls
+:func:`extend_search_path` whenever Hydra builds the search path of cab's app (``cab``, the
+compose API over ``cab_core.conf``), so ``cab sim=<x>`` works for any installed plugin:
+
+* every path the ``cab_config_dirs`` hook returns (``pkg://<module>.conf``) is appended;
+* every installed task gets an option of group ``task`` in Hydra's ConfigStore (``{name: <task>}``),
+  unless a config dir ships a ``task/<name>.yaml`` of its own (that file is then the option).
+
+:func:`default_selection` is the composed default configuration's choice of simulator, robot and
+planner, for the commands that do not go through Hydra's app (``cab-bench``, ``cab-suite-check``...).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from .errors import ConfigError
+
+CORE_CONFIG_MODULE = "cab_core.conf"
+PROVIDER = "cab-plugins"  # the search path entries added here
+
+
+def is_cab_search_path(search_path: Any) -> bool:
+    """Whether this Hydra search path is cab's (its primary config dir is the core's): Hydra calls
+    search path plugins for every app in the environment; cab's extend only its own."""
+    def module(path: str) -> str:
+        return path[len("pkg://"):].replace("/", ".") if path.startswith("pkg://") else ""
+
+    return any(e.provider == "main" and module(e.path) == CORE_CONFIG_MODULE for e in search_path.get_path())
+
+
+def extend_search_path(search_path: Any) -> None:
+    """Append the plugins' config dirs and register the installed tasks' options (see above)."""
+    if not is_cab_search_path(search_path):
+        return
+    from .plugins import config_dirs
+
+    present = {e.path for e in search_path.get_path()}
+    for path in config_dirs():
+        if path not in present:
+            search_path.append(PROVIDER, path)
+    register_task_configs(search_path)
+
+
+def register_task_configs(search_path: Any) -> list[str]:
+    """An option ``task/<name>`` (``{name: <name>}``) in Hydra's ConfigStore for every installed task
+    that no config dir on ``search_path`` ships a yaml for; returns the names registered."""
+    from hydra._internal.config_repository import ConfigRepository
+    from hydra.core.config_store import ConfigStore
+    from hydra.core.object_type import ObjectType
+
+    from .plugins import task_names
+
+    files = ConfigRepository(config_search_path=search_path)  # the file sources only: ConfigStore comes after
+    shipped = set(files.get_group_options("task", ObjectType.CONFIG)) if files.group_exists("task") else set()
+    store = ConfigStore.instance()
+    names = [n for n in task_names() if n not in shipped]
+    group = store.repo.get("task", {})
+    for key in [k for k, node in group.items() if getattr(node, "provider", None) == "cab" and k[:-len(".yaml")] not in names]:
+        del group[key]  # no longer installed, or a config dir now ships its yaml (the yaml is the option)
+    for name in names:
+        store.store(group="task", name=name, node={"name": name}, provider="cab")
+    return names
+
+
+DEFAULT_GROUPS = ("sim", "embodiment", "planner")
+
+
+def composed(overrides: list[str] | None = None):
+    """The configuration plain ``cab`` composes with these overrides (Hydra's compose API; not
+    inside a running Hydra app)."""
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module(version_base=None, config_module=CORE_CONFIG_MODULE):
+        return compose(config_name="config", overrides=list(overrides or []))
+
+
+def default_selection(groups: tuple[str, ...] = DEFAULT_GROUPS) -> dict[str, str]:
+    """The option of each of ``groups`` that plain ``cab`` composes (the project's default
+    composition where installed). A group the default leaves unset is a :class:`ConfigError`."""
+    cfg = composed()
+    out = {}
+    for g in groups:
+        node = cfg.get(g)
+        if node is None or not node.get("name"):
+            raise ConfigError(f"the default configuration selects no {g} (its primary config leaves {g}: null)")
+        out[g] = str(node.name)
+    return out
