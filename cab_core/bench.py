@@ -141,7 +141,7 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(prog="cab-bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--task", default="beat_block_hammer")
+    ap.add_argument("--task", default=None, help="task (default: the default configuration's)")
     ap.add_argument("--sim", default=None, help="simulator(s) (default: the default configuration's)")
     ap.add_argument("-n", type=int, default=30, help="repetitions per tool")
     ap.add_argument("--out", default=None, help="JSON file to write (default: outputs/bench/<time>.json)")
@@ -149,16 +149,17 @@ def main() -> None:
                     help="only the start-up of an attempt on each simulator of --sim (comma-separated): cold "
                          "process, warm cache, warm worker (cab_core.bench_startup)")
     a = ap.parse_args()
-    if a.sim is None:
+    if a.sim is None or a.task is None:
         from .config import default_selection
 
-        a.sim = default_selection(("sim",))["sim"]
+        chosen = default_selection(("sim", "task"))
+        a.sim, a.task = a.sim or chosen["sim"], a.task or chosen["task"]
     out = Path(a.out) if a.out else Path("outputs") / "bench" / f"{time.strftime('%Y-%m-%d_%H-%M-%S')}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     if a.startup:
         from .bench_startup import print_startup, startup
 
-        task = a.task if a.task != "beat_block_hammer" else "click_bell"
+        task = a.task
         res = startup([s.strip() for s in a.sim.split(",") if s.strip()], task)
         print_startup(res, task)
         out.write_text(json.dumps({"startup": res, "task": task}, indent=2))

@@ -1,7 +1,7 @@
 """``cab-bench --startup``: how long an attempt takes to start, per simulator, three ways.
 
 - **cold process**: a fresh process and an empty cache folder (``CAB_CACHE_DIR``: generated assets,
-  SAPIEN's BRDF table, Mesa's shader cache), as on a new machine or after a cache wipe;
+  a renderer's tables, Mesa's shader cache), as on a new machine or after a cache wipe;
 - **warm cache**: a fresh process (as ``cab`` runs one attempt) with the cache folder filled;
 - **warm worker**: the next attempt in a sweep's warm worker (``sweep.warm_workers``), which keeps its
   renderer and imports from earlier attempts.
@@ -58,7 +58,7 @@ def _warm_worker(config: dict, root: Path, cache: Path, n: int) -> dict:
     return {"setup_s": round(statistics.median(setups[1:]), 3), "first_setup_s": setups[0], "n": n}
 
 
-def startup(sims: list[str], task: str = "click_bell", n: int = 3) -> dict:
+def startup(sims: list[str], task: str, n: int = 3) -> dict:
     """``{sim: {"cold_process": ..., "warm_cache": ..., "warm_worker": ...}}``."""
     from .suitecheck import attempt_configs
 

@@ -42,12 +42,20 @@ def normalise_overrides(argv: list[str]) -> list[str]:
 
 
 def wants_stdio_protocol(argv: list[str]) -> bool:
-    """Whether these overrides serve the attempt over MCP on stdio (``harness=mcp`` without
-    ``harness.transport=http``): then stdout is reserved for protocol frames before Hydra starts,
-    so that nothing it or anything after it prints can corrupt the stream (cab_core.stdio)."""
+    """Whether these overrides serve the attempt to its agent on stdin/stdout: a harness selected
+    with ``harness=<name>`` whose factory declares ``speaks_on_stdio = True`` (a protocol server),
+    unless ``harness.transport=`` names another transport. Then stdout is reserved for protocol
+    frames before Hydra starts, so that nothing it or anything after it prints can corrupt the
+    stream (cab_core.stdio)."""
     sel = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness=")]
+    if not sel:
+        return False
     transport = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness.transport=")]
-    return bool(sel) and sel[-1] == "mcp" and (not transport or transport[-1] == "stdio")
+    if transport and transport[-1] != "stdio":
+        return False
+    from .plugins import registry
+
+    return bool(getattr(registry("harnesses").get(sel[-1]), "speaks_on_stdio", False))
 
 
 # Set while Hydra prepares a single run: HYDRA_FULL_ERROR makes Hydra raise what fails before the

@@ -70,7 +70,10 @@ def cab_harnesses() -> dict[str, Callable[[dict], Any]]:
     ``preflight(model_cfg) -> None``, called before any simulator starts (credentials, endpoints);
     it raises ``ConfigError`` naming what is missing. Also optional: ``before_build(spec)``, called
     with the ``AttemptSpec`` after the preflight and before the world is built (a server can start
-    answering its client meanwhile), and ``close()``, called if building the world fails after it."""
+    answering its client meanwhile), and ``close()``, called if building the world fails after it.
+    A factory with the attribute ``speaks_on_stdio = True`` serves its agent a protocol on
+    stdin/stdout: ``cab harness=<name>`` then reserves stdout for it before anything else prints
+    (unless ``harness.transport=`` names another transport)."""
 
 
 @hookspec

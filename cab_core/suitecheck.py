@@ -18,7 +18,7 @@ from pathlib import Path
 def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
     """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
     seed=S model=A sim=X`` composes it (in this thread: Hydra's composition is not thread-safe).
-    ``cold``: SAPIEN generates its BRDF table in each process, as before the cache."""
+    ``cold``: a renderer generates its tables in each process (no cache folder), as before the cache."""
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
@@ -80,8 +80,8 @@ def check(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None
           agents=("oracle", "idle"), sims: tuple[str, ...] | None = None, cold: bool = False,
           perturb: int = 0) -> list[dict]:
     """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
-    worker process that runs its attempts one after another (``sweep.warm_workers``), SAPIEN's BRDF
-    table read from the cache. ``cold``: a fresh process per attempt and no BRDF cache, as a
+    worker process that runs its attempts one after another (``sweep.warm_workers``), renderer
+    tables read from the cache folder. ``cold``: a fresh process per attempt and no cache folder, as a
     ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
     ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.perturb``). ``seeds``: one
     list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
@@ -242,7 +242,7 @@ def main() -> None:
                     help="comma-separated simulators (default: the default configuration's); several add a "
                          "cross-simulator table")
     ap.add_argument("--cold", action="store_true",
-                    help="a fresh process per attempt and no SAPIEN BRDF cache (start-up as before warm workers)")
+                    help="a fresh process per attempt and no cache folder (start-up as before warm workers)")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
                     help="run each oracle N times under small perturbations (perturb.seed 1..N: objects moved "
                          "<= 1 mm and turned <= 0.5 deg, physical parameters +-2 %%); success: every oracle "

@@ -2,8 +2,8 @@
 
 Runs the same sweep (``cab -m``, the joblib launcher) once per agent, worker count and mode into
 fresh sweep directories under ``--out``, checks that every attempt completed, and prints attempts per
-hour and the speed-up over one worker. Modes: ``warm`` (the default: warm workers, SAPIEN's BRDF
-table from the cache) and ``cold`` (a fresh process per attempt, no BRDF cache: start-up as it was
+hour and the speed-up over one worker. Modes: ``warm`` (the default: warm workers, renderer
+tables from the cache folder) and ``cold`` (a fresh process per attempt, no cache folder: start-up as it was
 before both). The machine's load average is printed beside the figures: other processes on the same
 cores change them.
 """
@@ -60,7 +60,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(prog="cab-bench-sweep",
                                  description="Attempts per hour of a real sweep with 1 worker and with N workers.")
     ap.add_argument("--out", required=True, help="directory for the sweeps (must not exist or be empty)")
-    ap.add_argument("--task", default="beat_block_hammer")
+    ap.add_argument("--task", default=None, help="task (default: the default configuration's)")
     ap.add_argument("--model", default="idle,oracle", help="comma-separated agents (default: idle,oracle)")
     ap.add_argument("--sim", default=None, help="simulator (default: the default configuration's)")
     ap.add_argument("--modes", default="warm", help="comma-separated: warm (default), cold (see above)")
@@ -72,10 +72,11 @@ def main() -> None:
                     help="repeat, alternating the order of worker counts, so that all see the same background load")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     a = ap.parse_args()
-    if a.sim is None:
+    if a.sim is None or a.task is None:
         from .config import default_selection
 
-        a.sim = default_selection(("sim",))["sim"]
+        chosen = default_selection(("sim", "task"))
+        a.sim, a.task = a.sim or chosen["sim"], a.task or chosen["task"]
     out = Path(a.out)
     if out.exists() and any(out.iterdir()):
         print(f"cab-bench-sweep: {out} is not empty", file=sys.stderr)

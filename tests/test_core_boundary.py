@@ -14,17 +14,14 @@ from cab_core.plugins import all_tasks, build_plugin_manager, registry
 
 CORE = Path(cab_core.__file__).parent
 
-# Modules whose remaining plugin names are other work in progress (issue 15: the task catalog and
-# the Hydra config move into the suite plugin; the command defaults of these tools); each is to
-# leave this list when that work lands.
-PENDING = {"catalog.py", "bench.py", "bench_startup.py", "gallery.py", "suitecheck.py", "sweep_bench.py"}
 # Registered names that are also ordinary words or a protocol's name: not searched for as such.
 AMBIGUOUS = {"reference", "mcp", "google", "openai", "anthropic"}
 
 
-def _project_names() -> set[str]:
+def _project_names() -> tuple[set[str], set[str]]:
     """Every name the installed plugins of this project go by: distributions, modules, entry points,
-    what they register (simulators, planners, robots, suites, harnesses, providers...) and tasks."""
+    what they register (simulators, planners, robots, suites, harnesses, providers...) and tasks;
+    (names searched as words, ordinary words searched only as a value the code could select)."""
     pm = build_plugin_manager()
     names = set()
     for ep in metadata.entry_points(group="cab"):
@@ -35,22 +32,32 @@ def _project_names() -> set[str]:
                  "context_policies", "record_observers"):
         names |= {n for n, f in registry(kind, pm).items() if not getattr(f, "__module__", "").startswith("cab_core")}
     names |= set(all_tasks(pm))
-    return names - AMBIGUOUS
+    return names - AMBIGUOUS, names & AMBIGUOUS
+
+
+def _alternation(names) -> str:
+    return "|".join(map(re.escape, sorted(names, key=len, reverse=True)))
 
 
 def test_the_core_names_no_plugin_of_the_project():
-    names = _project_names()
-    assert {"sapien", "mplib", "aloha_agilex", "cab-sim-mujoco", "click_bell", "claude_code"} <= names
-    pattern = re.compile(r"(?<![\w-])(" + "|".join(map(re.escape, sorted(names, key=len, reverse=True))) + r")(?![\w-])",
-                         re.IGNORECASE)
+    """In every source and config file of the core: no plugin name as a word, and none of the
+    ambiguous ones as a value the code or a config could select by (a quoted string in Python
+    that is not a dict key, a YAML value)."""
+    words, values = _project_names()
+    assert {"sapien", "mplib", "aloha_agilex", "cab-sim-mujoco", "click_bell", "claude_code"} <= words
+    assert {"reference", "mcp"} <= values
+    word = re.compile(r"(?<![\w-])(" + _alternation(words) + r")(?![\w-])", re.IGNORECASE)
+    py_value = re.compile(r"""(?<!\[)(["'])(""" + _alternation(values) + r")\1")
+    yaml_value = re.compile(r":\s*(" + _alternation(values) + r")\s*(#.*)?$")
     found = []
-    for path in sorted(CORE.rglob("*.py")):
+    files = sorted(p for p in CORE.rglob("*") if p.is_file() and p.suffix in (".py", ".yaml", ".yml", ".txt", ".toml"))
+    assert len(files) > 50
+    for path in files:
         rel = path.relative_to(CORE)
-        if rel.parts[0] in ("conf", "testing") or str(rel) in PENDING:
-            continue
+        value = py_value if path.suffix == ".py" else yaml_value
         for i, line in enumerate(path.read_text().splitlines(), 1):
-            found += [f"{rel}:{i}: {m.group(0)}" for m in pattern.finditer(line)]
-    assert found == []
+            found += [f"{rel}:{i}: {m.group(0)}" for m in list(word.finditer(line)) + list(value.finditer(line))]
+    assert found == [], "\n".join(found)
 
 
 def test_harness_mcp_needs_no_other_harness():
@@ -83,3 +90,18 @@ def test_a_model_config_without_a_harness_is_refused(tmp_path):
         attempt_spec(cfg, tmp_path)
     cfg["model"]["harness"] = "direct"
     assert attempt_spec(cfg, tmp_path).harness == "direct"
+
+
+def test_a_harness_that_speaks_on_stdio_gets_stdout_by_its_own_declaration():
+    """The core reserves stdout for a protocol when the selected harness says it speaks on stdio
+    (not by the harness's name): here the MCP harness does, the direct one does not, and another
+    transport given on the command line wins."""
+    from cab_core.cli import wants_stdio_protocol
+
+    assert getattr(registry("harnesses")["mcp"], "speaks_on_stdio", False) is True
+    assert wants_stdio_protocol(["task=click_bell", "harness=mcp"])
+    assert wants_stdio_protocol(["+harness=mcp", "harness.transport=stdio"])
+    assert not wants_stdio_protocol(["harness=mcp", "harness.transport=http"])
+    assert not wants_stdio_protocol(["harness=direct"])
+    assert not wants_stdio_protocol(["harness=no_such_harness"])
+    assert not wants_stdio_protocol(["task=click_bell"])

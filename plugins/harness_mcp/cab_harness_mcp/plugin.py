@@ -23,6 +23,9 @@ def create_mcp(cfg: dict | None = None):
     return McpHarness(cfg)
 
 
+create_mcp.speaks_on_stdio = True  # cab reserves stdout for MCP frames (unless harness.transport=http)
+
+
 def create_claude_code(cfg: dict | None = None):
     _require_sdk()
     from .launchers import ClaudeCodeLauncher
