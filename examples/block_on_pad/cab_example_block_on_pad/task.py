@@ -144,7 +144,7 @@ class BlockOnPad(CodeActionTask):
             return np.array([p[0], p[1], top + float(info["grasp_tcp_above_table"])])
 
         return [SpatialRule("Grasp block", "either", grasp, sphere(2)),
-                SpatialRule("Place on pad", "either", lambda w: release, box(dx=4, dy=4, dz=(-2, 5)))]
+                SpatialRule("Place on pad", "either", lambda w: release, box(dx=4, dy=4, dz=(-2, 5)), (0,))]
 
     def oracle(self, call: ToolCaller, world: WorldView) -> None:
         """The arm on the block's side picks it from above (fingers across its faces) and sets it
