@@ -94,7 +94,7 @@ def test_unknown_key_in_a_sweep(tmp_path):
 
 @pytest.mark.parametrize("overrides, line", [
     (["+record.vidoe=false"], "unknown key 'record.vidoe'; did you mean record.video? valid keys under record: "
-                              "video, video_every_steps, video_size"),
+                              "video, video_every_steps, video_size, observers"),
     (["sweep.max_retries=1"], "unknown key 'sweep.max_retries'; did you mean sweep.max_infra_retries? valid keys under "
                               "sweep: max_infra_retries, hang_timeout_s, retry_backoff_s, threads_per_attempt, "
                               "warm_workers, worker_max_attempts, worker_max_rss_mb"),

@@ -82,10 +82,10 @@ def test_a_plugin_that_imports_but_does_not_register_is_named(tmp_path):
 def test_an_attempt_with_a_broken_plugin_fails_in_one_line_and_runs_with_it_disabled(broken, tmp_path):
     cab = [os.path.join(os.path.dirname(sys.executable), "cab"), "task=click_bell", "model=idle", "sim=mujoco"]
     r = _run(cab + [f"hydra.run.dir={tmp_path / 'a'}"], broken)
-    assert r.returncode == 1
+    assert r.returncode == 2  # a broken installation: refused with the command, before anything starts
     lines = r.stderr.splitlines()
     assert len(lines) == 1, r.stderr
-    assert lines[0].startswith("cab: PluginError: plugin 'broken_fixture' (distribution cab-broken-fixture, entry point "
+    assert lines[0].startswith("cab: plugin 'broken_fixture' (distribution cab-broken-fixture, entry point "
                                "broken_fixture = cab_no_such_module_xyz.plugin in group 'cab') failed to load: ")
     assert not (tmp_path / "a" / "result.json").exists()
     r = _run(cab + [f"hydra.run.dir={tmp_path / 'b'}", "record.video=false"], broken, CAB_DISABLE_PLUGINS="broken_fixture")
