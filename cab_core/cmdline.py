@@ -207,6 +207,10 @@ def check_command_line(argv: list[str]):
             for v in _values(o):
                 if not _interpolated(v):
                     check_budget_value(parts[1], v)
+        if parts == ["record", "observers"] and not o.is_delete() and not o.is_sweep_override():
+            from .observers import select
+
+            select({"observers": o.value()})  # an observer no plugin registers: refused here
     return args
 
 

@@ -244,3 +244,18 @@ def test_bad_script_is_one_line_before_the_simulator_starts(tmp_path):
             tmp_path)
     refused(r, "cab: script item 0 has unknown key 'argumnets'; did you mean arguments or args? valid keys: tool, args, arguments")
     assert not (tmp_path / "d" / "events.jsonl").exists() and not (tmp_path / "d" / "result.json").exists()
+
+
+def test_an_unknown_record_observer_is_refused_with_the_command_line(tmp_path):
+    """Before Hydra creates the run folder, as every other command-line mistake."""
+    with pytest.raises(ConfigError, match=r"^unknown record observer 'no_such_observer'"):
+        check_command_line(["record.observers=[no_such_observer]"])
+    with pytest.raises(ConfigError, match=r"^record.observers must be null"):
+        check_command_line(["record.observers=3"])
+    check_command_line(["record.observers=[]"])
+    check_command_line(["record.observers=null"])
+    out = tmp_path / "run"
+    r = run(["cab", "record.observers=[no_such_observer]", f"hydra.run.dir={out}"], tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith("cab: unknown record observer 'no_such_observer'")
+    assert not out.exists()
