@@ -24,7 +24,10 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     sims = sel.sims if sel is not None else ()
     tasks = sel.tasks if sel is not None else ()
     name = metafunc.function.__name__
-    if name in ("test_simulator", "test_simulator_physics_only"):
+    if name == "test_simulator_render_independent":
+        metafunc.parametrize("cab_sim", [pytest.param(s, id=s) for s in sims] or [
+            pytest.param(None, id="none", marks=pytest.mark.skip(reason="no simulator selected or installed"))])
+    elif name in ("test_simulator", "test_simulator_physics_only"):
         checks = sc.CHECKS if name == "test_simulator" else [c for c in sc.CHECKS if c not in sc.NEEDS_RENDERER]
         params = [pytest.param(s, c, id=f"{s}-{sc.check_id(c)}") for s in sims for c in checks]
         metafunc.parametrize(("cab_sim", "cab_check"), params or [
@@ -65,6 +68,14 @@ def test_simulator(cab_sim: str, cab_check: Callable, cab_render_diagnosis) -> N
 def test_simulator_physics_only(cab_sim: str, cab_check: Callable) -> None:
     """Everything but pictures also holds on a physics-only build (``render: false``)."""
     cab_check(_sim_factory(cab_sim, False))
+
+
+def test_simulator_render_independent(cab_sim: str, cab_render_diagnosis) -> None:
+    """A rendering build and a physics-only build of one world step alike."""
+    why = cab_render_diagnosis(cab_sim)
+    if why is not None:
+        pytest.skip(f"{cab_sim} needs a renderer: {why}")
+    sc.check_physics_independent_of_rendering(_sim_factory(cab_sim, True), _sim_factory(cab_sim, False))
 
 
 @pytest.fixture(scope="session")

@@ -7,7 +7,9 @@ registry, :mod:`cab_core.plugins`):
 * group ``sims``: every simulator x every check of :mod:`cab_core.testing.sim_conformance`
   (``test_simulator[<sim>-<check>]``, on a rendering build; without a renderer on a physics-only
   build, the checks that need pictures skipped with the diagnosis), and every simulator x every
-  check that needs no pictures on a physics-only build (``test_simulator_physics_only[...]``);
+  check that needs no pictures on a physics-only build (``test_simulator_physics_only[...]``),
+  and every simulator builds one world with and without rendering that steps bit for bit alike
+  (``test_simulator_render_independent[<sim>]``);
 * group ``tasks``: every task x every simulator: at the task's catalog seed the oracle succeeds
   within its budgets and attains its subgoals, the idle agent fails, both record consistent
   margins (``test_task[<task>-<sim>]``, :mod:`cab_core.testing.task_conformance`). The attempts of
@@ -129,7 +131,8 @@ class _Suite(pytest.Module):
 
 
 # test functions of the suite module by group
-_GROUP_OF = {"test_simulator": "sims", "test_simulator_physics_only": "sims", "test_task": "tasks",
+_GROUP_OF = {"test_simulator": "sims", "test_simulator_physics_only": "sims",
+             "test_simulator_render_independent": "sims", "test_task": "tasks",
              "test_task_determinism": "determinism"}
 
 
