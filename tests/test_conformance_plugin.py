@@ -73,6 +73,7 @@ def test_every_installed_simulator_and_task_is_collected(project, registered):
     want = (["test_own.py::test_own"]
             + [f"cab-conformance::test_simulator[{s}-{c}]" for s in sims for c in ALL_CHECKS]
             + [f"cab-conformance::test_simulator_physics_only[{s}-{c}]" for s in sims for c in NO_PICTURES]
+            + [f"cab-conformance::test_simulator_render_independent[{s}]" for s in sims]
             + [f"cab-conformance::test_task[{t}-{s}]" for t in ("t1", "t2") for s in sims]
             + [f"cab-conformance::test_task_determinism[{t}-{s}]" for t in ("t1", "t2") for s in sims])
     assert got == want
@@ -83,7 +84,8 @@ def test_groups_and_restrictions(project, registered):
     registered(FakeWorldPlugins())
     got = collected(project, "--cab-conformance=sims", "--cab-sims=beta", "-k", "not test_own")
     assert got == ([f"cab-conformance::test_simulator[beta-{c}]" for c in ALL_CHECKS]
-                   + [f"cab-conformance::test_simulator_physics_only[beta-{c}]" for c in NO_PICTURES])
+                   + [f"cab-conformance::test_simulator_physics_only[beta-{c}]" for c in NO_PICTURES]
+                   + ["cab-conformance::test_simulator_render_independent[beta]"])
     got = collected(project, "--cab-conformance=tasks", "--cab-tasks=t2", "-k", "not test_own")
     assert got == ["cab-conformance::test_task[t2-alpha]", "cab-conformance::test_task[t2-beta]"]
     got = collected(project, "--cab-conformance=determinism", "--cab-sims=alpha", "-k", "not test_own")
@@ -97,7 +99,7 @@ def test_groups_and_restrictions(project, registered):
 def test_nothing_installed_is_one_skip_that_says_so(project, registered):
     registered()
     result = project.runpytest_inprocess("-p", "no:cacheprovider", "--cab-conformance", "-rs", "-k", "not test_own")
-    result.assert_outcomes(skipped=4)
+    result.assert_outcomes(skipped=5)
     result.stdout.fnmatch_lines(["*no simulator selected or installed*"])
 
 
