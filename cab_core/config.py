@@ -16,9 +16,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from .errors import ConfigError
+from omegaconf import OmegaConf
+
+from cab_core.errors import ConfigError
 
 CORE_CONFIG_MODULE = "cab_core.conf"
+GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment", "experiment")
 PROVIDER = "cab-plugins"  # the search path entries added here
 
 
@@ -35,7 +38,7 @@ def extend_search_path(search_path: Any) -> None:
     """Append the plugins' config dirs and register the installed tasks' options (see above)."""
     if not is_cab_search_path(search_path):
         return
-    from .plugins import config_dirs
+    from cab_core.plugins import config_dirs
 
     present = {e.path for e in search_path.get_path()}
     for path in config_dirs():
@@ -51,7 +54,7 @@ def register_task_configs(search_path: Any) -> list[str]:
     from hydra.core.config_store import ConfigStore
     from hydra.core.object_type import ObjectType
 
-    from .plugins import task_names
+    from cab_core.plugins import task_names
 
     files = ConfigRepository(config_search_path=search_path)  # the file sources only: ConfigStore comes after
     shipped = set(files.get_group_options("task", ObjectType.CONFIG)) if files.group_exists("task") else set()
@@ -88,3 +91,32 @@ def default_selection(groups: tuple[str, ...] = DEFAULT_GROUPS) -> dict[str, str
             raise ConfigError(f"the default configuration selects no {g} (its primary config leaves {g}: null)")
         out[g] = str(node.name)
     return out
+
+
+def normalise_overrides(argv: list[str]) -> list[str]:
+    """Accept both ``+group=option`` and ``group=option`` for the groups that have a default.
+
+    Hydra refuses ``+sim=x`` when ``sim`` is in the defaults list; every group here has a
+    default, so the ``+`` is dropped for them (DESIGN.md, Hydra note)."""
+    out = []
+    for a in argv:
+        if a.startswith("+") and not a.startswith("++"):
+            key = a[1:].split("=", 1)[0]
+            if key in GROUPS:
+                a = a[1:]
+        out.append(a)
+    return out
+
+
+def scene_seed(seed, task: str) -> int:
+    """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the task's fixed seed,
+    from its suite's catalog), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
+    from cab_core.plugins import task_info
+
+    return task_info(task).seed if seed is None else seed
+
+
+# Registered when this module is imported: Hydra resolves each job's output directory in the
+# launcher's worker process, and every worker imports the app's module, which imports this one.
+if not OmegaConf.has_resolver("cab.seed"):
+    OmegaConf.register_new_resolver("cab.seed", scene_seed)

@@ -29,7 +29,7 @@ class SimulatorError(CabError):
 class InfrastructureFault(CabError):
     """The host itself is broken (a simulator or renderer process died or stopped answering, a device
     was lost): not the agent's doing. A sweep retries the attempt and reports exclude it
-    (:mod:`cab_core.faults`)."""
+    (:mod:`cab_core.attempt.faults`)."""
 
 
 class BadCommand(SimulatorError):
@@ -70,3 +70,11 @@ class ObservationUnavailable(CabError):
 
 class RecordError(CabError):
     """An attempt's records are missing, corrupt or inconsistent (analysis reports and skips it)."""
+
+
+def closest(word: str, options, cutoff: float = 0.6) -> list[str]:
+    """Up to three of ``options`` that look like ``word`` (difflib), best first: the "did you
+    mean" of an error message."""
+    import difflib
+
+    return difflib.get_close_matches(str(word), [str(o) for o in options], n=3, cutoff=cutoff)

@@ -13,12 +13,12 @@ import os
 import re
 from functools import lru_cache
 from importlib import metadata
-from typing import Any, Callable
+from typing import Any, Callable, Mapping, NamedTuple
 
 import pluggy
 
-from . import hookspecs
-from .errors import ConfigError, PluginError
+from cab_core.contracts import hookspecs
+from cab_core.errors import ConfigError, PluginError, closest
 
 GROUP = "cab"
 KINDS = ("simulators", "planners", "embodiments", "task_suites", "harnesses", "agents",
@@ -170,7 +170,7 @@ def task_names() -> list[str]:
 
 
 def task_info(name: str):
-    """The :class:`~cab_core.task.TaskInfo` of installed task ``name`` (its suite's ``Task.info``).
+    """The :class:`~cab_core.contracts.task.TaskInfo` of installed task ``name`` (its suite's ``Task.info``).
     An unknown name raises :class:`ConfigError` listing the choices."""
     tasks = _installed_tasks()
     if name not in tasks:
@@ -223,3 +223,40 @@ def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
         rows.append({"plugin": name, "distribution": dist, "version": ver, "provides": {}, "hooks": [],
                      "disabled": True})
     return rows
+
+
+class ObserverSpec(NamedTuple):
+    """One selected observer, not yet created."""
+    name: str
+    factory: Callable[[dict], Any]
+    cfg: dict
+
+
+def select_record_observers(record_cfg: Mapping | None, pm=None) -> list[ObserverSpec]:
+    """The record observers ``record.observers`` selects among the installed ones (null or absent:
+    every installed one; a list of names; a mapping of name to its config) (:mod:`cab_core.attempt.observers`)."""
+    chosen = (record_cfg or {}).get("observers")
+    installed = registry("record_observers", pm)
+    if chosen is None:
+        return [ObserverSpec(n, f, {}) for n, f in sorted(installed.items())]
+    if isinstance(chosen, (list, tuple)):
+        wanted = {}
+        for n in chosen:
+            if not isinstance(n, str):
+                raise ConfigError(f"record.observers: a name must be a string, got {n!r}")
+            wanted[n] = {}
+    elif isinstance(chosen, Mapping):
+        wanted = {}
+        for n, c in chosen.items():
+            if c is not None and not isinstance(c, Mapping):
+                raise ConfigError(f"record.observers.{n}: an observer's config must be a mapping or null, got {c!r}")
+            wanted[str(n)] = dict(c or {})
+    else:
+        raise ConfigError("record.observers must be null (every installed observer), a list of names or a "
+                          f"mapping of name to config, got {chosen!r}")
+    for n in wanted:
+        if n not in installed:
+            near = closest(n, installed)
+            hint = f"did you mean {' or '.join(near)}? " if near else ""
+            raise ConfigError(f"unknown record observer {n!r}; {hint}installed: {', '.join(sorted(installed)) or '(none)'}")
+    return [ObserverSpec(n, installed[n], c) for n, c in wanted.items()]

@@ -13,7 +13,7 @@ from typing import Callable
 import pytest
 
 from cab_core.errors import RendererUnavailable, SimulatorError
-from cab_core.simulator import Simulator
+from cab_core.contracts.simulator import Simulator
 from cab_core.testing import sim_conformance as sc
 
 SimFactory = Callable[[], Simulator]

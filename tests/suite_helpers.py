@@ -16,7 +16,7 @@ import json
 import numpy as np
 import pytest
 
-from cab_core.analysis.checkpoints import SpatialRule
+from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.testing.task_conformance import margins_agree
 
 # the embodiment's home TCP poses
@@ -38,7 +38,7 @@ class FakeWorld:
 
     Tests edit ``poses``, ``qpositions``, ``tcp``, ``grip``, ``touching`` (frozenset pairs in
     contact), ``finger_touch`` ((arm, object) pairs a gripper touches) and ``contact_list``
-    (:class:`cab_core.simulator.Contact` records, which also count as pairs in contact).
+    (:class:`cab_core.contracts.simulator.Contact` records, which also count as pairs in contact).
     """
 
     def __init__(self, instance, grip: float = 1.0):
@@ -149,6 +149,6 @@ def assert_settles(sim, inst, steps, tol=1e-3):
 
 
 def world_view(sim, emb, inst, grips=None):
-    from cab_core.verifier import WorldView
+    from cab_core.contracts.verifier import WorldView
 
     return WorldView(sim, emb, {a: 1.0 for a in emb.arms} if grips is None else grips, inst.info)

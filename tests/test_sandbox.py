@@ -105,7 +105,7 @@ def test_code_exception_keeps_namespace(sb):
     r = sb.run("def g():\n    return 1 / 0\ng()")
     assert not r["ok"] and not r["namespace_reset"]
     assert "ZeroDivisionError" in r["error"] and "line 2, in g" in r["error"] and "return 1 / 0" in r["error"]
-    assert "runner.py" not in r["error"]  # only the program's own frames are shown
+    assert "guest.py" not in r["error"]  # only the program's own frames are shown
     assert ok(sb.run("result = keep"))["value"] == 5
     r = sb.run("def (:")
     assert not r["ok"] and "SyntaxError" in r["error"]
@@ -391,7 +391,7 @@ def test_python_layer_rejects_and_next_run_works(sb, code, why):
 
 
 def test_python_layer_numpy_has_no_file_io_or_foreign_modules(sb):
-    from cab_core.sandbox import runner
+    from cab_core.sandbox import guest as runner
 
     safe = runner._filtered_module(np, {})
     for name in ("save", "load", "fromfile", "memmap", "genfromtxt", "ctypeslib", "lib", "testing", "core",

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from cab_core.sandbox import Sandbox, SandboxConfig
-from cab_core.sandbox import runner
+from cab_core.sandbox import guest as runner
 
 
 def _dispatch(name, kwargs):
@@ -160,7 +160,7 @@ def test_refused_while_running(sb, code, field, what, line):
     last = r["error"].splitlines()[-1]
     assert last == f"SandboxPolicyError: format field '{field}' {what}, which is not allowed", r["error"]
     assert 'File "<run_code:' in r["error"] and f", line {line}, in " in r["error"], r["error"]
-    assert "runner.py" not in r["error"]  # only the program's frames, as for any program error
+    assert "guest.py" not in r["error"]  # only the program's frames, as for any program error
     still_works(sb)
 
 

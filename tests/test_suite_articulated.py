@@ -15,7 +15,7 @@ import pytest
 
 from cab_suite_codeaction import catalog
 from cab_core.geometry import pose_mul, quat_to_mat, transform_point
-from cab_core.scene import ArticulatedObject
+from cab_core.contracts.scene import ArticulatedObject
 
 from cab_suite_codeaction import common
 from cab_suite_codeaction.assets_articulated import lid_rotation

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from cab_suite_codeaction import catalog
-from cab_core.analysis.checkpoints import SpatialRule
-from cab_core.episode import VerdictTracker
+from cab_core.contracts.checkpoints import SpatialRule
+from cab_core.attempt.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 
 from cab_suite_codeaction import assets_bins, common

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from cab_suite_codeaction import catalog
-from cab_core.analysis.checkpoints import SpatialRule
+from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.geometry import quat_to_mat, transform_point
 
 from cab_suite_codeaction import common

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cab_suite_codeaction import catalog
-from cab_core.analysis.checkpoints import SpatialRule
+from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 
 from cab_suite_codeaction import common

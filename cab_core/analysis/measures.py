@@ -28,7 +28,7 @@ from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
 from statistics import median
 
-from .records import Attempt
+from cab_core.analysis.records import Attempt
 
 STOPPING = ("done", "tool", "phys", "other")
 CLAIMS = ("correct", "over", "under", "absent")

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
-from ..agent_record import AgentRecord
-from ..errors import RecordError
-from ..sweep_records import SET_ASIDE
+from cab_core.attempt.agent_record import AgentRecord
+from cab_core.errors import RecordError
+from cab_core.sweep.records import SET_ASIDE
 
 # keys a result.json must carry for analysis, with the type each must have
 REQUIRED = {"task": str, "seed": int, "attempt": int, "sim": str, "model": str, "harness": str,

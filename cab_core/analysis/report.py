@@ -17,12 +17,12 @@ import sys
 from html import escape
 from pathlib import Path
 
-from ..errors import CabError, RecordError
-from ..verifier import BORDERLINE_FRACTION
-from . import svg
-from .failure import LABELS, STAGES, Classifier
-from .measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
-from .records import Scan, read_json, scan
+from cab_core.errors import CabError, RecordError
+from cab_core.contracts.verifier import BORDERLINE_FRACTION
+from cab_core.analysis import svg
+from cab_core.analysis.failure import LABELS, STAGES, Classifier
+from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
+from cab_core.analysis.records import Scan, read_json, scan
 
 REPORT_VERSION = "cab-report/1"
 MALFORMED = (LookupError, TypeError, ValueError, AttributeError)  # a field of the wrong shape in a record
@@ -278,7 +278,7 @@ def html(r: dict, view_links: dict[str, str]) -> str:
 def write(root: Path, out: Path | None = None, views: bool = True) -> dict:
     """Build the report for ``root`` and write report.json, report.md and report.html into ``out``
     (default: ``root``); with ``views``, also each attempt's view.html, linked from the page."""
-    from ..viewer import write_view
+    from cab_core.analysis.viewer import write_view
 
     root = Path(root)
     out = Path(out) if out is not None else root

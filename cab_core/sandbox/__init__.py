@@ -18,11 +18,11 @@ Layers, outermost first (each must hold on its own):
    ``match`` class-pattern keywords, or ``{0.attr}``/``{0[_key]}`` fields of ``str.format`` and
    ``format_map``, checked before the run for literal templates and, through a hook the AST rewrite
    puts on every ``.format``/``.format_map``, at run time for built ones), restricted builtins, a
-   numpy namespace without file I/O or ctypes. ``runner.py``'s docstring lists the routes.
+   numpy namespace without file I/O or ctypes. ``guest.py``'s docstring lists the routes.
 
 Use ``python -m cab_core.sandbox`` to see which layers this machine provides and how fast they are.
 """
-from ..errors import SandboxUnavailable
-from .host import FILESYSTEM_POLICY, DispatchResult, Sandbox, SandboxConfig
+from cab_core.errors import SandboxUnavailable
+from cab_core.sandbox.host import FILESYSTEM_POLICY, DispatchResult, Sandbox, SandboxConfig
 
 __all__ = ["Sandbox", "SandboxConfig", "DispatchResult", "SandboxUnavailable", "FILESYSTEM_POLICY"]

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from . import DispatchResult, Sandbox, SandboxConfig, SandboxUnavailable
+from cab_core.sandbox import DispatchResult, Sandbox, SandboxConfig, SandboxUnavailable
 
 
 def main(argv: list[str]) -> int:

@@ -15,9 +15,9 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 
-#: where numpy and the runner appear inside the bubblewrap sandbox
+#: where numpy and the guest program appear inside the bubblewrap sandbox
 SANDBOX_SITE = "/opt/cab/site"
-SANDBOX_RUNNER = "/opt/cab/runner.py"
+SANDBOX_RUNNER = "/opt/cab/guest.py"
 _SYSTEM_DIRS = ("/usr",)
 _SYSTEM_MAYBE_LINKS = ("/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin")
 _CHILD_ENV = {
@@ -32,7 +32,7 @@ _TMPFS_BYTES = 64 * 1024 * 1024
 
 @dataclass
 class LaunchPlan:
-    """One way to start the child. ``init`` is merged into the runner's init frame."""
+    """One way to start the child. ``init`` is merged into the guest's init frame."""
 
     confinement: str  # "bubblewrap" | "rlimits" | "none"
     argv: list[str]
@@ -143,7 +143,7 @@ def bwrap_plan(bwrap: str, workdir: str, layout: PythonLayout, hide_paths: tuple
     argv += ["--ro-bind", layout.numpy_dir, f"{SANDBOX_SITE}/numpy"]
     if layout.numpy_libs:
         argv += ["--ro-bind", layout.numpy_libs, f"{SANDBOX_SITE}/numpy.libs"]
-    argv += ["--ro-bind", os.path.join(workdir, "runner.py"), SANDBOX_RUNNER]
+    argv += ["--ro-bind", os.path.join(workdir, "guest.py"), SANDBOX_RUNNER]
     argv += ["--proc", "/proc", "--dev", "/dev"]
     if "--size" in opts:
         argv += ["--size", str(_TMPFS_BYTES)]
@@ -190,7 +190,7 @@ def plain_plan(workdir: str, layout: PythonLayout, os_layers: bool) -> LaunchPla
         read.append(layout.numpy_libs)
     return LaunchPlan(
         confinement="rlimits" if os_layers else "none",
-        argv=[layout.executable, "-I", "-S", "-B", os.path.join(workdir, "runner.py")],
+        argv=[layout.executable, "-I", "-S", "-B", os.path.join(workdir, "guest.py")],
         cwd=workdir,
         env=dict(_CHILD_ENV),
         init={"sys_path": [site], "seccomp": os_layers, "landlock_read": read if os_layers else None,

@@ -26,15 +26,15 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import CabError, ConfigError, SandboxUnavailable, ToolArgumentError
-from . import confine
-from .truncate import cap_result, json_size
+from cab_core.errors import CabError, ConfigError, SandboxUnavailable, ToolArgumentError
+from cab_core.sandbox import confine
+from cab_core.sandbox.truncate import cap_result, json_size
 
 log = logging.getLogger("cab.sandbox")
 
 _HEADER = struct.Struct(">II")
 _MAX_CHILD_FRAME = 16 * 1024 * 1024  # a program's tool arguments or result value, never more
-_RUNNER_SRC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "runner.py")
+_RUNNER_SRC = os.path.join(os.path.dirname(os.path.abspath(__file__)), "guest.py")
 _PREBOUND = {"np", "math", "print", "load_image", "result"}
 _NOT_BOUND = {"run_code", "done"}
 FILESYSTEM_POLICY = "structurally_denied"
@@ -341,8 +341,8 @@ class Sandbox:
         self.last_run_record: dict = {}
         workdir = tempfile.mkdtemp(prefix="cab-sandbox-")
         os.chmod(workdir, 0o700)
-        shutil.copyfile(_RUNNER_SRC, os.path.join(workdir, "runner.py"))
-        os.chmod(os.path.join(workdir, "runner.py"), 0o444)
+        shutil.copyfile(_RUNNER_SRC, os.path.join(workdir, "guest.py"))
+        os.chmod(os.path.join(workdir, "guest.py"), 0o444)
         self._workdir = workdir
         self._owned = _Owned(workdir, _Spawner())
         self._finalizer = weakref.finalize(self, self._owned.release)

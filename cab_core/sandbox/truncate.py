@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 
-MARK = "__cab_truncated"  # also in sandbox/runner.py, which cannot import it
+MARK = "__cab_truncated"  # also in sandbox/guest.py, which cannot import it
 _ORDER = ("value", "interrupted_action", "internal_trace", "stdout", "obs_ids", "images_withheld", "error")
 _LEVELS = ((256, 4096), (64, 1024), (16, 256), (4, 64), (1, 16), (0, 0))
 

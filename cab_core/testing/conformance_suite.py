@@ -7,13 +7,13 @@ from typing import Callable
 
 import pytest
 
-from . import sim_conformance as sc
-from . import task_conformance as tc
-from .pytest_plugin import selection
+from cab_core.testing import sim_conformance as sc
+from cab_core.testing import task_conformance as tc
+from cab_core.testing.selection import selection
 
 
 def _sim_factory(name: str, render: bool) -> Callable:
-    from ..plugins import registry
+    from cab_core.plugins import registry
 
     factory = registry("simulators")[name]
     return lambda: factory({"name": name, "render": render})

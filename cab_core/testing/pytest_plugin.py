@@ -29,25 +29,11 @@ attempts of the task checks; default: the number of cores). The items carry the 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-GROUPS = ("sims", "tasks", "determinism")
-NODE = "cab-conformance"  # the node id the items are collected under
-
-
-@dataclass(frozen=True)
-class Selection:
-    groups: tuple[str, ...]
-    sims: tuple[str, ...]
-    tasks: tuple[str, ...]
-    jobs: int
-
-
-SELECTION = pytest.StashKey[Selection]()
-
+from cab_core.testing.selection import GROUPS, NODE, SELECTION, Selection, selection  # noqa: F401
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     g = parser.getgroup("cab", "cab conformance suites (cab_core.testing)")
@@ -76,11 +62,6 @@ def _restrict(kind: str, option: str, wanted: list[str] | None, installed: list[
     return tuple(wanted)
 
 
-def selection(config: pytest.Config) -> Selection | None:
-    """What ``--cab-conformance`` selected in this run (None: the option is off)."""
-    return config.stash.get(SELECTION, None)
-
-
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "cab_conformance: a check of cab's conformance suites (--cab-conformance)")
     value = config.getoption("cab_conformance")
@@ -99,7 +80,7 @@ def pytest_configure(config: pytest.Config) -> None:
     jobs = config.getoption("cab_jobs")
     if jobs is not None and jobs < 1:
         raise pytest.UsageError(f"--cab-jobs must be at least 1, got {jobs}")
-    from ..plugins import all_tasks, registry
+    from cab_core.plugins import all_tasks, registry
 
     sims = _restrict("simulator", "--cab-sims", _names(config.getoption("cab_sims")), list(registry("simulators")))
     tasks: tuple[str, ...] = ()
@@ -121,7 +102,7 @@ class _Suite(pytest.Module):
     ``cab-conformance``."""
 
     def _getobj(self):
-        from . import conformance_suite
+        from cab_core.testing import conformance_suite
 
         return conformance_suite
 
@@ -141,7 +122,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     sel = selection(config)
     if sel is None:
         return
-    from . import conformance_suite
+    from cab_core.testing import conformance_suite
 
     suite = _Suite.from_parent(session, path=Path(conformance_suite.__file__), nodeid=NODE)
     for item in session.genitems(suite):

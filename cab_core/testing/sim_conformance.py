@@ -1,4 +1,4 @@
-"""Conformance checks that every :class:`cab_core.simulator.Simulator` backend must pass.
+"""Conformance checks that every :class:`cab_core.contracts.simulator.Simulator` backend must pass.
 
 The suite imports no simulator. It generates its own tiny world (a one-arm robot URDF with two
 revolute joints, a two-finger prismatic gripper, a TCP link and a camera link; a scene with a table,
@@ -36,13 +36,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..embodiment import ArmSpec, EmbodimentSpec, GripperSpec
-from ..errors import BadCommand
-from ..geometry import (intrinsics, look_at_cv, pose_inv, pose_mul, quat_angle, quat_to_mat,
+from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
+from cab_core.errors import BadCommand
+from cab_core.geometry import (intrinsics, look_at_cv, pose_inv, pose_mul, quat_angle, quat_to_mat,
                         transform_point)
-from ..scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
+from cab_core.contracts.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
                      SceneSpec, Shape, Sphere)
-from ..simulator import Contact, SimState, Simulator
+from cab_core.contracts.simulator import Contact, SimState, Simulator
 
 SimFactory = Callable[[], Simulator]
 
@@ -750,7 +750,7 @@ def check_id(check: Callable) -> str:
 def render_diagnosis(factory: SimFactory) -> str | None:
     """None if ``factory``'s simulator renders on this machine, else its RendererUnavailable
     diagnosis (run the checks of :data:`NEEDS_RENDERER` only where this is None)."""
-    from ..errors import RendererUnavailable
+    from cab_core.errors import RendererUnavailable
 
     sim = factory()
     try:

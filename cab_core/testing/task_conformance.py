@@ -4,7 +4,7 @@ subgoal satisfied at the start, and both verdicts record their margins consisten
 (:func:`check_pair`); the task's world is deterministic and its saved states restore
 (:func:`check_determinism_and_restore`).
 
-The attempts run as ``cab-suite-check`` runs them (:func:`cab_core.suitecheck.check`: composed by
+The attempts run as ``cab-suite-check`` runs them (:func:`cab_core.sweep.supervisor.run_batch`: composed by
 Hydra as ``cab task=T sim=S model=oracle|idle`` composes them, supervised, in warm workers, ``jobs``
 at a time); :func:`run_attempts` runs a batch of ``(task, sim)`` pairs and returns one
 :class:`PairResult` per pair, and :func:`check_pair` asserts on it. Outside pytest::
@@ -36,7 +36,7 @@ class PairResult:
 def run_attempts(pairs: list[tuple[str, str]], jobs: int, out: Path) -> dict[tuple[str, str], PairResult]:
     """Run the oracle and the idle agent of every ``(task, sim)`` pair at the task's catalog seed.
     Pairs are grouped so that the tasks shared by several simulators run in one batch."""
-    from ..suitecheck import check
+    from cab_core.sweep.supervisor import run_batch
 
     by_sim: dict[str, list[str]] = {}
     for task, sim in pairs:
@@ -47,7 +47,7 @@ def run_attempts(pairs: list[tuple[str, str]], jobs: int, out: Path) -> dict[tup
         groups.setdefault(tuple(tasks), []).append(sim)
     results = {(t, s): PairResult(t, s) for t, s in pairs}
     for i, (tasks, sims) in enumerate(groups.items()):
-        for row in check(list(tasks), None, max(1, jobs), Path(out) / f"batch-{i}", AGENTS, tuple(sims)):
+        for row in run_batch(list(tasks), None, max(1, jobs), Path(out) / f"batch-{i}", AGENTS, tuple(sims)):
             res = results.get((row["task"], row["sim"]))
             if res is not None:
                 res.rows[row["agent"]] = row
@@ -109,84 +109,80 @@ def check_pair(res: PairResult) -> None:
 MOTION_STEPS = 250
 
 
-def _episode(task: str, sim: str, out: Path):
-    """The world of ``cab task=T sim=S model=idle`` at the task's catalog seed, set up as an attempt
-    sets it up (built, robot at home, settled), physics only, no video."""
-    from ..episode import Episode
-    from ..plugins import all_tasks, create
-    from ..runner import attempt_spec
-    from ..suitecheck import attempt_configs
+def _world(task: str, sim: str, out: Path):
+    """The world of ``cab task=T sim=S model=idle`` at the task's catalog seed, built as an attempt
+    builds it (robot at home, settled), physics only; and a robot context to read it with."""
+    from cab_core.attempt.spec import attempt_spec
+    from cab_core.attempt.world import BuiltWorld
+    from cab_core.plugins import task_info
+    from cab_core.sweep.supervisor import attempt_configs
+    from cab_core.tools.context import RobotContext
 
-    t = all_tasks()[task]
-    [cfg] = attempt_configs([(task, t.info.seed, "idle", str(out), sim)], cold=False)
+    [cfg] = attempt_configs([(task, task_info(task).seed, "idle", str(out), sim)], cold=False)
     cfg["sim"] = {**cfg["sim"], "render": False}
-    cfg["record"] = {**(cfg.get("record") or {}), "video": False}
-    spec = attempt_spec(cfg, out)
-    emb = create("embodiments", spec.embodiment, spec.embodiment_cfg)
-    planner = create("planners", spec.planner, spec.planner_cfg)
-    world = create("simulators", spec.sim, spec.sim_cfg)
-    return Episode(spec, t, world, planner, emb)
+    world = BuiltWorld.open(attempt_spec(cfg, out))
+    return world, RobotContext(world.sim, world.planner, world.emb, None, None)
 
 
-def _drive(ep, base, steps: int) -> None:
+def _drive(w, base, steps: int) -> None:
     """Every arm joint along its own sine about ``base`` (0.15 rad), the grippers closing and
     opening, one target per step."""
     import numpy as np
 
-    order = ep.emb.joint_order()
-    grip = {j for a in ep.emb.arms.values() for j in a.gripper.joints}
+    order = w.emb.joint_order()
+    grip = {j for a in w.emb.arms.values() for j in a.gripper.joints}
     for i in range(steps):
-        t = i * ep.sim.timestep
+        t = i * w.sim.timestep
         tgt = np.array(base, float)
         for k, j in enumerate(order):
             tgt[k] = base[k] * (0.5 + 0.5 * math.cos(3.0 * t)) if j in grip else base[k] + 0.15 * math.sin(2.0 * t + k)
-        ep.sim.set_drive_targets(tgt)
-        ep.sim.step(1)
+        w.sim.set_drive_targets(tgt)
+        w.sim.step(1)
 
 
-def _state(ep) -> dict:
+def _state(w) -> dict:
     import numpy as np
 
-    s = {"qpos": np.asarray(ep.sim.get_qpos(), float), "qvel": np.asarray(ep.sim.get_qvel(), float)}
-    for n in ep.sim.object_names():
-        s[n] = np.concatenate([ep.sim.get_object_pose(n), ep.sim.get_object_velocity(n), ep.sim.get_object_qpos(n)])
+    s = {"qpos": np.asarray(w.sim.get_qpos(), float), "qvel": np.asarray(w.sim.get_qvel(), float)}
+    for n in w.sim.object_names():
+        s[n] = np.concatenate([w.sim.get_object_pose(n), w.sim.get_object_velocity(n), w.sim.get_object_qpos(n)])
     return s
 
 
 def check_determinism_and_restore(task: str, sim: str, out: Path) -> None:
-    """On the task's world at its catalog seed (:func:`_episode`): two builds in one process, each
+    """On the task's world at its catalog seed (:func:`_world`): two builds in one process, each
     saving its state after settling and then moving the arms alike, give identical privileged
     snapshots after settling and after the motion; the saved state restores exactly, and the motion
     replayed from it agrees within 1e-6. (Taking a snapshot may change a backend's next steps, so
     both builds take one.)"""
     import numpy as np
 
-    def run(name: str, replay: bool) -> None:
-        ep = _episode(task, sim, Path(out) / name)
+    def run(name: str, replay: bool) -> list[str]:
+        w, ctx = _world(task, sim, Path(out) / name)
         try:
-            snap = ep.sim.save_state()
-            start = _state(ep)
-            base = ep.sim.get_drive_targets().copy()
-            _drive(ep, base, MOTION_STEPS)
-            ep._snapshot("moved")
+            snaps = [json.dumps(w.snapshot(ctx, 0))]
+            snap = w.sim.save_state()
+            start = _state(w)
+            base = w.sim.get_drive_targets().copy()
+            _drive(w, base, MOTION_STEPS)
+            snaps.append(json.dumps(w.snapshot(ctx, MOTION_STEPS)))
             if not replay:
-                return
-            moved = _state(ep)
-            ep.sim.restore_state(snap)
-            restored = _state(ep)
+                return snaps
+            moved = _state(w)
+            w.sim.restore_state(snap)
+            restored = _state(w)
             for k in start:
                 assert np.array_equal(start[k], restored[k]), f"{task} on {sim}: {k} differs after restore_state"
-            _drive(ep, base, MOTION_STEPS)
-            replayed = _state(ep)
+            _drive(w, base, MOTION_STEPS)
+            replayed = _state(w)
             for k in moved:
                 d = float(np.max(np.abs(moved[k] - replayed[k]), initial=0.0))
                 assert d <= 1e-6, f"{task} on {sim}: the motion replayed from the saved state differs by {d:g} at {k}"
+            return snaps
         finally:
-            ep.close()
+            w.sim.close()
 
-    run("a", replay=True)
-    run("b", replay=False)
-    snaps = [(Path(out) / x / "privileged" / "snapshots.jsonl").read_text().splitlines()[:2] for x in "ab"]
-    assert [json.loads(s)["label"] for s in snaps[0]] == ["start", "moved"], snaps[0]
-    for label, x, y in zip(("after settling", "after the motion"), *snaps):
+    a = run("a", replay=True)
+    b = run("b", replay=False)
+    for label, x, y in zip(("after settling", "after the motion"), a, b):
         assert x == y, f"{task} on {sim}: a second build gives another privileged snapshot {label}"

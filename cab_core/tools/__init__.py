@@ -15,16 +15,16 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from ..errors import PluginError, ToolArgumentError
-from . import models as m
-from .registry import ToolDef, ToolOutput
+from cab_core.errors import PluginError, ToolArgumentError
+from cab_core.tools import models as m
+from cab_core.tools.registry import ToolDef, ToolOutput
 
 __all__ = ["TOOLS", "ToolDef", "ToolOutput", "build_registry", "schemas", "validate_args", "tool_names"]
 
-_OBSERVE = "cab_core.robot.observe"
-_GEOM = "cab_core.robot.geometry_tools"
-_MOTION = "cab_core.robot.motion"
-_EPISODE = "cab_core.episode"
+_OBSERVE = "cab_core.tools.observe"
+_GEOM = "cab_core.tools.estimate"
+_MOTION = "cab_core.tools.motion"
+_EPISODE = "cab_core.attempt.episode"
 
 _FRAME = "World frame: metres, +x robot-right, +y forward, +z up; poses [x,y,z,qw,qx,qy,qz]."
 _PIXELS = "Pixels are [u, v] in that observation's image (top-left origin, u right, v down)."

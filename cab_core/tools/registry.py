@@ -1,6 +1,6 @@
 """The tool registry: one ToolDef per tool; schemas come from the pydantic argument models.
 
-Handlers are referenced by dotted path (``"cab_core.robot.motion:move_delta"``) and resolved on
+Handlers are referenced by dotted path (``"cab_core.tools.motion:move_delta"``) and resolved on
 first use, so the registry can be listed and its schemas printed without a simulator.
 A handler has the signature ``handler(ctx: RobotContext, args: <ArgsModel>) -> ToolOutput``.
 """

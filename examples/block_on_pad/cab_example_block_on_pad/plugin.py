@@ -1,7 +1,7 @@
 """The plugin module named by the ``cab`` entry point: what this package adds to cab."""
 from __future__ import annotations
 
-from cab_core.hookspecs import hookimpl
+from cab_core.contracts.hookspecs import hookimpl
 
 
 def _tasks():

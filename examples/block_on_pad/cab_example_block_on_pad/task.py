@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, sphere
-from cab_core.scene import Body, Box, Material, Shape
-from cab_core.task import SceneInstance, TaskInfo, ToolCaller, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
+from cab_core.contracts.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.scene import Body, Box, Material, Shape
+from cab_core.contracts.task import SceneInstance, TaskInfo, ToolCaller, rng_for
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 from cab_suite_codeaction.common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose,
                                          sample_until, table_top_z)
 from cab_suite_codeaction.oracle import Hands, top_down_quat

@@ -1,7 +1,7 @@
 """Hand-over between the MCP server's event loop and the thread that owns the attempt.
 
 The simulator, planner and recorder belong to one thread (the one that built them; see
-``cab_core.simulator.Simulator``). The server runs its event loop in another thread and never
+``cab_core.contracts.simulator.Simulator``). The server runs its event loop in another thread and never
 touches them: each ``tools/call`` becomes a :class:`Job` on a FIFO queue, the owner thread executes
 jobs one at a time in arrival order, and the server awaits the job's future. Concurrent calls from a
 client (Claude Code issues read-only calls in parallel) are therefore serialised exactly as a

@@ -15,7 +15,7 @@ stops. The attempt's records are the same as under the reference harness, plus `
 
 Who played: every client identity of the MCP handshake (``clientInfo`` name and version, per MCP
 session) is recorded as an ``mcp_client`` event when first seen and in ``result.json``'s ``agent``
-block (:mod:`cab_core.agent_record`). The attempt's configuration name (``model``) is the one the
+block (:mod:`cab_core.attempt.agent_record`). The attempt's configuration name (``model``) is the one the
 user gave (``model.name=my-agent``, or a model config of its own such as a vendor launcher's);
 unnamed (the ``mcp_client`` placeholder that ``harness=mcp`` selects, or an in-process agent's
 config, e.g. ``model=oracle``, that plays no part here) it is ``mcp:<client name>`` after the first
@@ -35,9 +35,9 @@ import time
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from cab_core import stdio
-from cab_core.agent_io import first_user_message, result_images, run_code_limits, system_prompt
-from cab_core.agent_record import AgentRecord, ClientInfo
+from cab_core.apps import stdio
+from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.attempt.agent_record import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
 
 from .bridge import CallBridge, Job

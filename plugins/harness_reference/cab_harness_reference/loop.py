@@ -9,9 +9,9 @@ from __future__ import annotations
 import json
 import time
 
-from cab_core.agent_io import first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.errors import AttemptEnded, CabError, ConfigError
-from cab_core.pricing import cost, usage_dict
+from cab_core.attempt.pricing import cost, usage_dict
 
 from .context import ContextOverflow, ReferenceContextPolicy
 from .types import Capabilities, Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec

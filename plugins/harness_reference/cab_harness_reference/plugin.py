@@ -6,7 +6,7 @@ from __future__ import annotations
 import importlib
 
 from cab_core.errors import MissingDependency
-from cab_core.hookspecs import hookimpl
+from cab_core.contracts.hookspecs import hookimpl
 
 _PROVIDER_MODULES = {
     "anthropic": ("anthropic_provider", "anthropic", "cab-harness-reference[anthropic]"),

@@ -1,4 +1,4 @@
-"""A :class:`cab_core.planner.Planner` on mplib 0.2.1 (OMPL RRTConnect or screw paths, TOPP-RA timing).
+"""A :class:`cab_core.contracts.planner.Planner` on mplib 0.2.1 (OMPL RRTConnect or screw paths, TOPP-RA timing).
 
 One ``mplib.Planner`` per arm, whose move group is the arm's TCP link, so targets are TCP poses
 directly. The collision world is the robot alone (as in the paper): no table, no objects, and
@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cab_core.embodiment import EmbodimentSpec
+from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import ConfigError, MissingDependency, PlannerError
 from cab_core.geometry import pose_inv, pose_mul, quat_angle
-from cab_core.planner import IKResult, PlanResult, Planner
+from cab_core.contracts.planner import IKResult, PlanResult, Planner
 
 INSTALL = "pip install mplib==0.2.1"
 SHORT_MOVE_M = 0.005  # straight-line moves shorter than this may fall back to a joint-space line

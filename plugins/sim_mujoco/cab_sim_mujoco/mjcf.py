@@ -25,13 +25,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cab_core.embodiment import EmbodimentSpec
+from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand
 from cab_core.geometry import axis_angle_quat, euler_quat, quat_mul, quat_to_mat
-from cab_core.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
+from cab_core.contracts.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
                             SceneSpec, Shape, Sphere)
-from cab_core.simsupport import camera_mount, check_camera_spec, check_object_names, pose_or_bad
-from cab_core.simulator import ROBOT
+from cab_core.contracts.simsupport import camera_mount, check_camera_spec, check_object_names, pose_or_bad
+from cab_core.contracts.simulator import ROBOT
 
 from .physics import PhysicsParams
 

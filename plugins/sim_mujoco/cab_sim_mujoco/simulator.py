@@ -1,4 +1,4 @@
-"""The MuJoCo backend of :class:`cab_core.simulator.Simulator`.
+"""The MuJoCo backend of :class:`cab_core.contracts.simulator.Simulator`.
 
 One ``MjModel`` / ``MjData`` pair per attempt, compiled from the MJCF that :mod:`.mjcf` writes from
 the ``SceneSpec`` and the ``EmbodimentSpec``, and, unless ``render: false``, an OpenGL context
@@ -39,14 +39,14 @@ from . import gl
 gl.forced_backend()  # before MuJoCo's import starts the OpenGL bindings MUJOCO_GL names
 import mujoco  # noqa: E402
 
-from cab_core.embodiment import EmbodimentSpec
+from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import pose_mul, quat_to_mat
-from cab_core.scene import SceneSpec
-from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, object_link_or_bad,
+from cab_core.contracts.scene import SceneSpec
+from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, object_link_or_bad,
                                 pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
                                 step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
-from cab_core.simulator import ROBOT, Contact, SimState, Simulator
+from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 
 from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
 from .physics import PhysicsParams

@@ -23,7 +23,7 @@ import numpy as np
 
 from cab_core.errors import ConfigError, RendererUnavailable
 from cab_core.geometry import pose_to_mat
-from cab_core.scene import Lighting
+from cab_core.contracts.scene import Lighting
 
 RENDERERS = ("auto", "tiny", "egl")
 # OpenGL camera axes written in the OpenCV camera frame: x stays, y and z flip

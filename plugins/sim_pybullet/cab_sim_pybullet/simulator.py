@@ -1,4 +1,4 @@
-"""The PyBullet backend of :class:`cab_core.simulator.Simulator`.
+"""The PyBullet backend of :class:`cab_core.contracts.simulator.Simulator`.
 
 One DIRECT physics client per simulator (several simulators live side by side in one process; every
 call names its client). Built once from a ``SceneSpec`` plus an ``EmbodimentSpec``, the same
@@ -46,15 +46,15 @@ import numpy as np
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
-from cab_core.embodiment import EmbodimentSpec
+from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
-from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
-from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
+from cab_core.contracts.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
+from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
                                 check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
                                 pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
                                 step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
-from cab_core.simulator import ROBOT, Contact, SimState, Simulator
+from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import massprops
 from . import renderer as _renderer

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import sapien
 
-from cab_core.scene import cache_dir
+from cab_core.contracts.scene import cache_dir
 
 from . import renderer as _renderer
 

@@ -1,4 +1,4 @@
-"""The SAPIEN 3 backend of :class:`cab_core.simulator.Simulator`.
+"""The SAPIEN 3 backend of :class:`cab_core.contracts.simulator.Simulator`.
 
 One ``sapien.Scene`` per attempt with a CPU PhysX system and, unless ``render: false``, a Vulkan
 render system (on a CPU-only machine: Mesa lavapipe). Built once from a ``SceneSpec`` plus an
@@ -61,15 +61,15 @@ import numpy as np
 import sapien
 from sapien.wrapper.urdf_loader import URDFLoader
 
-from cab_core.embodiment import EmbodimentSpec
+from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import mat_to_quat
-from cab_core.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere, cache_dir
-from cab_core.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
+from cab_core.contracts.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere, cache_dir
+from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
                                 check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
                                 pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
                                 step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
-from cab_core.simulator import ROBOT, Contact, SimState, Simulator
+from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 
 from . import brdf as _brdf
 from . import renderer as _renderer

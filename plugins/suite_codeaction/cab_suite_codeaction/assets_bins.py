@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import axis_angle_quat, quat_mul
-from cab_core.scene import Body, Box, Material, Shape, Sphere
+from cab_core.contracts.scene import Body, Box, Material, Shape, Sphere
 
 from .common import assets_dir, mesh_shape, srgb
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.scene import Box, Cylinder, Material, Mesh, Shape, Sphere
+from cab_core.contracts.scene import Box, Cylinder, Material, Mesh, Shape, Sphere
 
 from .common import mesh_asset, srgb
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.scene import Box, Cylinder, Material, Mesh, Shape
+from cab_core.contracts.scene import Box, Cylinder, Material, Mesh, Shape
 
 from .common import assets_dir, mesh_asset, srgb
 

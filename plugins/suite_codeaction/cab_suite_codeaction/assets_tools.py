@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from cab_core.geometry import axis_angle_quat, quat_to_mat
-from cab_core.scene import Box, Cylinder, Material, Shape
+from cab_core.contracts.scene import Box, Cylinder, Material, Shape
 
 from .common import (box_inertia, hinged_urdf, mesh_shape, srgb, urdf_asset, urdf_inertial, urdf_part)
 

@@ -17,9 +17,9 @@ import numpy as np
 
 from cab_core.errors import CabError
 from cab_core.geometry import euler_quat, quat_mul, quat_normalize, quat_to_mat
-from cab_core.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
-from cab_core.task import Task, TaskInfo, ToolCaller
-from cab_core.verifier import WorldView
+from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
+from cab_core.contracts.task import Task, TaskInfo, ToolCaller
+from cab_core.contracts.verifier import WorldView
 
 from .catalog import task_info
 

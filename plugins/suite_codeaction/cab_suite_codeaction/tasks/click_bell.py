@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box
+from cab_core.contracts.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
-from cab_core.scene import Body
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_any, margin_below, margin_within
+from cab_core.contracts.scene import Body
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_any, margin_below, margin_within
 
 from ..assets_tools import BELL_KNOB_RADIUS, BELL_VARIANTS, bell_geometry, bell_shapes, gripper_bodies, is_gripper
 from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z, vec

@@ -29,11 +29,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import Body
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
+from cab_core.contracts.scene import Body
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_pots import POT_VARIANTS, pot_geometry, pot_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of

@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import ArticulatedObject
-from cab_core.task import SceneInstance, rng_for
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above
+from cab_core.contracts.scene import ArticulatedObject
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above
 
 from ..oracle import Hands, tcp_quat
 from ..common import (CodeActionTask, base_scene, box_inertia, hinged_urdf, pose_list, rand_pose, srgb,

@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat
-from cab_core.scene import Body
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_within
+from cab_core.contracts.scene import Body
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_within
 
 from ..assets_placing import BREAD_BASKET_MASS, BREAD_BASKETS, BREAD_MASS, bread_basket_shapes, bread_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of

@@ -38,11 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import Body
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_within
+from cab_core.contracts.scene import Body
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..assets_placing import BREAD_MASS, SKILLET_MASS, SKILLETS, bread_shapes, skillet_shapes
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,

@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import transform_point
-from cab_core.scene import Body
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below
+from cab_core.contracts.scene import Body
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below
 
 from ..assets_placing import CAN_MASS, PLASTIC_BOX_MASS, can_shapes, plastic_box_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z

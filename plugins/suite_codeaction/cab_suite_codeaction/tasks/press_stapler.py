@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box
+from cab_core.contracts.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
-from cab_core.scene import ArticulatedObject
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_any, margin_within
+from cab_core.contracts.scene import ArticulatedObject
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_any, margin_within
 
 from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER_VARIANTS, gripper_bodies,
                             is_gripper, stapler_asset, stapler_geometry)

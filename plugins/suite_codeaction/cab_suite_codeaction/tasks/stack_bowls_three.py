@@ -27,11 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, annulus
+from cab_core.contracts.checkpoints import SpatialRule, annulus
 from cab_core.geometry import mat_to_quat, quat_to_mat
-from cab_core.scene import Body, Material, Shape, cache_dir
-from cab_core.task import SceneInstance, rng_for
-from cab_core.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
+from cab_core.contracts.scene import Body, Material, Shape, cache_dir
+from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
                                margin_within)
 
 from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual

@@ -1,0 +1,233 @@
+"""Command-line entry points: ``cab`` (Hydra app), ``cab-plugins``, ``cab-schemas``.
+Only this module talks to a person."""
+from __future__ import annotations
+
+import json
+import sys
+
+from hydra.experimental.callback import Callback
+
+from cab_core.config import GROUPS, normalise_overrides, scene_seed  # noqa: F401  (the resolver cab.seed, registered there)
+from cab_core.sweep import layout as sweep_layout  # noqa: F401  (registers cab.swept: the swept keys' folder of an attempt)
+
+
+def wants_stdio_protocol(argv: list[str]) -> bool:
+    """Whether these overrides serve the attempt to its agent on stdin/stdout: a harness selected
+    with ``harness=<name>`` whose factory declares ``speaks_on_stdio = True`` (a protocol server),
+    unless ``harness.transport=`` names another transport. Then stdout is reserved for protocol
+    frames before Hydra starts, so that nothing it or anything after it prints can corrupt the
+    stream (cab_core.apps.stdio)."""
+    sel = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness=")]
+    if not sel:
+        return False
+    transport = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness.transport=")]
+    if transport and transport[-1] != "stdio":
+        return False
+    from cab_core.plugins import registry
+
+    return bool(getattr(registry("harnesses").get(sel[-1]), "speaks_on_stdio", False))
+
+
+# Set while Hydra prepares a single run: HYDRA_FULL_ERROR makes Hydra raise what fails before the
+# task function starts (e.g. an output folder that cannot be created) instead of printing its
+# traceback, so that main() can say it in one line. The task function restores the variable (the
+# attempt's child processes see the user's value) first thing.
+_HYDRA_FULL_ERROR_BY_CAB = False
+_HYDRA_FULL_ERROR_BEFORE: str | None = None
+_TASK_STARTED = False
+
+
+def _refuse(message: str, status: int = 2) -> None:
+    print(f"cab: {message}", file=sys.stderr)
+    sys.exit(status)
+
+
+def _before_task(e: Exception) -> str | None:
+    """One line for an exception Hydra raised before the task function started, or None for one
+    that is a bug (its traceback is shown)."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from cab_core.apps.cmdline import one_line
+
+    if isinstance(e, OSError) and e.filename:
+        return f"cannot create the output folder {e.filename} (hydra.run.dir): {e.strerror or e}"
+    if isinstance(e, (HydraException, OmegaConfBaseException)):
+        return one_line(e)
+    return None
+
+
+def main() -> None:
+    """``cab``: a command-line mistake is one line on stderr and exit status 2, before Hydra
+    composes, creates a folder or starts anything (cab_core.apps.cmdline)."""
+    global _HYDRA_FULL_ERROR_BY_CAB, _HYDRA_FULL_ERROR_BEFORE
+    import os
+
+    from cab_core.apps.cmdline import check_command_line
+    from cab_core.errors import ConfigError, PluginError
+
+    sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
+    try:
+        args = check_command_line(sys.argv[1:])
+    except (ConfigError, PluginError) as e:  # PluginError: a plugin's config dirs or tasks (cab_core.config)
+        _refuse(str(e))
+    single = args is not None and not (args.multirun or args.cfg)
+    if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:
+        from cab_core.apps import stdio
+
+        stdio.claim()
+    if not single or os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's tracebacks
+        _hydra_entry()
+        return
+    _HYDRA_FULL_ERROR_BEFORE = os.environ.get("HYDRA_FULL_ERROR")
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    _HYDRA_FULL_ERROR_BY_CAB = True
+    try:
+        _hydra_entry()
+    except Exception as e:
+        line = None if _TASK_STARTED else _before_task(e)
+        if line is None:
+            raise
+        _refuse(line)
+    finally:
+        _restore_hydra_full_error()
+
+
+def _restore_hydra_full_error() -> None:
+    global _HYDRA_FULL_ERROR_BY_CAB
+    import os
+
+    if _HYDRA_FULL_ERROR_BY_CAB:
+        if _HYDRA_FULL_ERROR_BEFORE is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = _HYDRA_FULL_ERROR_BEFORE
+        _HYDRA_FULL_ERROR_BY_CAB = False
+
+
+def _hydra_entry() -> None:
+    import hydra
+
+    @hydra.main(version_base=None, config_path="../conf", config_name="config")
+    def _app(cfg) -> None:
+        global _TASK_STARTED
+
+        _TASK_STARTED = True
+        _restore_hydra_full_error()  # from here on, Hydra reports failures itself; children see the user's value
+
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        from cab_core.errors import CabError, ConfigError, MissingDependency, RendererUnavailable
+        from cab_core.attempt.runner import attempt_spec, run_attempt
+
+        hc = HydraConfig.get()
+        out = hc.runtime.output_dir
+        if hc.mode == RunMode.MULTIRUN:
+            _sweep_job(cfg, hc)
+            return
+        try:
+            spec = attempt_spec(cfg, out)
+            result = run_attempt(spec)
+        except RendererUnavailable as e:
+            print(f"cab: renderer unavailable: {e}", file=sys.stderr)
+            sys.exit(3)
+        except (ConfigError, MissingDependency) as e:
+            print(f"cab: {e}", file=sys.stderr)
+            sys.exit(2)
+        except CabError as e:
+            print(f"cab: {type(e).__name__}: {e}", file=sys.stderr)
+            sys.exit(1)
+        v = result["verdict"]
+        b = result["budget"]
+        print(f"cab: {result['task']} seed={result['seed']} attempt={result['attempt']} model={result['model']} "
+              f"sim={result['sim']}: success={v.get('success')} termination={result['termination']['reason']} "
+              f"calls={b['tool_calls_used']}/{b['tool_calls_limit']} sim_s={b['sim_seconds_used']:.2f}/{b['sim_seconds_limit']:g} "
+              f"wall_s={result['timing']['wall_seconds']:.1f} -> {out}/result.json")
+
+    _app()
+
+
+def _sweep_job(cfg, hc) -> None:
+    """One job of ``cab -m``: errors propagate to Hydra, which records the job as failed (a worker
+    must not exit); the progress line goes to stderr."""
+    from pathlib import Path
+
+    from cab_core.sweep.manifest import run_job
+
+    _, line = run_job(cfg, Path(hc.runtime.output_dir), Path(hc.sweep.dir), f"{hc.job.name}.log")
+    sys.stderr.write(line + "\n")  # one write: lines of parallel workers do not interleave
+    sys.stderr.flush()
+
+
+class SweepManifestCallback(Callback):
+    """Hydra callback (``hydra.callbacks.sweep_manifest``): before a sweep launches, write its
+    manifest or check it against the one already in the sweep directory. Hydra turns callback
+    exceptions into warnings, so a refusal ends the process here, with the reason on stderr."""
+
+    def on_multirun_start(self, config, **kwargs) -> None:
+        from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest
+        from cab_core.sweep.layout import SweepJobsCollide
+
+        try:
+            SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
+        except (SweepConfigChanged, SweepJobsCollide) as e:
+            print(f"cab: refused: {e}", file=sys.stderr)
+            sys.exit(2)
+        except Exception as e:  # a sweep without its manifest cannot be resumed safely: stop
+            print(f"cab: cannot write the sweep manifest: {type(e).__name__}: {e}", file=sys.stderr)
+            sys.exit(1)
+
+    def on_multirun_end(self, config, **kwargs) -> None:
+        from cab_core.sweep.manifest import summary_line
+
+        print(summary_line(config.hydra.sweep.dir), file=sys.stderr, flush=True)
+
+
+def plugins_main() -> None:
+    """List installed plugins, their versions and what each provides (disabled ones as disabled:
+    CAB_DISABLE_PLUGINS=name1,name2)."""
+    import argparse
+
+    from cab_core.errors import CabError
+    from cab_core.plugins import describe
+
+    ap = argparse.ArgumentParser(prog="cab-plugins", description=plugins_main.__doc__)
+    ap.add_argument("--json", action="store_true", help="print JSON")
+    a = ap.parse_args()
+    try:
+        rows = describe()
+    except CabError as e:  # a broken plugin: one line naming it and the fix
+        print(f"cab-plugins: {e}", file=sys.stderr)
+        sys.exit(1)
+    if a.json:
+        print(json.dumps(rows, indent=2))
+        return
+    for r in rows:
+        print(f"{r['plugin']:<22} {r['distribution']} {r['version']}" + ("  (disabled)" if r["disabled"] else ""))
+        for kind, names in r["provides"].items():
+            if names:
+                print(f"    {kind:<18} {', '.join(names)}")
+
+
+def schemas_main() -> None:
+    """Print the JSON Schemas of every tool (from the pydantic argument models)."""
+    import argparse
+
+    from cab_core.tools import schemas
+
+    ap = argparse.ArgumentParser(prog="cab-schemas", description=schemas_main.__doc__)
+    ap.add_argument("tool", nargs="?", help="only this tool")
+    a = ap.parse_args()
+    rows = schemas()
+    if a.tool:
+        rows = [r for r in rows if r["name"] == a.tool]
+        if not rows:
+            from cab_core.errors import closest
+
+            names = [r["name"] for r in schemas()]
+            near = closest(a.tool, names, cutoff=0.5)  # tool names share words: a looser match still helps
+            hint = f"did you mean {' or '.join(near)}? " if near else ""
+            print(f"cab-schemas: unknown tool {a.tool!r}; {hint}valid: {', '.join(names)}", file=sys.stderr)
+            sys.exit(2)
+    print(json.dumps(rows, indent=2))

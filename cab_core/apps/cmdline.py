@@ -1,0 +1,218 @@
+"""Checks of a ``cab`` command line before Hydra composes or launches anything.
+
+Hydra reports a misspelled option or key in several lines and exit status 1, and a key added with
+``+`` (``+budget.tool_calsl=5``) is composed and then ignored. :func:`check_command_line` refuses
+such mistakes with a :class:`~cab_core.errors.ConfigError` of one line naming the closest valid
+names, for a single run and for every job of a sweep alike (before a sweep directory or an attempt
+directory exists). It reads the config groups and their options from Hydra's own config search path
+(``--config-dir``, ``hydra.searchpath`` and Hydra search-path plugins included).
+
+What is checked:
+
+* the option of every config group (``task=``, ``sim=``, ``model=``..., each value of a sweep);
+* keys under ``budget``, ``sandbox``, ``record``, ``perturb``, ``sweep`` (the primary config's), ``sim`` and
+  ``harness`` (the selected option's config, for each option a sweep selects), with or without
+  ``+``/``++``; an empty mapping of an option (``sim.physics: {}``) is open: the names in it are
+  the plugin's to check when it is created, before its simulator starts;
+* top-level keys (``+seeds=3`` is refused: ``seed`` exists);
+* budget values: a positive number, or null (the catalog's budget; for
+  ``run_code_max_internal_calls`` the default, 500).
+
+Keys under the other groups (``model.*``, ``task.*``...) are not checked here.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import itertools
+import os
+from typing import Any
+
+from cab_core.attempt.budget import BUDGET_KEYS, check_budget_value
+from cab_core.errors import ConfigError, closest
+
+CHECKED_SECTIONS = ("budget", "sandbox", "record", "perturb", "sweep", "sim", "harness")
+OPTION_SECTIONS = ("sim", "harness")  # their keys are the selected option's
+MAIN_CONFIG_MODULE = "cab_core.apps.cli"  # the module of the Hydra app (its config_path is relative to it)
+MAIN_CONFIG_PATH = "../conf"  # cab_core/conf
+
+
+def one_line(e: BaseException) -> str:
+    lines = [l.strip() for l in str(e).splitlines() if l.strip() and not l.strip().startswith("See https://")]
+    return ": ".join(lines) if lines else type(e).__name__
+
+
+def _values(o) -> list:
+    """Every value an override gives (each of a sweep's); none for a deletion or a glob sweep."""
+    from hydra.core.override_parser.types import ValueType
+
+    if o.is_delete():
+        return []
+    if o.is_sweep_override():
+        if o.value_type == ValueType.GLOB_CHOICE_SWEEP:
+            return []
+        return list(o.sweep_iterator())
+    v = o.value()
+    return list(v) if isinstance(v, list) else [v]
+
+
+def _interpolated(v) -> bool:
+    return isinstance(v, str) and "${" in v
+
+
+def _loader(args):
+    """Hydra's config loader over the search path the app uses (as ``hydra._internal.utils._run_hydra``
+    builds it)."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_automatic_config_search_path
+    from hydra.core.config_search_path import SearchPathQuery
+
+    search_path = create_automatic_config_search_path(None, MAIN_CONFIG_MODULE, args.config_path or MAIN_CONFIG_PATH)
+    if args.config_dir is not None:
+        d = os.path.abspath(args.config_dir)
+        if not os.path.isdir(d):
+            raise ConfigError(f"config directory {d} (--config-dir) does not exist")
+        search_path.prepend(provider="command-line", path=f"file://{d}", anchor=SearchPathQuery(provider="schema"))
+    return ConfigLoaderImpl(config_search_path=search_path)
+
+
+def parse_args(argv: list[str]):
+    """Hydra's own reading of the command line, or None where it cannot read it (Hydra then says why)."""
+    from hydra._internal.utils import get_args_parser
+
+    with contextlib.redirect_stderr(io.StringIO()):
+        try:
+            args, _ = get_args_parser().parse_known_args(argv)
+        except SystemExit:
+            return None
+    return args
+
+
+def check_command_line(argv: list[str]):
+    """Refuse (ConfigError, one line) an unknown group option, an unknown key or a non-positive
+    budget on this ``cab`` command line. Returns Hydra's parsed arguments (None where Hydra
+    cannot parse them, or nothing is run: ``--help``, ``--info``, shell completion)."""
+    args = parse_args(argv)
+    if args is None or args.help or args.hydra_help or args.info or args.shell_completion:
+        return None
+    from hydra.core.object_type import ObjectType
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import ValueType
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        overrides = OverridesParser.create().parse_overrides(args.overrides)
+    except (HydraException, OmegaConfBaseException) as e:
+        raise ConfigError(one_line(e)) from None
+    config_name = args.config_name or "config"
+    loader = _loader(args)
+    searchpath = [o.input_line for o in overrides if o.get_key_element() == "hydra.searchpath"]
+    try:
+        top_groups = {g for g in loader.list_groups("") if g != "hydra"}
+    except (HydraException, OmegaConfBaseException) as e:
+        raise ConfigError(one_line(e)) from None
+
+    def is_group(key: str) -> bool:
+        return key in top_groups or ("/" in key and key.split("/")[0] in top_groups)
+
+    choices: dict[str, list[str]] = {}  # group -> the options the command selects (a sweep: several)
+    keys = []
+    for o in overrides:
+        key = o.key_or_group
+        if o.package is not None or key.startswith("hydra"):
+            continue
+        if is_group(key):
+            if o.is_delete():
+                continue
+            try:
+                options = loader.get_group_options(key, ObjectType.CONFIG, config_name, searchpath)
+            except (HydraException, OmegaConfBaseException) as e:
+                raise ConfigError(one_line(e)) from None
+            if o.value_type == ValueType.GLOB_CHOICE_SWEEP:  # task=glob(*): the options it matches
+                values = list(o.value().filter(options))
+            else:
+                values = [str(v) for v in _values(o) if v is not None and not _interpolated(v)]
+            if not values:
+                continue
+            for v in values:
+                if v not in options:
+                    near = closest(v, options)
+                    hint = f"did you mean {' or '.join(near)}?" if near else f"valid: {', '.join(options)}"
+                    raise ConfigError(f"unknown {key} {v!r}; {hint}")
+            choices[key] = values
+        elif not o.is_delete():
+            keys.append(o)
+    if not keys:
+        return args
+
+    composed: dict[tuple, dict] = {}
+
+    def base(selection: tuple) -> dict:
+        """The config these group choices compose to, without the key overrides."""
+        if selection not in composed:
+            from hydra.types import RunMode
+            from omegaconf import OmegaConf
+
+            picked = [f"{g}={v}" for g, v in selection]
+            try:
+                cfg = loader.load_configuration(config_name, picked + searchpath, RunMode.RUN)
+            except (HydraException, OmegaConfBaseException) as e:
+                raise ConfigError(one_line(e)) from None
+            plain = OmegaConf.to_container(cfg, resolve=False)
+            plain.pop("hydra", None)
+            composed[selection] = plain
+        return composed[selection]
+
+    others = tuple((g, vs[0]) for g, vs in choices.items() if g not in OPTION_SECTIONS)
+    per_option = [[(g, v) for v in choices[g]] for g in OPTION_SECTIONS if g in choices]
+    selections = [others + combo for combo in itertools.product(*per_option)]
+    for o in keys:
+        parts = o.key_or_group.split(".")
+        top = parts[0]
+        if top in top_groups and top not in OPTION_SECTIONS:
+            continue  # model.*, task.*...: that option's business
+        for sel in selections:
+            cfg = base(sel)
+            if top not in cfg:
+                if top in top_groups:
+                    continue  # a group removed from the defaults
+                valid = [k for k in cfg if k not in top_groups] + sorted(top_groups)
+                near = closest(top, valid)
+                hint = f"did you mean {' or '.join(near)}? " if near else ""
+                raise ConfigError(f"unknown key {top!r}; {hint}valid top-level keys: {', '.join(valid)}")
+            if top in CHECKED_SECTIONS:
+                section = cfg[top]
+                option = section.get("name") if top in OPTION_SECTIONS and isinstance(section, dict) else None
+                _check_path(section, parts, option)
+        if top == "budget" and len(parts) == 2 and parts[1] in BUDGET_KEYS:
+            for v in _values(o):
+                if not _interpolated(v):
+                    check_budget_value(parts[1], v)
+        if parts == ["record", "observers"] and not o.is_delete() and not o.is_sweep_override():
+            from cab_core.plugins import select_record_observers as select
+
+            select({"observers": o.value()})  # an observer no plugin registers: refused here
+    return args
+
+
+def _check_path(node: Any, parts: list[str], option: str | None) -> None:
+    """``parts`` (``["budget", "tool_calls"]``) must name keys that exist below ``node`` (the
+    section's config). An empty mapping below the section is open (``sim.physics``: the plugin
+    checks its names); a list or a value ends the walk (Hydra refuses what does not fit it)."""
+    for depth in range(1, len(parts)):
+        if not isinstance(node, dict):
+            return
+        name = parts[depth]
+        if name in node:
+            node = node[name]
+            continue
+        if depth > 1 and not node:
+            return
+        where = ".".join(parts[:depth])
+        valid = list(node)
+        near = closest(name, valid)
+        hint = f"did you mean {' or '.join(f'{where}.{n}' for n in near)}? " if near else ""
+        of = f" ({parts[0]}={option})" if option else ""
+        raise ConfigError(f"unknown key {'.'.join(parts)!r}; {hint}valid keys under {where}{of}: "
+                          f"{', '.join(map(str, valid)) or '(none)'}")

@@ -1,0 +1,135 @@
+"""Budgets as limit objects (limit, usage, remaining), enforced in the host, never by prompt.
+
+- tool calls: each direct call or run_code submission costs one; done is free. A call made when
+  none remain is not executed and the attempt ends (``tool_budget``).
+- simulated seconds: every physics step costs ``dt``, inside programs too. The action that crosses
+  the limit completes; the attempt then ends at the next tool boundary (``sim_budget``).
+- wall seconds: checked at each dispatch (``wall_budget``); time the host reports as provider
+  outage is credited back, capped at one extra wall budget.
+- internal calls: a cap on tool calls inside one run_code program (not charged to the episode).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from cab_core.errors import BudgetExhausted, ConfigError
+
+# the keys of ``budget.*`` and their kinds (null: the task's budget from its suite's catalog)
+BUDGET_KEYS = {"tool_calls": int, "sim_seconds": float, "wall_seconds": float, "run_code_max_internal_calls": int}
+
+
+def check_budget_value(key: str, value: Any) -> None:
+    """``budget.<key>`` must be null or positive (an integer for counts; bools refused)."""
+    if value is None:
+        return
+    kind = BUDGET_KEYS[key]
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not number or not value > 0 or (kind is int and not isinstance(value, int)):
+        what = "integer" if kind is int else "number"
+        default = "the default, 500" if key == "run_code_max_internal_calls" else "the catalog's budget for the task"
+        raise ConfigError(f"budget.{key} must be a positive {what} or null ({default}), got {value!r}")
+
+
+@dataclass
+class Limit:
+    name: str
+    limit: float
+    usage: float = 0.0
+
+    @property
+    def remaining(self) -> float:
+        return max(0.0, self.limit - self.usage)
+
+    @property
+    def exhausted(self) -> bool:
+        return self.usage >= self.limit
+
+
+@dataclass
+class BudgetLedger:
+    tool_calls: Limit
+    sim_seconds: Limit
+    wall_seconds: Limit
+    run_code_internal_calls: int = 500
+    dt: float = 1.0 / 250.0
+    physics_steps: int = 0
+    _t0: float = field(default_factory=time.monotonic)
+    _wall_credit: float = 0.0
+
+    @classmethod
+    def create(cls, tool_calls: int, sim_seconds: float, wall_seconds: float, dt: float,
+               run_code_internal_calls: int = 500) -> "BudgetLedger":
+        return cls(Limit("tool_calls", tool_calls), Limit("sim_seconds", sim_seconds),
+                   Limit("wall_seconds", wall_seconds), run_code_internal_calls, dt)
+
+    # -- charging -----------------------------------------------------------------------------
+    def step_limit(self) -> int:
+        """Physics steps allowed: floor(budget_s / dt)."""
+        return int(self.sim_seconds.limit / self.dt + 1e-9)
+
+    def charge_steps(self, n: int) -> None:
+        self.physics_steps += n
+        self.sim_seconds.usage = self.physics_steps * self.dt
+
+    def charge_call(self) -> None:
+        self.tool_calls.usage += 1
+
+    def credit_wall(self, seconds: float) -> None:
+        self._wall_credit = min(self.wall_seconds.limit, self._wall_credit + max(0.0, seconds))
+
+    def wall_elapsed(self) -> float:
+        return time.monotonic() - self._t0
+
+    def update_wall(self) -> None:
+        self.wall_seconds.usage = max(0.0, self.wall_elapsed() - self._wall_credit)
+
+    # -- checks -------------------------------------------------------------------------------
+    @property
+    def sim_exhausted(self) -> bool:
+        return self.physics_steps >= self.step_limit()
+
+    def check_before_call(self) -> None:
+        """At a tool boundary: raise if any budget is spent (the call is then not executed)."""
+        self.update_wall()
+        if self.sim_exhausted:
+            raise BudgetExhausted("sim_budget", f"simulated-time budget of {self.sim_seconds.limit:g} s is spent")
+        if self.wall_seconds.exhausted:
+            raise BudgetExhausted("wall_budget", f"wall-clock budget of {self.wall_seconds.limit:g} s is spent")
+        if self.tool_calls.exhausted:
+            raise BudgetExhausted("tool_budget", f"tool-call budget of {int(self.tool_calls.limit)} is spent")
+
+    def exhausted_reason(self) -> str | None:
+        self.update_wall()
+        if self.sim_exhausted:
+            return "sim_budget"
+        if self.wall_seconds.exhausted:
+            return "wall_budget"
+        if self.tool_calls.exhausted:
+            return "tool_budget"
+        return None
+
+    def remaining(self) -> dict:
+        """What every tool result shows."""
+        return {
+            "tool_calls_remaining": int(self.tool_calls.remaining),
+            "tool_calls_limit": int(self.tool_calls.limit),
+            "sim_seconds_remaining": round(self.sim_seconds.remaining, 3),
+            "sim_seconds_limit": self.sim_seconds.limit,
+        }
+
+    def summary(self) -> dict:
+        self.update_wall()
+        return {
+            "tool_calls_used": int(self.tool_calls.usage),
+            "tool_calls_limit": int(self.tool_calls.limit),
+            "sim_seconds_used": round(self.sim_seconds.usage, 4),
+            "sim_seconds_limit": self.sim_seconds.limit,
+            "physics_steps": self.physics_steps,
+            "sim_dt": self.dt,
+            "wall_seconds_used": round(self.wall_seconds.usage, 3),
+            "wall_seconds_limit": self.wall_seconds.limit,
+            "wall_seconds_credited": round(self._wall_credit, 3),
+            "run_code_internal_calls_limit": self.run_code_internal_calls,
+        }

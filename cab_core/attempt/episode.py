@@ -1,0 +1,251 @@
+"""One attempt, in three parts a reader finds by name:
+
+* building the world: :class:`~cab_core.attempt.world.BuiltWorld` (instance, simulator, planner,
+  robot at home, settled);
+* serving the agent's calls under budgets: :class:`~cab_core.attempt.serving.CallServer`;
+* finishing: the hidden verdict (:class:`~cab_core.attempt.finishing.VerdictTracker`), the
+  checkpoints and ``result.json``.
+
+:class:`Episode` puts them together and is what harnesses talk to (the protocol
+:class:`cab_core.contracts.harness.AttemptSession`). The host owns everything privileged; agents
+see only tool results."""
+from __future__ import annotations
+
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from cab_core.attempt.budget import BudgetLedger
+from cab_core.attempt.finishing import VerdictTracker, attempt_checkpoints, versions
+from cab_core.attempt.record import RECORD_VERSION
+from cab_core.attempt.recording import Recorder
+from cab_core.attempt.serving import CallServer, StepClock, ToolResponse
+from cab_core.attempt.spec import AttemptSpec
+from cab_core.attempt.world import RECORD_CAMERA, BuiltWorld, close_quietly, create_parts
+from cab_core.contracts.task import SceneInstance, Task
+from cab_core.contracts.verifier import WorldView
+from cab_core.tools import build_registry
+from cab_core.tools.context import ObservationStore, RobotContext
+
+__all__ = ["AttemptSpec", "Episode", "RECORD_CAMERA", "ToolResponse"]
+
+
+class Episode:
+    """The episode host for one attempt. Use as a context manager or call ``close()``."""
+
+    def __init__(self, spec: AttemptSpec, task: Task, sim, planner, embodiment, observers=None):
+        """``observers``: the record observers (:func:`cab_core.plugins.select_record_observers`);
+        None: those ``spec.record`` selects among the installed ones."""
+        self.spec = spec
+        self.task = task
+        self.sim = sim
+        self.planner = planner
+        self.emb = embodiment
+        self.out = Path(spec.output_dir)
+        if observers is None:
+            from cab_core.plugins import select_record_observers
+
+            observers = select_record_observers(spec.record)
+        self.recorder = Recorder(self.out, observers)
+        self.ended = False
+        self.termination: dict | None = None
+        self.result: dict | None = None
+        self.agent: dict | None = None  # who played, when the harness knows (cab_core.attempt.agent_record)
+        self._t_start = time.monotonic()
+        self._setup()
+
+    @classmethod
+    def open(cls, spec: AttemptSpec, observers=None) -> "Episode":
+        """The attempt ``spec`` describes, its task, simulator, planner and embodiment created
+        through the plugin registry (the simulator is closed again if building fails)."""
+        task, sim, planner, emb = create_parts(spec)
+        try:
+            return cls(spec, task, sim, planner, emb, observers)
+        except BaseException:
+            close_quietly(sim)
+            raise
+
+    # -- set-up -------------------------------------------------------------------------------
+    def _setup(self) -> None:
+        spec = self.spec
+        t0 = time.monotonic()
+        rec = spec.record or {}
+        self._video_every = int(rec.get("video_every_steps", 25)) if rec.get("video", True) else 0
+        video_size = tuple(rec.get("video_size", [320, 240])) if self._video_every else None
+        self.built = BuiltWorld(spec, self.task, self.sim, self.planner, self.emb, video_size)
+        self.instance: SceneInstance = self.built.instance
+        self.perturbation = self.built.perturbation
+        self.ledger = BudgetLedger.create(spec.budget_tool_calls, spec.budget_sim_seconds,
+                                          spec.budget_wall_seconds, self.sim.timestep,
+                                          spec.run_code_max_internal_calls)
+        self.clock = StepClock(self.sim, self.ledger)
+        self.obs = ObservationStore(on_add=self.recorder.save_observation)
+        self.ctx = RobotContext(self.sim, self.planner, self.emb, self.clock, self.obs)
+        self.world = WorldView(self.sim, self.emb, self.ctx.gripper_cmd, self.instance.info)
+        self.verifier = self.task.verifier(self.instance)
+        self.verdict = VerdictTracker(self.verifier, self.world, self.sim.timestep)
+        if self.verifier.scoring == "latch":
+            self.clock.callbacks.append(self.verdict.poll)
+        self._video_samples: list | None = None
+        self._video_render_seconds: float | None = None
+        if self._video_every:
+            self.recorder.open_video(1.0 / (self.sim.timestep * self._video_every), video_size)
+            first = self.sim.render_sample()
+            if first is not None:  # the video is rendered from state samples once the attempt is over
+                self._video_samples = [first]
+                self.clock.callbacks.append(self._video_sample)
+            else:  # a simulator that cannot render from samples: frames rendered in the loop
+                self.recorder.video.add(self.sim.render(RECORD_CAMERA))
+                self.clock.callbacks.append(self._video_frame)
+        self.registry = build_registry()
+        self.server = CallServer(spec, self.registry, self.ctx, self.ledger, self.clock, self.recorder, self.image,
+                                 on_end=self._end, on_physics=self._snapshot, ended=lambda: self.ended)
+        self.recorder.write_private("scene_info.json", self.built.scene_info())
+        self._snapshot("start")
+        self.setup_seconds = time.monotonic() - t0
+        self.recorder.event("attempt_start", task=spec.task, seed=spec.seed, attempt=spec.attempt,
+                            instruction=self.task.info.instruction, budget=self.ledger.remaining(),
+                            setup_seconds=round(self.setup_seconds, 3), config=spec.as_record())
+
+    def _video_frame(self, step: int) -> None:
+        if step % self._video_every == 0 and self.recorder.video is not None:
+            self.recorder.video.add(self.sim.render(RECORD_CAMERA))
+
+    def _video_sample(self, step: int) -> None:
+        """What the video frame of this step takes, kept for later (:meth:`Simulator.render_sample`:
+        a read that changes nothing, a few microseconds): rendering 320x240 costs more than the
+        25 physics steps between two frames, so it is kept out of the motion loop."""
+        if step % self._video_every == 0 and self._video_samples is not None:
+            self._video_samples.append(self.sim.render_sample())
+
+    def _render_video(self) -> None:
+        """The frames of the samples taken during the attempt, rendered and encoded now that its
+        physics is over: the same frames the loop would have rendered, bit for bit
+        (:meth:`Simulator.render_samples`), and the world is left as it was."""
+        samples, self._video_samples = self._video_samples, None
+        if not samples or self.recorder.video is None:
+            return
+        t0 = time.monotonic()
+        try:
+            self.sim.render_samples(RECORD_CAMERA, samples, self.recorder.video.add)
+        except Exception as e:  # never lose the attempt because its video failed
+            self.recorder.event("video_error", error=repr(e), traceback=traceback.format_exc())
+        self._video_render_seconds = time.monotonic() - t0
+
+    def _snapshot(self, label: str) -> None:
+        """A privileged snapshot of the world for the record (never for the agent)."""
+        self.recorder.snapshot(label, self.built.snapshot(self.ctx, self.clock.steps, self.server.calls,
+                                                          self.verdict.latched))
+
+    # -- the session API (cab_core.contracts.harness.AttemptSession) ---------------------------
+    @property
+    def instruction(self) -> str:
+        return self.task.info.instruction
+
+    @property
+    def claim(self) -> dict:
+        return self.server.claim
+
+    @property
+    def tool_errors(self) -> int:
+        return self.server.tool_errors
+
+    @property
+    def sandbox(self):
+        return self.server.sandbox
+
+    def tool_specs(self) -> list[dict]:
+        return [t.spec() for t in self.registry.values()]
+
+    def image(self, obs_id: str) -> np.ndarray:
+        return self.obs.get(obs_id).image
+
+    def call(self, name: str, args: dict | None = None) -> ToolResponse:
+        """One direct tool call by the agent (charged, except ``done``)."""
+        return self.server.call(name, args, lambda: self.termination)
+
+    # -- the end ------------------------------------------------------------------------------
+    def _end(self, reason: str, detail: str = "") -> None:
+        if not self.ended:
+            self.ended = True
+            self.termination = {"reason": reason, "detail": detail}
+
+    def end(self, reason: str, detail: str = "") -> None:
+        """Harness-side ending (agent stopped, provider failure...)."""
+        self._end(reason, detail)
+
+    def finish(self) -> dict:
+        """Score and write ``result.json`` (atomically). Idempotent."""
+        if self.result is not None:
+            return self.result
+        if not self.ended:
+            self._end("no_done", "the agent stopped without calling done")
+        try:
+            verdict = self.verdict.final()
+        except Exception as e:  # never lose the attempt because scoring failed
+            verdict = {"success": False, "error": repr(e)}
+        self._snapshot("end")
+        self._render_video()
+        checkpoints = attempt_checkpoints(self.built, self.out, verdict)
+        self.server.close()
+        s = self.spec
+        self.result = {
+            "record_version": RECORD_VERSION,
+            "task": s.task, "seed": s.seed, "attempt": s.attempt, "sim": s.sim, "embodiment": s.embodiment,
+            "planner": s.planner, "model": s.model, "harness": s.harness,
+            **({"agent": self.agent} if self.agent is not None else {}),
+            "instruction": self.task.info.instruction,
+            "scoring": self.verifier.scoring,
+            **({"perturbation": self.perturbation} if self.perturbation is not None else {}),
+            "verdict": verdict,
+            "termination": self.termination,
+            "claim": self.claim,
+            "budget": self.ledger.summary(),
+            "timing": {"wall_seconds": round(time.monotonic() - self._t_start, 3),
+                       "setup_seconds": round(self.setup_seconds, 3)},
+            "counts": {"charged_calls": self.server.calls, "observations": len(self.obs._obs),
+                       "tool_errors": self.tool_errors},
+            "sandbox": {"confinement": getattr(self.sandbox, "confinement", None),
+                        "layers": getattr(self.sandbox, "confinement_layers", None),
+                        "note": getattr(self.sandbox, "confinement_note", None)},
+            "versions": self.versions(),
+            "checkpoints": checkpoints,
+            "video": {"file": "video.mp4", "frames": self.recorder.video.frames, "every_steps": self._video_every,
+                      "rendered": "in the loop" if self._video_render_seconds is None else "after the attempt",
+                      **({} if self._video_render_seconds is None
+                         else {"render_seconds": round(self._video_render_seconds, 3)})}
+            if self.recorder.video else None,
+        }
+        self.recorder.event("attempt_end", termination=self.termination, claim=self.claim)
+        self.recorder.finish(self.result)
+        return self.result
+
+    def versions(self) -> dict:
+        return versions(self.sim, self.planner)
+
+    def close(self) -> None:
+        try:
+            if self.result is None:
+                self.finish()
+        finally:
+            close_quietly(self.sim)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def run_code(ctx, args):  # pragma: no cover - served by the CallServer itself
+    from cab_core.errors import CabError
+
+    raise CabError("run_code is executed by the episode host, not through the registry")
+
+
+def done(ctx, args):  # pragma: no cover - served by the CallServer itself
+    from cab_core.errors import CabError
+
+    raise CabError("done is executed by the episode host, not through the registry")

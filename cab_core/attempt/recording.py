@@ -1,0 +1,128 @@
+"""The attempt record: one directory per attempt, written as the attempt goes.
+
+    events.jsonl          append-only: every call, its arguments, the result the agent saw, timings
+    observations/         every image the agent was shown (obs_NNNN.png)
+    programs/             every run_code submission (prog_NNN.py)
+    video.mp4             head-view video in simulated time (separate recording camera)
+    privileged/           host-only: scene info and state snapshots (never shown to the agent)
+    result.json           written atomically at the end
+
+Paths inside records are relative to the attempt directory; no machine path is stored.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from cab_core.attempt.observers import Observers
+from cab_core.attempt.record import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
+
+class VideoWriter:
+    """H.264 MP4 through imageio-ffmpeg, frames pushed as they are rendered."""
+
+    def __init__(self, path: Path, fps: float, size_wh: tuple[int, int]):
+        import imageio_ffmpeg
+
+        self.path = path
+        self.frames = 0
+        self._gen = imageio_ffmpeg.write_frames(str(path), size_wh, fps=fps, codec="libx264",
+                                                quality=None, bitrate=None, macro_block_size=8,
+                                                output_params=["-crf", "23", "-preset", "veryfast"],
+                                                ffmpeg_log_level="error")
+        self._gen.send(None)
+
+    def add(self, frame: np.ndarray) -> None:
+        self._gen.send(np.ascontiguousarray(frame, dtype=np.uint8))
+        self.frames += 1
+
+    def close(self) -> None:
+        if self._gen is not None:
+            try:
+                self._gen.close()
+            finally:
+                self._gen = None
+
+
+class Recorder:
+    """Writes one attempt's record. ``observers`` (:class:`cab_core.attempt.observers.ObserverSpec`) are
+    created once the folder exists and follow the record as it is written (:mod:`cab_core.attempt.observers`)."""
+
+    def __init__(self, root: Path, observers: Iterable[Any] = ()):
+        self.root = Path(root)
+        if (self.root / "events.jsonl").exists() or (self.root / "result.json").exists():
+            from cab_core.errors import ConfigError
+
+            raise ConfigError(f"{self.root} already holds an attempt's records; choose another output directory")
+        self.root.mkdir(parents=True, exist_ok=True)
+        (self.root / "observations").mkdir(exist_ok=True)
+        (self.root / "programs").mkdir(exist_ok=True)
+        (self.root / "privileged").mkdir(exist_ok=True)
+        self._events = open(self.root / "events.jsonl", "a", buffering=1)
+        self._snap = open(self.root / "privileged" / "snapshots.jsonl", "a", buffering=1)
+        self._seq = 0
+        self._lock = threading.Lock()
+        self._programs = 0
+        self.video: VideoWriter | None = None
+        self.t0 = time.monotonic()
+        self.observers = Observers()
+        self._detached(self.observers.create(list(observers), str(self.root)))
+
+    # -- events -------------------------------------------------------------------------------
+    def event(self, kind: str, **data: Any) -> dict:
+        with self._lock:
+            self._seq += 1
+            ev = {"seq": self._seq, "kind": kind, "t_wall": round(time.monotonic() - self.t0, 4), **data}
+            line = dumps(ev)
+            self._events.write(line + "\n")
+            faults = self.observers.dispatch("on_event", line)  # in order, after the event is written
+        self._detached(faults)
+        return ev
+
+    def _detached(self, faults: list[tuple[str, str, str]]) -> None:
+        for name, stage, error in faults:
+            self.event("observer_detached", observer=name, stage=stage, error=error)
+
+    def snapshot(self, label: str, state: dict) -> None:
+        with self._lock:
+            self._snap.write(dumps({"label": label, **state}) + "\n")
+
+    def write_private(self, name: str, obj: Any) -> None:
+        write_json_atomic(self.root / "privileged" / name, obj)
+
+    # -- artefacts ----------------------------------------------------------------------------
+    def save_observation(self, obs) -> str:
+        from PIL import Image
+
+        rel = f"observations/{obs.obs_id}.png"
+        Image.fromarray(obs.image).save(self.root / rel, compress_level=1)
+        return rel
+
+    def save_program(self, code: str) -> str:
+        self._programs += 1
+        rel = f"programs/prog_{self._programs:03d}.py"
+        (self.root / rel).write_text(code, encoding="utf-8", errors="backslashreplace")  # lone surrogates kept visible
+        return rel
+
+    def open_video(self, fps: float, size_wh: tuple[int, int]) -> None:
+        self.video = VideoWriter(self.root / "video.mp4", fps, size_wh)
+
+    # -- end ----------------------------------------------------------------------------------
+    def finish(self, result: dict) -> None:
+        if self.video is not None:
+            self.video.close()
+        write_json_atomic(self.root / "result.json", result)
+        self.observers.dispatch("on_result", dumps(result))  # a fault is logged (the record is complete)
+        self.close()
+
+    def close(self) -> None:
+        for f in (self._events, self._snap):
+            try:
+                f.close()
+            except Exception:
+                pass
+        if self.video is not None:
+            self.video.close()

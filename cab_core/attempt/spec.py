@@ -1,0 +1,112 @@
+"""What one attempt is, fully resolved: :class:`AttemptSpec`, validated from a composed Hydra
+configuration by :func:`attempt_spec` (budgets and seed from the task's suite where the config
+leaves them null). ``result.json`` and the ``attempt_start`` event carry it (:meth:`AttemptSpec.as_record`),
+so a replay rebuilds the attempt from its records."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cab_core.attempt.budget import BUDGET_KEYS, check_budget_value
+from cab_core.attempt.perturb import Perturbation
+from cab_core.errors import ConfigError
+
+
+@dataclass
+class AttemptSpec:
+    """One attempt, fully resolved and validated from the Hydra config."""
+    task: str
+    seed: int
+    attempt: int
+    sim: str
+    embodiment: str
+    planner: str
+    harness: str
+    model: str
+    output_dir: Path
+    budget_tool_calls: int
+    budget_sim_seconds: float
+    budget_wall_seconds: float
+    run_code_max_internal_calls: int = 500
+    sandbox: dict = field(default_factory=dict)
+    record: dict = field(default_factory=lambda: {"video": True, "video_every_steps": 25, "video_size": [320, 240]})
+    sim_cfg: dict = field(default_factory=dict)
+    planner_cfg: dict = field(default_factory=dict)
+    embodiment_cfg: dict = field(default_factory=dict)
+    model_cfg: dict = field(default_factory=dict)
+    harness_cfg: dict = field(default_factory=dict)
+    perturb: dict | None = None  # cab_core.attempt.perturb.Perturbation fields; None: the instance as sampled
+
+    def as_record(self) -> dict:
+        """Everything but the output directory: what a replay needs to rebuild the attempt."""
+        return {k: v for k, v in asdict(self).items() if k != "output_dir"}
+
+
+def _plain(cfg: Any) -> dict:
+    try:
+        from omegaconf import OmegaConf
+
+        if OmegaConf.is_config(cfg):
+            return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    except ImportError:  # pragma: no cover
+        pass
+    return dict(cfg)
+
+
+_GROUP_KINDS = {"sim": "simulators", "embodiment": "embodiments", "planner": "planners", "harness": "harnesses"}
+
+
+def _installed(group: str) -> str:
+    """What the installed plugins offer for an unset config group, in words."""
+    from cab_core.plugins import registry, task_names
+
+    names = task_names() if group == "task" else sorted(registry(_GROUP_KINDS[group])) if group in _GROUP_KINDS else []
+    return f"installed: {', '.join(names)}" if names else "none installed" if group != "model" else "see cab --help"
+
+
+def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
+    """Validate a composed config into one AttemptSpec (budgets and seed from the task's suite)."""
+    from cab_core.plugins import task_info
+
+    c = _plain(cfg)
+    for key in ("task", "sim", "embodiment", "planner", "harness", "model"):
+        if c.get(key) is None:
+            raise ConfigError(f"no {key} selected: add {key}=<option> ({_installed(key)})")
+        if not isinstance(c[key], dict) or not c[key].get("name"):
+            raise ConfigError(f"config group {key!r} has no name")
+    info = task_info(c["task"]["name"])
+    b = c.get("budget") or {}
+    seed = c.get("seed")
+    seed = info.seed if seed is None else seed
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    attempt = c.get("attempt", 1)
+    if not isinstance(attempt, int) or attempt < 1:
+        raise ConfigError(f"attempt must be a positive integer, got {attempt!r}")
+    harness = c["harness"]["name"]
+    if harness == "auto":  # the harness the model config asks for
+        harness = c["model"].get("harness")
+        if not harness:
+            raise ConfigError(f"model {c['model']['name']!r} names no harness (model.harness); "
+                              "give one with harness=<name> (cab-plugins lists the installed harnesses)")
+    unknown = sorted(set(b) - set(BUDGET_KEYS))
+    if unknown:
+        raise ConfigError(f"unknown budget key(s) {', '.join(unknown)}; valid: {', '.join(BUDGET_KEYS)}")
+    for k in BUDGET_KEYS:  # null: the catalog's (0 is no budget: refused, never the catalog's)
+        check_budget_value(k, b.get(k))
+    tool_calls = info.budget_tool_calls if b.get("tool_calls") is None else b["tool_calls"]
+    sim_s = info.budget_sim_s if b.get("sim_seconds") is None else b["sim_seconds"]
+    wall_s = info.budget_wall_s if b.get("wall_seconds") is None else b["wall_seconds"]
+    max_internal = 500 if b.get("run_code_max_internal_calls") is None else b["run_code_max_internal_calls"]
+    perturbation = Perturbation.from_cfg(c.get("perturb"))
+    return AttemptSpec(
+        task=info.name, seed=int(seed), attempt=int(attempt), sim=c["sim"]["name"], embodiment=c["embodiment"]["name"],
+        planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
+        budget_tool_calls=int(tool_calls), budget_sim_seconds=float(sim_s), budget_wall_seconds=float(wall_s),
+        run_code_max_internal_calls=int(max_internal),
+        sandbox=dict(c.get("sandbox") or {}), record=dict(c.get("record") or {}),
+        sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
+        harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},
+        perturb=None if perturbation is None else perturbation.as_record(),
+    )

@@ -1,0 +1,93 @@
+"""The task contract. One task per module in a suite; tasks read embodiment declarations and never
+test a robot's name. Instructions, seeds, scoring and budgets are the suite's (``Task.info``); the
+core reads them only through the task-suite hook (cab_core.plugins.task_info)."""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.scene import SceneSpec
+    from cab_core.contracts.verifier import Verifier, WorldView
+    from cab_core.contracts.embodiment import EmbodimentSpec
+
+
+@dataclass(frozen=True)
+class TaskInfo:
+    name: str
+    instruction: str
+    seed: int
+    scoring: str  # "final" | "latch"
+    budget_tool_calls: int
+    budget_sim_s: float
+    category: str = ""
+    reference_solution_api_calls: int | None = None
+    reference_solution_sim_s: float | None = None
+    subgoals: tuple[str, ...] = ()
+    spatial_checkpoints: tuple[dict, ...] = ()
+
+    @property
+    def budget_wall_s(self) -> float:
+        return 60.0 * self.budget_tool_calls
+
+
+@dataclass
+class SceneInstance:
+    """A built scene plus the privileged facts the verifier and oracle need (functional points,
+    which arm is on which side, the drawn layout...). ``info`` is JSON-serialisable."""
+    scene: SceneSpec
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class ToolCaller(Protocol):
+    """How an oracle acts: exactly the public tools, by name, with JSON arguments."""
+
+    def __call__(self, tool: str, **kwargs: Any) -> dict: ...
+
+
+class Task(ABC):
+    """Life cycle: ``build(seed)`` once per attempt; the host builds the world, settles it, then
+    the agent acts; the verifier scores."""
+
+    info: TaskInfo
+    #: named sets of scene seeds besides the catalog's, e.g. ``{"heldout": (100, ..., 119)}``: seeds
+    #: whose instances the task's author checked (oracle success with margin on every simulator)
+    seed_sets: dict[str, tuple[int, ...]] = {}
+
+    def seeds(self, seed_set: str) -> tuple[int, ...]:
+        """The seeds of ``seed_set``; ``"catalog"`` is the catalog's fixed seed."""
+        if seed_set == "catalog":
+            return (self.info.seed,)
+        if seed_set not in self.seed_sets:
+            from cab_core.errors import ConfigError
+
+            known = ", ".join(["catalog", *self.seed_sets])
+            raise ConfigError(f"task {self.info.name} has no seed set {seed_set!r}; its sets: {known}")
+        return tuple(self.seed_sets[seed_set])
+
+    @abstractmethod
+    def build(self, seed: int, embodiment: "EmbodimentSpec") -> SceneInstance:
+        """The scene for ``seed``. Deterministic: the same seed gives the same scene."""
+
+    @abstractmethod
+    def verifier(self, instance: SceneInstance) -> Verifier: ...
+
+    @abstractmethod
+    def oracle(self, call: ToolCaller, world: WorldView) -> None:
+        """The reference solution: reads privileged state from ``world`` only to compute targets,
+        acts only through ``call`` (public tools), and ends with ``call("done", ...)``."""
+
+    def settle_steps(self) -> int:
+        """Physics steps run at reset before the agent starts (not charged)."""
+        return 100
+
+
+def rng_for(seed: int, task: str) -> np.random.Generator:
+    """The one RNG a task draws its scene from: seeded by (task, seed), independent of globals."""
+    import hashlib
+
+    h = int.from_bytes(hashlib.sha256(f"{task}:{seed}".encode()).digest()[:8], "little")
+    return np.random.default_rng(h)

@@ -1,0 +1,245 @@
+"""Sweeps (``cab -m ...``): the manifest that pins a sweep's configuration, resume, and progress.
+
+A sweep directory holds ``sweep.json``: the resolved configuration (without Hydra's own settings
+and the ``sweep.*`` infrastructure settings, which may legitimately differ between sessions: the
+launcher, its worker count, output directories, retries), the list of jobs the sweep expands to,
+and a fingerprint of both, the keys the attempt folders name besides task, model, simulator, seed
+and attempt (``path_keys``, read back by each job: ``cab_core.sweep.layout``) and each job's folder.
+A sweep two of whose jobs would write to the same folder is refused before anything runs. Running a
+sweep into a directory that already has a manifest resumes it, provided the fingerprint is the same;
+otherwise it is refused, naming what changed. A directory written with the first layout
+(``cab-sweep/1``: no simulator folder) is refused too: its attempts would all run again elsewhere.
+
+Each job (one attempt) skips an attempt directory whose ``result.json`` validates, moves a partial
+one aside, and runs the attempt under ``AttemptSupervisor`` (child process, watchdog, retries).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cab_core.errors import ConfigError
+from cab_core.attempt.record import write_json_atomic
+from cab_core.sweep.layout import attempt_folders, check_distinct, varying_keys
+from cab_core.sweep.records import SET_ASIDE, check_attempt, is_infrastructure_failure, set_aside
+from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig
+
+MANIFEST = "sweep.json"
+MANIFEST_VERSION = "cab-sweep/2"  # 2: attempt folders <task>/<model>/<sim>/[<swept>/]seed-<S>/attempt-<A>
+OLD_LAYOUTS = {"cab-sweep/1": "<task>/<model>/seed-<S>/attempt-<A>"}
+VOLATILE = ("hydra", "sweep")  # top-level config keys that may differ between sessions of one sweep
+
+
+class SweepConfigChanged(ConfigError):
+    """A sweep directory was started with another configuration; mixing results is refused."""
+
+
+def _plain(cfg: Any) -> Any:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(cfg, resolve=True) if OmegaConf.is_config(cfg) else cfg
+
+
+def _is_volatile(override: str) -> bool:
+    key = override.split("=", 1)[0].lstrip("+~")
+    return key.split(".", 1)[0] in VOLATILE or key.startswith("hydra/")
+
+
+def expand_jobs(cfg: Any) -> list[list[str]]:
+    """The jobs a multirun config expands to (as Hydra's basic sweeper does), each a sorted list of
+    overrides without the volatile ones. Globs over config groups are resolved by Hydra's loader."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    params = [f"{k}={v}" for k, v in (_plain(cfg.hydra.sweeper).get("params") or {}).items()]
+    args = params + list(_plain(cfg.hydra.overrides.task))
+    parser = OverridesParser.create(config_loader=GlobalHydra.instance().config_loader())
+    parsed = parser.parse_overrides(args)
+    swept = {o.get_key_element() for o in parsed if o.is_sweep_override()}  # the rest is in the config
+    batches = BasicSweeper.split_arguments(parsed, None)
+    return sorted(sorted(o for o in job if o.split("=", 1)[0] in swept and not _is_volatile(o))
+                  for batch in batches for job in batch)
+
+
+def _stable_config(cfg: Any) -> dict:
+    """The resolved config without its volatile parts (resolved key by key: Hydra's own node only
+    resolves inside a job)."""
+    out = {k: _plain(cfg[k]) for k in cfg if k not in VOLATILE}
+    if isinstance(out.get("perturb"), dict) and out["perturb"].get("seed") is None:
+        del out["perturb"]  # off: a sweep from before perturbations existed keeps its fingerprint
+    return out
+
+
+def fingerprint(config: dict, jobs: list[list[str]]) -> str:
+    blob = json.dumps({"config": config, "jobs": jobs}, sort_keys=True, separators=(",", ":"))
+    return "sha256:" + hashlib.sha256(blob.encode()).hexdigest()
+
+
+def config_diff(old: Any, new: Any, prefix: str = "") -> list[str]:
+    """Dotted keys whose values differ between two plain configs, with both values."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new), key=str):
+            p = f"{prefix}.{k}" if prefix else str(k)
+            if k not in old:
+                out.append(f"{p} added ({new[k]!r})")
+            elif k not in new:
+                out.append(f"{p} removed (was {old[k]!r})")
+            else:
+                out += config_diff(old[k], new[k], p)
+        return out
+    return [] if old == new else [f"{prefix or '(root)'}: {old!r} -> {new!r}"]
+
+
+def _jobs_diff(old: list[list[str]], new: list[list[str]]) -> list[str]:
+    a, b = {" ".join(j) for j in old}, {" ".join(j) for j in new}
+    out = []
+    if b - a:
+        out.append(f"{len(b - a)} job(s) added, e.g. [{sorted(b - a)[0]}]")
+    if a - b:
+        out.append(f"{len(a - b)} job(s) removed, e.g. [{sorted(a - b)[0]}]")
+    return out
+
+
+@dataclass
+class SweepManifest:
+    """The pinned configuration of one sweep directory, and where each of its jobs writes."""
+    config: dict
+    jobs: list[list[str]]
+    path_keys: list[str]
+    folders: list[str]
+
+    @classmethod
+    def from_hydra(cls, cfg: Any) -> "SweepManifest":
+        """The manifest of the sweep Hydra is about to launch. Raises SweepJobsCollide when two of
+        its jobs would write to the same attempt folder."""
+        jobs = expand_jobs(cfg)
+        keys = varying_keys(jobs)
+        folders = attempt_folders(cfg, jobs, keys)
+        check_distinct(folders, jobs)
+        return cls(_stable_config(cfg), jobs, keys, folders)
+
+    @property
+    def fingerprint(self) -> str:
+        return fingerprint(self.config, self.jobs)
+
+    def open(self, sweep_dir: Path, launcher: str) -> dict:
+        """Start a session in ``sweep_dir``: write the manifest, or check it and append the session.
+        Raises SweepConfigChanged, naming what changed, when the directory holds another sweep."""
+        path = Path(sweep_dir) / MANIFEST
+        now = time.time()
+        if path.is_file():
+            old = json.loads(path.read_text())
+            if old.get("manifest_version") in OLD_LAYOUTS:
+                raise SweepConfigChanged(
+                    f"{sweep_dir} was written with the attempt layout {OLD_LAYOUTS[old['manifest_version']]} "
+                    f"({old['manifest_version']}); this cab writes <task>/<model>/<sim>/[<swept>/]seed-<S>/"
+                    "attempt-<A> and would run every attempt again. Finish it with the cab version that "
+                    "started it, or start a new hydra.sweep.dir (cab-report reads both layouts).")
+            if old.get("fingerprint") != self.fingerprint:
+                changes = config_diff(old.get("config"), self.config) + _jobs_diff(old.get("jobs", []), self.jobs)
+                raise SweepConfigChanged(
+                    f"{sweep_dir} holds a sweep with another configuration ({old.get('fingerprint')}, now "
+                    f"{self.fingerprint}); changed: {'; '.join(changes) or '(config resolves differently)'}. "
+                    "Resume it with the same overrides, or choose a new hydra.sweep.dir.")
+            manifest = old
+        else:
+            Path(sweep_dir).mkdir(parents=True, exist_ok=True)
+            manifest = {"manifest_version": MANIFEST_VERSION, "fingerprint": self.fingerprint, "created": now,
+                        "n_jobs": len(self.jobs), "jobs": self.jobs, "path_keys": self.path_keys,
+                        "folders": self.folders, "config": self.config, "sessions": []}
+        manifest["sessions"].append({"started": now, "launcher": launcher,
+                                     "complete_at_start": len(completed_results(Path(sweep_dir)))})
+        write_json_atomic(path, manifest)
+        return manifest
+
+
+def completed_results(sweep_dir: Path) -> list[Path]:
+    """``result.json`` files of the sweep that count (set-aside records and infrastructure failures
+    excluded). Cheap: reads each result once, no record validation."""
+    out = []
+    for p in Path(sweep_dir).rglob("result.json"):
+        if SET_ASIDE in p.relative_to(sweep_dir).parts:
+            continue
+        try:
+            res = json.loads(p.read_text())
+        except (OSError, json.JSONDecodeError):
+            continue
+        if isinstance(res, dict) and not is_infrastructure_failure(res):
+            out.append(p)
+    return out
+
+
+def progress_line(sweep_dir: Path, job: str, what: str) -> str:
+    """One line for a finished job: counts over the whole sweep, the rate of this session, the ETA."""
+    try:
+        m = json.loads((Path(sweep_dir) / MANIFEST).read_text())
+    except (OSError, json.JSONDecodeError):
+        return f"cab sweep: {job}: {what}"
+    done = completed_results(Path(sweep_dir))
+    session = m["sessions"][-1]
+    fresh = sum(1 for p in done if p.stat().st_mtime >= session["started"])
+    elapsed = max(time.time() - session["started"], 1e-6)
+    left = max(m["n_jobs"] - len(done), 0)
+    eta = f"ETA {_hms(left * elapsed / fresh)}" if fresh and left else ("sweep complete" if not left else "ETA ?")
+    rate = f"{3600 * fresh / elapsed:.0f} attempts/h, " if fresh else ""
+    return f"cab sweep [{len(done)}/{m['n_jobs']}] {job}: {what} | {rate}{eta}"
+
+
+def summary_line(sweep_dir: Path) -> str:
+    """The state of a whole sweep after a session: complete, infrastructure failures, missing."""
+    m = json.loads((Path(sweep_dir) / MANIFEST).read_text())
+    complete = len(completed_results(Path(sweep_dir)))
+    infra = 0
+    for p in Path(sweep_dir).rglob("result.json"):
+        if SET_ASIDE not in p.relative_to(sweep_dir).parts:
+            try:
+                infra += is_infrastructure_failure(json.loads(p.read_text()))
+            except (OSError, json.JSONDecodeError):
+                pass
+    missing = max(m["n_jobs"] - complete - infra, 0)
+    return (f"cab sweep: {complete}/{m['n_jobs']} attempts complete, {infra} given up on for infrastructure "
+            f"failures, {missing} missing; {sweep_dir} (run the same command again to resume)"
+            if complete < m["n_jobs"] else f"cab sweep: {complete}/{m['n_jobs']} attempts complete; {sweep_dir}")
+
+
+def _hms(s: float) -> str:
+    s = int(round(s))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = None) -> tuple[dict | None, str]:
+    """One job of a sweep: skip a complete attempt, set a partial one aside, run it supervised.
+    Returns the result (None when skipped) and the progress line."""
+    from cab_core.attempt.spec import attempt_spec
+
+    spec = attempt_spec(cfg, attempt_dir)  # a bad config fails here, before any process starts
+    identity = {"task": spec.task, "seed": spec.seed, "attempt": spec.attempt, "sim": spec.sim, "model": spec.model}
+    here, root = Path(attempt_dir).resolve(), Path(sweep_dir).resolve()
+    job = str(here.relative_to(root)) if here.is_relative_to(root) else str(attempt_dir)
+    check = check_attempt(attempt_dir, identity, job_log)
+    if check.state == "complete":
+        return None, progress_line(sweep_dir, job, "complete already, skipped")
+    if check.state == "partial":  # killed mid-attempt, or every try of an earlier session failed
+        infra = check.result is not None and is_infrastructure_failure(check.result)
+        set_aside(attempt_dir, "infrastructure" if infra else "interrupted", job_log)
+    plain = _plain(cfg)
+    result = AttemptSupervisor(plain, attempt_dir, identity, SupervisorConfig.from_cfg(plain.get("sweep")),
+                               job_log).run()
+    return result, progress_line(sweep_dir, job, describe(result))
+
+
+def describe(result: dict) -> str:
+    """A few words on one attempt's outcome for the progress line."""
+    if is_infrastructure_failure(result):
+        return f"INFRASTRUCTURE FAILURE ({result['termination']['detail']})"
+    b, t = result.get("budget") or {}, result.get("timing") or {}
+    retries = len((result.get("infrastructure") or {}).get("failures") or [])
+    return (f"success={result['verdict'].get('success')} ({result['termination']['reason']}, "
+            f"{b.get('tool_calls_used')} calls, {t.get('wall_seconds', 0):.1f} s"
+            + (f", after {retries} infrastructure failure(s)" if retries else "") + ")")

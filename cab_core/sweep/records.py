@@ -1,0 +1,183 @@
+"""The state of one attempt directory inside a sweep, as resume and the supervisor see it.
+
+An attempt directory is *complete* when its ``result.json`` validates: the record schema, the
+identity of the attempt it should hold, and the completeness of the records it points to (the event
+log ends with ``attempt_end``, the observations and the video it counts exist), and it is not an
+infrastructure failure. Anything else that holds records is *partial*: a worker killed mid-attempt,
+or a try that failed for reasons that are not the model's. Partial records are never deleted: they
+are moved aside into ``set_aside/NN-<why>/`` inside the same attempt directory.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cab_core.attempt.faults import INFRASTRUCTURE_TERMINATIONS
+from cab_core.attempt.record import RECORD_VERSION, write_json_atomic
+
+SET_ASIDE = "set_aside"
+INFRA_LOG = "infrastructure.jsonl"
+INFRA_REASON = "infrastructure_failure"
+# Terminations that are failures of the infrastructure, not of the model (the fault rule).
+INFRA_TERMINATIONS = INFRASTRUCTURE_TERMINATIONS
+_RESULT_KEYS = ("task", "seed", "attempt", "sim", "model", "verdict", "termination", "claim", "budget", "timing",
+                "versions")
+_IDENTITY = ("task", "seed", "attempt", "sim", "model")
+
+
+@dataclass
+class RecordCheck:
+    """What an attempt directory holds: ``absent``, ``complete`` or ``partial`` (with the reasons)."""
+    state: str
+    problems: list[str] = field(default_factory=list)
+    result: dict | None = None
+
+
+def is_infrastructure_failure(result: dict) -> bool:
+    """True for a result that must not count for or against the model (reports exclude it)."""
+    infra = result.get("infrastructure") or {}
+    return bool(infra.get("failed")) or (result.get("termination") or {}).get("reason") == INFRA_REASON
+
+
+def _kept_names(job_log: str | None) -> set[str]:
+    """Entries of an attempt directory that are not the attempt's records (Hydra's and ours)."""
+    return {".hydra", SET_ASIDE, INFRA_LOG} | ({job_log} if job_log else set())
+
+
+def record_entries(attempt_dir: Path, job_log: str | None = None) -> list[Path]:
+    """The attempt's own records in ``attempt_dir`` (everything Hydra and the sweep did not put there)."""
+    if not attempt_dir.is_dir():
+        return []
+    keep = _kept_names(job_log)
+    return sorted(p for p in attempt_dir.iterdir() if p.name not in keep)
+
+
+def _last_event_kind(events: Path) -> str | None:
+    """Kind of the last complete line of an append-only event log (None when there is none)."""
+    with open(events, "rb") as f:
+        f.seek(0, os.SEEK_END)
+        size = f.tell()
+        f.seek(max(0, size - 65536))
+        lines = f.read().splitlines()
+    for line in reversed(lines):
+        try:
+            return json.loads(line).get("kind")
+        except (json.JSONDecodeError, AttributeError):
+            return None
+    return None
+
+
+def _named_by_client(res: dict) -> bool:
+    """An attempt whose configuration left the model unnamed and whose harness named it after the
+    agent that played it (``agent.named_by == "client"``, e.g. ``mcp:<client>``): its ``model``
+    differs from the planned one by design, so it is not another attempt's record."""
+    agent = res.get("agent")
+    return isinstance(agent, dict) and agent.get("named_by") == "client"
+
+
+def _problems(d: Path, res: object, expect: dict) -> list[str]:
+    if not isinstance(res, dict):
+        return ["result.json is not an object"]
+    out = []
+    if res.get("record_version") != RECORD_VERSION:
+        out.append(f"record_version {res.get('record_version')!r} is not {RECORD_VERSION!r}")
+    out += [f"result.json lacks {k!r}" for k in _RESULT_KEYS if k not in res]
+    out += [f"{k} is {res.get(k)!r}, expected {v!r}" for k, v in expect.items()
+            if k in res and res[k] != v and not (k == "model" and _named_by_client(res))]
+    if out:
+        return out
+    if is_infrastructure_failure(res):
+        return [f"infrastructure failure: {(res.get('termination') or {}).get('detail')}"]
+    if not isinstance((res.get("verdict") or {}).get("success"), bool):
+        out.append("verdict.success is not a boolean")
+    if not isinstance((res.get("termination") or {}).get("reason"), str):
+        out.append("termination.reason is missing")
+    events = d / "events.jsonl"
+    if not events.is_file():
+        out.append("events.jsonl is missing")
+    elif _last_event_kind(events) != "attempt_end":
+        out.append("events.jsonl does not end with attempt_end")
+    n_obs = int((res.get("counts") or {}).get("observations") or 0)
+    have = len(list((d / "observations").glob("*.png"))) if (d / "observations").is_dir() else 0
+    if have < n_obs:
+        out.append(f"{n_obs} observations recorded, {have} image files present")
+    video = res.get("video")
+    if video and not ((d / video["file"]).is_file() and (d / video["file"]).stat().st_size > 0):
+        out.append(f"video {video['file']} is missing or empty")
+    return out
+
+
+def check_attempt(attempt_dir: Path, expect: dict | None = None, job_log: str | None = None) -> RecordCheck:
+    """Classify ``attempt_dir``; ``expect`` holds identity fields (task, seed, attempt, sim, model)
+    the result must carry."""
+    d = Path(attempt_dir)
+    if not record_entries(d, job_log):
+        return RecordCheck("absent")
+    rp = d / "result.json"
+    if not rp.is_file():
+        return RecordCheck("partial", ["no result.json (interrupted)"])
+    try:
+        res = json.loads(rp.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        return RecordCheck("partial", [f"result.json unreadable: {e}"])
+    probs = _problems(d, res, {k: v for k, v in (expect or {}).items() if k in _IDENTITY})
+    return RecordCheck("partial" if probs else "complete", probs, res if isinstance(res, dict) else None)
+
+
+def set_aside(attempt_dir: Path, why: str, job_log: str | None = None) -> str | None:
+    """Move the attempt's records into ``set_aside/NN-<why>/`` (kept, never deleted); returns the
+    folder's name relative to ``attempt_dir``, or None when there was nothing to move."""
+    d = Path(attempt_dir)
+    entries = record_entries(d, job_log)
+    if not entries:
+        return None
+    base = d / SET_ASIDE
+    base.mkdir(exist_ok=True)
+    n = 1 + sum(1 for p in base.iterdir() if p.is_dir())
+    dest = base / f"{n:02d}-{why}"
+    dest.mkdir()
+    for p in entries:
+        os.replace(p, dest / p.name)
+    return f"{SET_ASIDE}/{dest.name}"
+
+
+def log_infrastructure_failure(attempt_dir: Path, entry: dict) -> None:
+    """Append one failure to the attempt's ``infrastructure.jsonl`` (append-only, survives resumes)."""
+    with open(Path(attempt_dir) / INFRA_LOG, "a") as f:
+        f.write(json.dumps(entry) + "\n")
+
+
+def infrastructure_failures(attempt_dir: Path) -> list[dict]:
+    """Every infrastructure failure recorded for this attempt, oldest first."""
+    p = Path(attempt_dir) / INFRA_LOG
+    if not p.is_file():
+        return []
+    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+
+
+def write_infrastructure_result(attempt_dir: Path, identity: dict, failures: list[dict]) -> dict:
+    """The result of an attempt whose every try failed for reasons that are not the model's: no
+    verdict, marked so that reports exclude it and a resumed sweep runs it again."""
+    last = failures[-1] if failures else {}
+    result = {
+        "record_version": RECORD_VERSION, **identity,
+        "verdict": {"success": None, "excluded": INFRA_REASON},
+        "termination": {"reason": INFRA_REASON,
+                        "detail": f"{len(failures)} tries failed; last: {last.get('kind')}: {last.get('detail')}"},
+        "claim": {"success_claim": None, "report": None},
+        "budget": {}, "timing": {}, "versions": {},
+        "infrastructure": {"failed": True, "failures": failures},
+    }
+    write_json_atomic(Path(attempt_dir) / "result.json", result)
+    return result
+
+
+def annotate_result(attempt_dir: Path, failures: list[dict]) -> dict:
+    """Add the infrastructure failures that preceded a good try to its ``result.json`` (atomically)."""
+    rp = Path(attempt_dir) / "result.json"
+    res = json.loads(rp.read_text())
+    res["infrastructure"] = {"failed": False, "failures": failures}
+    write_json_atomic(rp, res)
+    return res

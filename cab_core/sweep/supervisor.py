@@ -1,0 +1,434 @@
+"""Runs one attempt of a sweep in a child process, with a watchdog and bounded retries.
+
+Infrastructure failures are not the model's failures: a simulator that crashes (the child dies on a
+signal or an unexpected exception), a simulator or provider that hangs (no record grows for
+``hang_timeout_s``), a provider outage that outlived the harness's own retries, or a host fault the
+episode recorded (termination ``provider_failure`` or ``error``). Each is recorded in the attempt's
+``infrastructure.jsonl``, the try's records are moved aside (kept), and the attempt runs again, at
+most ``max_retries`` more times. If every try fails, ``result.json`` says so and carries no verdict;
+reports exclude it and a resumed sweep runs it again. Configuration problems are not retried.
+
+Warm workers (``sweep.warm_workers``, on by default): the attempt runs in a worker process that has
+run earlier attempts of this launcher process and keeps its renderer and imports (a renderer's set-up
+drops from seconds to a fraction of one); each attempt builds its world fresh. A worker is replaced
+after any try that is not a clean attempt (crash, hang, host fault), after
+``sweep.worker_max_attempts`` attempts, and when its resident memory exceeds
+``sweep.worker_max_rss_mb`` (after an attempt; during one the worker is killed and the attempt
+retried, kind ``memory``). Each launcher process (a joblib or Ray worker) holds at most one worker
+per thread and environment; under SLURM each job is its own process, so each attempt gets a fresh one there.
+With ``warm_workers: false`` every try is a fresh process, as before.
+"""
+from __future__ import annotations
+
+import atexit
+import concurrent.futures as cf
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from cab_core.errors import ConfigError
+from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV
+from cab_core.sweep.records import (INFRA_TERMINATIONS, annotate_result, check_attempt, infrastructure_failures,
+                                    is_infrastructure_failure, log_infrastructure_failure, set_aside,
+                                    write_infrastructure_result)
+
+CHILD_LOG = "attempt.log"
+# Thread pools an attempt process may start: lavapipe's renderer (the largest), BLAS and OpenMP.
+THREAD_ENV = ("LP_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+class ChildConfigError(ConfigError):
+    """The attempt's process stopped on a configuration problem; retrying cannot help."""
+
+
+@dataclass
+class SupervisorConfig:
+    """``sweep.*`` settings: how many retries, how long without progress is a hang, the pause
+    between tries, how many threads each attempt's renderer and numeric libraries may use (None: as
+    many as they like), and how often the watchdog looks."""
+    max_retries: int = 2
+    hang_timeout_s: float = 900.0
+    retry_backoff_s: float = 10.0
+    threads: int | None = 1
+    poll_s: float = 0.5
+    warm_workers: bool = True
+    worker_max_attempts: int = 50
+    worker_max_rss_mb: float = 6144.0
+
+    @classmethod
+    def from_cfg(cls, cfg: dict | None) -> "SupervisorConfig":
+        c = dict(cfg or {})
+        out = cls(max_retries=int(c.get("max_infra_retries", cls.max_retries)),
+                  hang_timeout_s=float(c.get("hang_timeout_s", cls.hang_timeout_s)),
+                  retry_backoff_s=float(c.get("retry_backoff_s", cls.retry_backoff_s)),
+                  threads=c.get("threads_per_attempt", cls.threads),
+                  warm_workers=c.get("warm_workers", cls.warm_workers),
+                  worker_max_attempts=c.get("worker_max_attempts", cls.worker_max_attempts),
+                  worker_max_rss_mb=c.get("worker_max_rss_mb", cls.worker_max_rss_mb))
+        if out.max_retries < 0 or out.hang_timeout_s <= 0 or out.retry_backoff_s < 0:
+            raise ConfigError("sweep.max_infra_retries and sweep.retry_backoff_s must be >= 0, "
+                              "sweep.hang_timeout_s > 0")
+        if not isinstance(out.warm_workers, bool):
+            raise ConfigError(f"sweep.warm_workers must be true or false, got {out.warm_workers!r}")
+        if isinstance(out.worker_max_attempts, bool) or not isinstance(out.worker_max_attempts, int) \
+                or out.worker_max_attempts < 1:
+            raise ConfigError(f"sweep.worker_max_attempts must be a positive integer, got {out.worker_max_attempts!r}")
+        if isinstance(out.worker_max_rss_mb, bool) or not isinstance(out.worker_max_rss_mb, (int, float)) \
+                or not out.worker_max_rss_mb > 0:
+            raise ConfigError(f"sweep.worker_max_rss_mb must be a positive number, got {out.worker_max_rss_mb!r}")
+        if out.threads is not None and (not isinstance(out.threads, int) or out.threads < 1):
+            raise ConfigError(f"sweep.threads_per_attempt must be a positive integer or null, got {out.threads!r}")
+        return out
+
+
+def _progress_mark(d: Path) -> tuple:
+    """What grows while an attempt makes progress: its log, events and state snapshots."""
+    mark = []
+    for rel in (CHILD_LOG, "events.jsonl", "privileged/snapshots.jsonl"):
+        try:
+            st = os.stat(d / rel)
+            mark.append((st.st_size, st.st_mtime_ns))
+        except FileNotFoundError:
+            mark.append(None)
+    return tuple(mark)
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    """SIGKILL the child and anything in its process group (it leads its own)."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait()
+
+
+def _rss_mb(pid: int) -> float:
+    """Resident memory of a process now, in MiB (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+class WarmWorker:
+    """A ``cab_core.sweep.child --worker`` process: attempts one after another (see there)."""
+
+    def __init__(self, env: dict, first_log: Path):
+        with open(first_log, "ab") as log:  # what the worker says before its first job lands there
+            self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.child", "--worker"],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
+                                         start_new_session=True)
+        self.attempts = 0
+        self.rss_mb = 0.0
+        self._buf = b""
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def submit(self, job: dict) -> bool:
+        """Hand the worker a job; False when it is gone (its status then says why)."""
+        try:
+            self.proc.stdin.write((json.dumps(job) + "\n").encode())
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            return False
+        self.attempts += 1
+        return True
+
+    def reply(self, timeout: float) -> dict | None:
+        """The worker's answer to its job, None while it works; ``{"status": <exit status>}`` once it
+        has died without one."""
+        if b"\n" not in self._buf:
+            ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+            if ready:
+                chunk = os.read(self.proc.stdout.fileno(), 65536)
+                if not chunk:  # end of its output: the process is gone
+                    return {"status": self.proc.wait()}
+                self._buf += chunk
+        if b"\n" in self._buf:
+            line, self._buf = self._buf.split(b"\n", 1)
+            out = json.loads(line)
+            self.rss_mb = float(out.get("rss_mb") or 0.0)
+            return out
+        return None
+
+    def close(self) -> None:
+        """Let the worker leave (its input ends), or kill it if it does not within 5 s."""
+        if self.alive():
+            try:
+                self.proc.stdin.close()
+                self.proc.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                _kill(self.proc)
+        for f in (self.proc.stdin, self.proc.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+
+
+_WORKERS: dict[tuple, WarmWorker] = {}  # this process's warm workers, by environment and thread
+
+
+@atexit.register
+def close_workers() -> None:
+    """Close every warm worker of this process (at exit; tests call it too)."""
+    while _WORKERS:
+        _WORKERS.popitem()[1].close()
+
+
+def _log_tail(d: Path, n: int = 1200) -> str:
+    try:
+        return (d / CHILD_LOG).read_text(errors="replace")[-n:]
+    except FileNotFoundError:
+        return ""
+
+
+class _Watchdog:
+    """Watches one try: a hang (no record grows for ``hang_timeout_s``) or, in a warm worker, a
+    process over ``worker_max_rss_mb``."""
+
+    def __init__(self, attempt_dir: Path, settings: SupervisorConfig, pid: int):
+        self.dir, self.settings, self.pid = attempt_dir, settings, pid
+        self.mark, self.last_change = _progress_mark(attempt_dir), time.monotonic()
+
+    def verdict(self) -> str | None:
+        """None while the try may go on, else why it must be killed."""
+        mark = _progress_mark(self.dir)
+        if mark != self.mark:
+            self.mark, self.last_change = mark, time.monotonic()
+        elif time.monotonic() - self.last_change > self.settings.hang_timeout_s:
+            return "hang"
+        if self.settings.warm_workers and _rss_mb(self.pid) > self.settings.worker_max_rss_mb:
+            return "memory"
+        return None
+
+
+class AttemptSupervisor:
+    """Runs the attempt of one attempt directory until it completes or its retries are spent."""
+
+    def __init__(self, config: dict, attempt_dir: Path, identity: dict, settings: SupervisorConfig,
+                 job_log: str | None = None, on_child: Callable[[subprocess.Popen, int], None] | None = None):
+        self.config = config
+        self.dir = Path(attempt_dir)
+        self.identity = identity
+        self.settings = settings
+        self.job_log = job_log
+        self.on_child = on_child  # observes each child process started (pid, try number)
+
+    def _env(self) -> dict:
+        env = {**os.environ, PARENT_ENV: str(os.getpid())}
+        if self.settings.threads is not None:  # N workers on N cores: no attempt oversubscribes them
+            env.update({k: str(self.settings.threads) for k in THREAD_ENV})
+        return env
+
+    def _run_child(self, try_no: int) -> tuple[int | None, str | None]:
+        """One try; returns (exit status, or None when it was killed, and why it was killed: None,
+        "hang" or "memory")."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        if self.settings.warm_workers:
+            return self._run_in_worker(try_no)
+        env = self._env()
+        with open(self.dir / CHILD_LOG, "ab") as log:
+            proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.child"], stdin=subprocess.PIPE,
+                                    stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        if self.on_child is not None:
+            self.on_child(proc, try_no)
+        try:
+            proc.stdin.write(json.dumps({"config": self.config, "output_dir": str(self.dir)}).encode())
+            proc.stdin.close()
+        except BrokenPipeError:  # the child died at once; its exit status tells why
+            pass
+        watch = _Watchdog(self.dir, self.settings, proc.pid)
+        while proc.poll() is None:
+            time.sleep(self.settings.poll_s)
+            killed = watch.verdict()
+            if killed:
+                _kill(proc)
+                return None, killed
+        return proc.returncode, None
+
+    def _run_in_worker(self, try_no: int) -> tuple[int | None, str | None]:
+        env = self._env()
+        # one worker per thread (cab-suite-check supervises from a pool of threads) and environment
+        key = tuple(sorted((k, env.get(k)) for k in (*THREAD_ENV, PARENT_ENV))) + (sys.executable,
+                                                                                 threading.get_ident())
+        worker = _WORKERS.get(key)
+        if worker is not None and not worker.alive():
+            worker.close()
+            worker = None
+        if worker is None:
+            worker = _WORKERS[key] = WarmWorker(env, self.dir / CHILD_LOG)
+        if self.on_child is not None:
+            self.on_child(worker.proc, try_no)
+        job = {"config": self.config, "output_dir": str(self.dir), "log": str(self.dir / CHILD_LOG)}
+        reply = None if worker.submit(job) else {"status": worker.proc.wait()}
+        watch = _Watchdog(self.dir, self.settings, worker.proc.pid)
+        while reply is None:
+            reply = worker.reply(self.settings.poll_s)
+            killed = None if reply is not None else watch.verdict()
+            if killed:
+                _kill(worker.proc)
+                worker.close()
+                _WORKERS.pop(key, None)
+                return None, killed
+        code = int(reply["status"])
+        s = self.settings
+        if code != 0 or not worker.alive() or worker.attempts >= s.worker_max_attempts \
+                or worker.rss_mb > s.worker_max_rss_mb:
+            worker.close()
+            _WORKERS.pop(key, None)
+        return code, None
+
+    def _failure(self, code: int | None, killed: str | None) -> dict | None:
+        """Classify a finished try: None when it is a valid attempt, else the failure record."""
+        if killed == "hang":
+            return {"kind": "hang", "detail": f"no progress for {self.settings.hang_timeout_s:g} s; killed"}
+        if killed == "memory":
+            return {"kind": "memory", "detail": f"the attempt's process held more than "
+                                                f"{self.settings.worker_max_rss_mb:g} MiB; killed"}
+        if code == EXIT_CONFIG or code == EXIT_RENDERER:
+            raise ChildConfigError(f"attempt {self.dir}: {_log_tail(self.dir, 600).strip()}")
+        if code != 0:
+            how = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
+            return {"kind": "crash", "detail": f"attempt process {how}", "log_tail": _log_tail(self.dir)}
+        check = check_attempt(self.dir, self.identity, self.job_log)
+        if check.state != "complete":
+            return {"kind": "incomplete_record", "detail": "; ".join(check.problems)}
+        reason = check.result["termination"]["reason"]
+        if reason in INFRA_TERMINATIONS:
+            return {"kind": reason, "detail": f"{INFRA_TERMINATIONS[reason]}: {check.result['termination'].get('detail')}"}
+        return None
+
+    def run(self) -> dict:
+        """Run tries until one is a valid attempt; returns its result (or the infrastructure result)."""
+        s = self.settings
+        for try_no in range(1, s.max_retries + 2):
+            t0 = time.monotonic()
+            code, killed = self._run_child(try_no)
+            failure = self._failure(code, killed)
+            if failure is None:
+                return annotate_result(self.dir, infrastructure_failures(self.dir))
+            failure.update(try_no=try_no, wall_seconds=round(time.monotonic() - t0, 3), at=time.time())
+            failure["records"] = set_aside(self.dir, failure["kind"], self.job_log)
+            log_infrastructure_failure(self.dir, failure)
+            if try_no <= s.max_retries and s.retry_backoff_s:
+                time.sleep(s.retry_backoff_s)
+        return write_infrastructure_result(self.dir, self.identity, infrastructure_failures(self.dir))
+
+
+# -- batches: many one-off attempts (an oracle or the idle agent per task, seed and simulator) -----
+
+
+def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
+    """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
+    seed=S model=A sim=X`` composes it (in this thread: Hydra's composition is not thread-safe).
+    ``cold``: a renderer generates its tables in each process (no cache folder), as before the cache."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from cab_core.config import normalise_overrides
+
+    out = []
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        for task, seed, agent, _, sim, *perturb in jobs:
+            overrides = [f"task={task}", f"seed={seed}", f"model={agent}", f"sim={sim}", "attempt=1"]
+            if perturb and perturb[0] is not None:
+                overrides.append(f"perturb.seed={perturb[0]}")
+            cfg = compose(config_name="config", overrides=normalise_overrides(overrides))
+            plain = OmegaConf.to_container(cfg, resolve=True)
+            if cold and "brdf_cache" in plain["sim"]:
+                plain["sim"]["brdf_cache"] = False
+            out.append(plain)
+    return out
+
+
+def run_one(config: dict, out: str, settings) -> dict:
+    """One attempt, supervised (crashes, hangs and runaway memory are retried as infrastructure
+    failures); returns a compact summary."""
+    from cab_core.plugins import task_info
+
+    task, seed, agent, sim = config["task"]["name"], config["seed"], config["model"]["name"], config["sim"]["name"]
+    perturb = (config.get("perturb") or {}).get("seed")
+    info = task_info(task)
+    identity = {"task": task, "seed": seed, "attempt": 1, "sim": sim, "model": agent}
+    t0 = time.monotonic()
+    row = {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb}
+    try:
+        r = AttemptSupervisor(config, Path(out), identity, settings).run()
+    except Exception as e:  # report, never stop the whole check
+        return {**row, "error": repr(e), "wall_s": time.monotonic() - t0}
+    if is_infrastructure_failure(r):
+        return {**row, "wall_s": time.monotonic() - t0,
+                "error": f"infrastructure failure: {r['termination'].get('detail')}"}
+    ck = r.get("checkpoints") or {}
+    return {
+        **row, "dir": out,
+        "success": bool(r["verdict"].get("success")), "termination": r["termination"]["reason"],
+        "margin": (r["verdict"].get("margin") or {}).get("fraction"),
+        "margin_predicate": (r["verdict"].get("margin") or {}).get("predicate"),
+        "calls": r["budget"]["tool_calls_used"], "calls_limit": r["budget"]["tool_calls_limit"],
+        "sim_s": r["budget"]["sim_seconds_used"], "sim_s_limit": r["budget"]["sim_seconds_limit"],
+        "ref_calls": info.reference_solution_api_calls, "ref_sim_s": info.reference_solution_sim_s,
+        "subgoals": [s["attained"] for s in ck.get("subgoals", [])],
+        "spatial": [s["attained"] for s in ck.get("spatial", [])],
+        "subgoals_at_start": ck.get("subgoals_at_start", []),
+        "checkpoint_error": ck.get("error"),
+        "wall_s": round(time.monotonic() - t0, 1),
+        "setup_s": (r.get("timing") or {}).get("setup_seconds"),
+    }
+
+
+def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None, jobs: int, out: Path,
+          agents=("oracle", "idle"), sims: tuple[str, ...] | None = None, cold: bool = False,
+          perturb: int = 0) -> list[dict]:
+    """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
+    worker process that runs its attempts one after another (``sweep.warm_workers``), renderer
+    tables read from the cache folder. ``cold``: a fresh process per attempt and no cache folder, as a
+    ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
+    ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.attempt.perturb``). ``seeds``: one
+    list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
+    from cab_core.plugins import task_info
+
+    if sims is None:
+        from cab_core.config import default_selection
+
+        sims = (default_selection(("sim",))["sim"],)
+
+    if not isinstance(seeds, dict):
+        seeds = {t: seeds if seeds is not None else [task_info(t).seed] for t in tasks}
+    jobs_list = []
+    for t in tasks:
+        for s in seeds.get(t, ()):
+            for sim in sims:
+                for a in agents:
+                    for k in (range(1, perturb + 1) if perturb else [None]):
+                        where = out / sim / t / f"seed-{s}" / a / (f"perturb-{k}" if k else "")
+                        jobs_list.append((t, s, a, str(where), sim, k))
+    configs = attempt_configs(jobs_list, cold)
+    settings = SupervisorConfig(warm_workers=not cold, retry_backoff_s=1.0)
+    rows: list[dict] = []
+    try:
+        with cf.ThreadPoolExecutor(max_workers=jobs) as ex:
+            futs = [ex.submit(run_one, c, j[3], settings) for c, j in zip(configs, jobs_list)]
+            for f in cf.as_completed(futs):
+                row = f.result()
+                rows.append(row)
+                print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}"
+                      + (f" perturb={row['perturb']}" if row.get("perturb") else "") + ": "
+                      f"{'error ' + row['error'] if 'error' in row else ('success' if row['success'] else 'fail')}",
+                      file=sys.stderr, flush=True)
+    finally:
+        close_workers()
+    order = {(t, s, a, sim, k): i for i, (t, s, a, _, sim, k) in enumerate(jobs_list)}
+    rows.sort(key=lambda r: order[(r["task"], r["seed"], r["agent"], r["sim"], r.get("perturb"))])
+    return rows
