@@ -1,0 +1,90 @@
+"""The house a newcomer meets: ``cab_core`` in wings, measured on its import graph.
+
+The graph is grimp's (the library behind import-linter): every import of one ``cab_core`` module by
+another that Python executes, at module level or inside a function; imports under
+``if TYPE_CHECKING:`` are left out (they never run). On it:
+
+* no import loop anywhere;
+* at most 7 levels: a module that imports no other ``cab_core`` module is on level 1, any other on
+  one more than the highest module it imports;
+* the wings are layered: a module imports only from its own wing or the wings below it
+  (:data:`WINGS`, top to bottom), never back up.
+"""
+from __future__ import annotations
+
+import graphlib
+
+import pytest
+
+grimp = pytest.importorskip("grimp")
+
+PACKAGE = "cab_core"
+MAX_LEVELS = 7
+# top to bottom; wings on one line are siblings (they may import each other)
+WINGS = (
+    ("cab_core.apps", "cab_core.testing"),  # the command-line programs; the conformance suites
+    ("cab_core.analysis",),  # reports, the viewer, measures over records
+    ("cab_core.sweep",),  # many attempts: manifest, layout, supervisor, child
+    ("cab_core.attempt",),  # one attempt: spec, world, serving, finishing, records
+    ("cab_core.tools", "cab_core.sandbox"),  # the tools the agent calls; the confined run_code
+    ("cab_core.config", "cab_core.conf", "cab_core.plugins"),  # Hydra configuration; the plugin registry
+    ("cab_core.contracts",),  # what plugins implement and tasks are written with
+    ("cab_core.errors", "cab_core.geometry", "cab_core.numerics"),  # errors, pose and camera math, numerics
+)
+
+
+@pytest.fixture(scope="module")
+def graph():
+    return grimp.build_graph(PACKAGE, exclude_type_checking_imports=True)
+
+
+def _imports(graph) -> dict[str, set[str]]:
+    """Module -> the cab_core modules it imports (a package's own ``__init__`` imports included)."""
+    return {m: set(graph.find_modules_directly_imported_by(m)) for m in graph.modules}
+
+
+def levels(graph) -> dict[str, int]:
+    order = graphlib.TopologicalSorter(_imports(graph)).static_order()  # imported before importer
+    imp, lv = _imports(graph), {}
+    for m in order:
+        lv[m] = 1 + max((lv[t] for t in imp.get(m, ())), default=0)
+    return lv
+
+
+def longest_chain(graph, lv: dict[str, int]) -> list[str]:
+    imp = _imports(graph)
+    m = max(lv, key=lambda k: (lv[k], k))
+    chain = [m]
+    while lv[m] > 1:
+        m = max((t for t in imp[m]), key=lambda t: (lv[t], t))
+        chain.append(m)
+    return chain
+
+
+def test_no_import_loop(graph):
+    try:
+        graphlib.TopologicalSorter(_imports(graph)).prepare()
+    except graphlib.CycleError as e:
+        pytest.fail(f"import loop: {' -> '.join(e.args[1])}")
+
+
+def test_at_most_seven_levels(graph):
+    lv = levels(graph)
+    chain = longest_chain(graph, lv)
+    assert max(lv.values()) <= MAX_LEVELS, f"{max(lv.values())} levels: {' -> '.join(chain)}"
+    assert len(graph.modules) > 60  # the whole core was measured
+
+
+def test_no_arrow_back_up(graph):
+    layers = [grimp.Layer(*w, independent=False) for w in WINGS]
+    bad = graph.find_illegal_dependencies_for_layers(layers=layers)
+    lines = [f"{d.importer} imports {d.imported}: "
+             + "; ".join(" -> ".join([*sorted(r.heads), *r.middle, *sorted(r.tails)]) for r in d.routes) for d in bad]
+    assert not lines, "\n".join(lines)
+
+
+def test_every_module_is_in_a_wing(graph):
+    wings = {w for layer in WINGS for w in layer}
+    outside = sorted(m for m in graph.modules
+                     if m != PACKAGE and not any(m == w or m.startswith(w + ".") for w in wings))
+    assert not outside, f"modules in no wing of LAYERS: {outside}"
