@@ -68,6 +68,27 @@ def test_no_import_loop(graph):
         pytest.fail(f"import loop: {' -> '.join(e.args[1])}")
 
 
+def test_no_import_loop_in_any_package_of_the_tree():
+    """The plugins of this repository too (each package on its own graph; cab_core's own is above)."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    names = sorted({p.name for p in (root / "plugins").glob("*/cab_*") if (p / "__init__.py").is_file()}
+                   | {"hydra_plugins", "cab_conf"})
+    missing = [n for n in names if importlib.util.find_spec(n) is None]
+    assert not missing, f"not installed: {missing}"
+    assert len(names) >= 10
+    for name in names:
+        g = grimp.build_graph(name, exclude_type_checking_imports=True)
+        ours = "hydra_plugins.cab_searchpath" if name == "hydra_plugins" else name  # a namespace shared with others
+        imports = {m: {t for t in ts if t.startswith(ours)} for m, ts in _imports(g).items() if m.startswith(ours)}
+        try:
+            graphlib.TopologicalSorter(imports).prepare()
+        except graphlib.CycleError as e:
+            pytest.fail(f"import loop in {name}: {' -> '.join(e.args[1])}")
+
+
 def test_at_most_seven_levels(graph):
     lv = levels(graph)
     chain = longest_chain(graph, lv)

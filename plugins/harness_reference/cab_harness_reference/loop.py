@@ -14,6 +14,7 @@ from cab_core.errors import AttemptEnded, CabError, ConfigError
 from cab_core.attempt.pricing import cost, usage_dict
 
 from .context import ContextOverflow, ReferenceContextPolicy
+from .providers import PROVIDERS
 from .types import Capabilities, Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
 
 MAX_NO_TOOL_TURNS = 3
@@ -39,8 +40,6 @@ def create_provider(model_cfg: dict):
 
         return create("model_providers", name, dict(model_cfg))
     except CabError:
-        from .plugin import PROVIDERS
-
         if name in PROVIDERS:
             return PROVIDERS[name](dict(model_cfg))
         raise
