@@ -14,7 +14,7 @@ from cab_core import hookimpl
 from cab_core.cli import normalise_overrides
 from cab_core.errors import ConfigError, PluginError
 from cab_core.observers import ReadOnlyDict, freeze, select
-from cab_core.plugins import build_plugin_manager, distribution_versions, plugin_manager
+from cab_core.plugins import build_plugin_manager, distribution_versions
 from cab_core.runner import attempt_spec, run_attempt
 
 
@@ -62,7 +62,7 @@ class BrokenFactory:
 
 
 @pytest.fixture
-def installed():
+def installed(process_plugins):
     """Observers registered in the process's plugin manager, as an installed plugin's would be."""
     made: dict[str, list] = {}
 
@@ -71,12 +71,8 @@ def installed():
 
     plugin = _plugin("test_observers", {"keeper": factory(Recording), "meddler": factory(Meddler),
                                         "broken": BrokenFactory})
-    pm = plugin_manager()
-    pm.register(plugin, name="test_observers")
-    try:
-        yield made
-    finally:
-        pm.unregister(name="test_observers")
+    process_plugins(plugin, "test_observers")
+    return made
 
 
 def _spec(out, observers):
