@@ -20,8 +20,8 @@ import pytest
 
 from cab_core.errors import ConfigError, RendererUnavailable, SimulatorError
 from cab_core.plugins import registry
-from cab_core.scene import SceneSpec
-from cab_core.simulator import Simulator
+from cab_core.contracts.scene import SceneSpec
+from cab_core.contracts.simulator import Simulator
 from cab_core.testing import sim_conformance as sc
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class Backend:
         return self.make({"render": False})
 
     def simulator_class(self) -> type:
-        module, name = (self.cls or "cab_core.simulator:Simulator").split(":")
+        module, name = (self.cls or "cab_core.contracts.simulator:Simulator").split(":")
         return getattr(importlib.import_module(module), name)
 
 

@@ -24,7 +24,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from cab_core.analysis.checkpoints import SpatialRule
+from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.geometry import mat_to_quat, pose_mul
 from cab_core.plugins import all_tasks
 from cab_core.testing.task_conformance import margins_agree
@@ -83,7 +83,7 @@ class FakeWorld:
 
     Tests edit ``poses``, ``qpositions``, ``tcp``, ``grip``, ``touching`` (frozenset pairs in
     contact), ``finger_touch`` ((arm, object) pairs a gripper touches) and ``contact_list``
-    (:class:`cab_core.simulator.Contact` records, which also count as pairs in contact).
+    (:class:`cab_core.contracts.simulator.Contact` records, which also count as pairs in contact).
     """
 
     def __init__(self, instance, grip: float = 1.0):
@@ -254,7 +254,7 @@ def assert_settles(sim, inst, steps, tol=1e-3):
 
 
 def world_view(sim, emb, inst, grips=None):
-    from cab_core.verifier import WorldView
+    from cab_core.contracts.verifier import WorldView
 
     return WorldView(sim, emb, {a: 1.0 for a in emb.arms} if grips is None else grips, inst.info)
 

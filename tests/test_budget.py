@@ -1,6 +1,6 @@
 import pytest
 
-from cab_core.budget import BudgetLedger
+from cab_core.attempt.budget import BudgetLedger
 from cab_core.errors import BudgetExhausted
 
 
@@ -36,7 +36,7 @@ def test_sim_budget_counts_physics_steps_and_floor_rule():
 def test_wall_budget_and_credit(monkeypatch):
     b = ledger(wall_s=10.0)
     t = [1000.0]
-    monkeypatch.setattr("cab_core.budget.time.monotonic", lambda: t[0])
+    monkeypatch.setattr("cab_core.attempt.budget.time.monotonic", lambda: t[0])
     b._t0 = 1000.0
     t[0] = 1011.0
     assert b.exhausted_reason() == "wall_budget"

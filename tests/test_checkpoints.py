@@ -4,8 +4,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from cab_core.analysis.checkpoints import SpatialRule, annulus, box, cylinder, evaluate, sphere
-from cab_core.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
+from cab_core.contracts.checkpoints import SpatialRule, annulus, box, cylinder, sphere
+
+from cab_core.attempt.checkpoints import evaluate
+from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
 
 
 def emb():

@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from cab_core.builtin import ScriptedAgent
-from cab_core.cmdline import check_command_line
+from cab_core.attempt.builtin import ScriptedAgent
+from cab_core.apps.cmdline import check_command_line
 from cab_core.errors import ConfigError
 
 BIN = os.path.dirname(sys.executable)

@@ -13,9 +13,9 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 
 import cab_core
 from cab_core import plugins
-from cab_core.cli import normalise_overrides
+from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError
-from cab_core.runner import attempt_spec
+from cab_core.attempt.runner import attempt_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_MODELS = {"astra_codex", "opus5", "opus5_claude_code", "gemini36flash", "gpt56", "qwen38max", "grok46",
@@ -193,7 +193,7 @@ def test_default_selection_is_the_composed_defaults():
 @pytest.fixture
 def new_suite():
     """A task suite registered in-process with one task no file names: ``block_on_pad``."""
-    from cab_core.task import Task, TaskInfo
+    from cab_core.contracts.task import Task, TaskInfo
 
     class BlockOnPad(Task):
         info = TaskInfo(name="block_on_pad", instruction="Put the block on the pad.", seed=4, scoring="final",

@@ -71,7 +71,7 @@ def test_harness_mcp_needs_no_other_harness():
 
 
 def test_both_harnesses_use_the_cores_prompt_and_image_rule():
-    from cab_core import agent_io
+    from cab_core.attempt import agent_io
     from cab_harness_mcp import harness as mcp
     from cab_harness_reference import loop
 
@@ -82,7 +82,7 @@ def test_both_harnesses_use_the_cores_prompt_and_image_rule():
 
 
 def test_a_model_config_without_a_harness_is_refused(tmp_path):
-    from cab_core.runner import attempt_spec
+    from cab_core.attempt.runner import attempt_spec
 
     cfg = {"task": {"name": "click_bell"}, "sim": {"name": "mujoco"}, "embodiment": {"name": "aloha_agilex"},
            "planner": {"name": "mplib"}, "harness": {"name": "auto"}, "model": {"name": "mine"}}
@@ -96,7 +96,7 @@ def test_a_harness_that_speaks_on_stdio_gets_stdout_by_its_own_declaration():
     """The core reserves stdout for a protocol when the selected harness says it speaks on stdio
     (not by the harness's name): here the MCP harness does, the direct one does not, and another
     transport given on the command line wins."""
-    from cab_core.cli import wants_stdio_protocol
+    from cab_core.apps.cli import wants_stdio_protocol
 
     assert getattr(registry("harnesses")["mcp"], "speaks_on_stdio", False) is True
     assert wants_stdio_protocol(["task=click_bell", "harness=mcp"])

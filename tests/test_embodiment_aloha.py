@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cab_core.embodiment import EmbodimentSpec
+from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import ConfigError
 from cab_core.geometry import euler_quat, intrinsics, pose_to_mat, quat_to_mat
 from cab_embodiment_aloha import embodiment as emb

@@ -1,4 +1,4 @@
-"""The fault rule (cab_core/faults.py) and total validation at the tool boundary: every input an agent
+"""The fault rule (cab_core/attempt/faults.py) and total validation at the tool boundary: every input an agent
 can send gets a success or a typed error, directly and from run_code, and the attempt goes on; only
 a broken host ends an attempt as an infrastructure failure, which sweeps retry and reports exclude.
 Each reproduction of issue 12 is one test here, on MuJoCo (the fastest simulator to start)."""
@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
-from cab_core import faults
-from cab_core.cli import normalise_overrides
-from cab_core.episode import Episode
+from cab_core.attempt import faults
+from cab_core.apps.cli import normalise_overrides
+from cab_core.attempt.episode import Episode
 from cab_core.errors import InfrastructureFault, SimulatorError
 from cab_core.plugins import all_tasks, create
-from cab_core.robot import geometry_tools
-from cab_core.runner import attempt_spec
+from cab_core.tools import estimate as geometry_tools
+from cab_core.attempt.runner import attempt_spec
 from cab_core.tools import TOOLS, validate_args
 
 pytestmark = pytest.mark.sim

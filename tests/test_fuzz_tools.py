@@ -65,11 +65,11 @@ pytest.importorskip("mujoco")
 
 from hydra import compose, initialize_config_module  # noqa: E402
 
-from cab_core.cli import normalise_overrides  # noqa: E402
-from cab_core.episode import Episode  # noqa: E402
+from cab_core.apps.cli import normalise_overrides  # noqa: E402
+from cab_core.attempt.episode import Episode  # noqa: E402
 from cab_core.errors import AttemptEnded  # noqa: E402
 from cab_core.plugins import all_tasks, create  # noqa: E402
-from cab_core.runner import attempt_spec  # noqa: E402
+from cab_core.attempt.runner import attempt_spec  # noqa: E402
 from cab_core.tools import TOOLS, validate_args  # noqa: E402
 
 ROBOT_TOOLS = [n for n in TOOLS if n not in ("run_code", "done")]
@@ -589,7 +589,7 @@ class Fuzz:
                 self.learn(pay)
                 Fuzz.counts[(tool, "run_code", case.kind)] += 1
                 # judged by the arguments the host received: a program's NaN, inf and ints past 2**63 arrive
-                # as strings, long strings cut (cab_core.sandbox.runner.to_jsonable)
+                # as strings, long strings cut (cab_core.sandbox.guest.to_jsonable)
                 errs = check_answer(tool, ev.get("arguments"), pay, self.markers)
                 if entry.get("index") != k or entry.get("tool") != tool or ev.get("tool") != tool:
                     errs.append(f"trace entry {entry} / record {ev.get('tool')!r} for call {k} of {tool}")

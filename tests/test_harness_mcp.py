@@ -124,7 +124,7 @@ def compose_model(*overrides: str) -> dict:
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
-    from cab_core.cli import normalise_overrides
+    from cab_core.apps.cli import normalise_overrides
 
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         cfg = compose(config_name="config", overrides=normalise_overrides([f"task={TASK}", *overrides]))
@@ -136,7 +136,7 @@ def test_model_config_of_a_served_attempt():
     model.name names the configuration; the vendor launchers keep their own names."""
     from cab_harness_mcp.harness import attempt_model_name, configured_name
 
-    from cab_core.agent_record import ClientInfo
+    from cab_core.attempt.agent_record import ClientInfo
 
     assert compose_model("+harness=mcp") == {"model": {"name": "mcp_client", "harness": "mcp"}, "harness": "mcp"}
     assert compose_model("+harness=mcp", "model.name=my-agent")["model"] == {"name": "my-agent", "harness": "mcp"}

@@ -1,11 +1,13 @@
-"""Every hook declared in cab_core.hookspecs has a caller: the registration hooks through
+"""Every hook declared in cab_core.contracts.hookspecs has a caller: the registration hooks through
 ``cab_core.plugins.registry``/``create``; model providers and context policies are created by name
 by the harness that talks to a model."""
 import types
 
 import pytest
 
-from cab_core import hookimpl, hookspecs
+from cab_core import hookimpl
+
+from cab_core.contracts import hookspecs
 from cab_core.plugins import KINDS, build_plugin_manager, registry
 
 

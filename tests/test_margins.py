@@ -1,4 +1,4 @@
-"""Verdict margins (cab_core.verifier): each predicate's distance to its threshold, the margin that
+"""Verdict margins (cab_core.contracts.verifier): each predicate's distance to its threshold, the margin that
 decided a verdict, and when a verdict is borderline."""
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cab_core.verifier import (BORDERLINE_FRACTION, Evaluation, Margin, Verifier, deciding_margin, margin_above,
+from cab_core.contracts.verifier import (BORDERLINE_FRACTION, Evaluation, Margin, Verifier, deciding_margin, margin_above,
                                margin_all, margin_any, margin_below, margin_within)
 
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False)
@@ -101,7 +101,7 @@ class Rising(Verifier):
 
 
 def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
-    from cab_core.episode import VerdictTracker
+    from cab_core.attempt.episode import VerdictTracker
 
     v = Rising()
     t = VerdictTracker(v, world=None, timestep=0.01)  # the window: 1 simulated second, 100 steps
@@ -119,7 +119,7 @@ def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
 
 
 def test_an_event_that_never_latched_has_no_deciding_margin():
-    from cab_core.episode import VerdictTracker
+    from cab_core.attempt.episode import VerdictTracker
 
     v = Rising()
     t = VerdictTracker(v, world=None, timestep=0.01)

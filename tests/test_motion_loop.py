@@ -13,8 +13,8 @@ import pytest
 
 from cab_core import geometry
 from cab_suite_codeaction.catalog import task_info
-from cab_core.robot.context import ObservationStore, RobotContext
-from cab_core.robot import motion
+from cab_core.tools.context import ObservationStore, RobotContext
+from cab_core.tools import motion
 
 SIMS = ["mujoco", "pybullet", "sapien"]
 
@@ -180,7 +180,7 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
     """One scripted attempt; ``video``: 'samples' (the default path), 'loop' (the simulator made to
     refuse samples) or 'off'. Returns the raw frames handed to the encoder, the end state and the
     result."""
-    from cab_core import recording
+    from cab_core.attempt import recording
 
     frames: list[np.ndarray] = []
     add = recording.VideoWriter.add
@@ -195,7 +195,7 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
 
 
 def _scripted(sim_name: str, out: Path, video: str, frames: list) -> dict:
-    from cab_core.episode import AttemptSpec, Episode
+    from cab_core.attempt.episode import AttemptSpec, Episode
     from cab_core.plugins import all_tasks, create
 
     task = "beat_block_hammer"
@@ -265,9 +265,9 @@ def test_the_video_from_state_samples_is_the_video_rendered_in_the_loop(sim_name
 def test_latch_polling_answers_as_evaluate(task, tmp_path, monkeypatch):
     from hydra import compose, initialize_config_module
 
-    from cab_core.cli import normalise_overrides
-    from cab_core.episode import VerdictTracker
-    from cab_core.runner import attempt_spec, run_attempt
+    from cab_core.apps.cli import normalise_overrides
+    from cab_core.attempt.episode import VerdictTracker
+    from cab_core.attempt.runner import attempt_spec, run_attempt
 
     seen = {True: 0, False: 0}
     poll = VerdictTracker.poll

@@ -11,7 +11,7 @@ import pytest
 from cab_core.errors import PluginError
 from cab_core.plugins import build_plugin_manager, describe, distribution_versions, registry
 
-CAB_PLUGINS = [sys.executable, "-c", "from cab_core.cli import plugins_main; plugins_main()"]
+CAB_PLUGINS = [sys.executable, "-c", "from cab_core.apps.cli import plugins_main; plugins_main()"]
 
 
 def _fake_distribution(root, dist: str, ep_name: str, target: str, module_source: str | None = None) -> None:

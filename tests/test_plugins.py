@@ -59,7 +59,7 @@ def test_core_imports_no_simulator_sdk_or_mcp():
     import subprocess
     import sys
 
-    code = ("import sys, cab_core, cab_core.plugins, cab_core.episode, cab_core.runner, cab_core.tools;"
+    code = ("import sys, cab_core, cab_core.plugins, cab_core.attempt.episode, cab_core.attempt.runner, cab_core.tools;"
             "bad=[m for m in ('sapien','mplib','pybullet','mujoco','mcp','anthropic','openai') if m in sys.modules];"
             "print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -70,7 +70,7 @@ def test_cab_plugins_command_lists_plugins():
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-c", "from cab_core.cli import plugins_main; plugins_main()"],
+    r = subprocess.run([sys.executable, "-c", "from cab_core.apps.cli import plugins_main; plugins_main()"],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     for name in ("sim_sapien", "planner_mplib", "suite_codeaction", "embodiment_aloha", "core"):

@@ -11,11 +11,11 @@ import pytest
 from hydra import compose, initialize_config_module
 
 from cab_core import hookimpl
-from cab_core.cli import normalise_overrides
+from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError, PluginError
-from cab_core.observers import ReadOnlyDict, freeze, select
+from cab_core.attempt.observers import ReadOnlyDict, freeze, select
 from cab_core.plugins import build_plugin_manager, distribution_versions
-from cab_core.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 
 
 def _plain(frozen):

@@ -6,7 +6,7 @@ import shutil
 import pytest
 from attempt_records import TASKS, attempt_dir, events, shared_sweep
 
-from cab_core import replay as rp
+from cab_core.attempt import replay as rp
 from cab_core.analysis.records import Attempt, read_jsonl, scan
 from cab_core.errors import RecordError
 

@@ -12,7 +12,7 @@ from attempt_records import PLAN, TASKS, attempt_dir, events, results, shared_sw
 
 from cab_core.analysis import report as rep
 from cab_core.analysis.measures import wilson
-from cab_core.sweep_records import annotate_result, set_aside, write_infrastructure_result
+from cab_core.sweep.records import annotate_result, set_aside, write_infrastructure_result
 
 pytestmark = pytest.mark.sim
 

@@ -391,7 +391,7 @@ def test_python_layer_rejects_and_next_run_works(sb, code, why):
 
 
 def test_python_layer_numpy_has_no_file_io_or_foreign_modules(sb):
-    from cab_core.sandbox import runner
+    from cab_core.sandbox import guest as runner
 
     safe = runner._filtered_module(np, {})
     for name in ("save", "load", "fromfile", "memmap", "genfromtxt", "ctypeslib", "lib", "testing", "core",

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from cab_core.sandbox import Sandbox, SandboxConfig
-from cab_core.sandbox import runner
+from cab_core.sandbox import guest as runner
 
 
 def _dispatch(name, kwargs):

@@ -12,7 +12,7 @@ pytest.importorskip("mujoco")
 
 import sim_backend_checks as checks  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
-from cab_core.scene import Body, Mesh, SceneSpec, Shape  # noqa: E402
+from cab_core.contracts.scene import Body, Mesh, SceneSpec, Shape  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_mujoco import gl  # noqa: E402
 from cab_sim_mujoco.simulator import MujocoSimulator  # noqa: E402
@@ -122,7 +122,7 @@ def test_nonconvex_collision_mesh_is_rejected():
 
 def test_body_damping_decays_velocity_as_physx_does():
     """PhysX scales a body's velocity by 1 / (1 + dt c) each step; so does this backend."""
-    from cab_core.scene import Sphere
+    from cab_core.contracts.scene import Sphere
 
     ball = Body("ball", [Shape(Sphere(0.05))], pose=(0, 0, 1, 1, 0, 0, 0), linear_damping=0.2, angular_damping=0.5)
     sim = MujocoSimulator({"render": False})
@@ -172,7 +172,7 @@ def test_an_operator_set_mujoco_gl_is_used_or_diagnosed(backend):
 
 
 def test_malformed_urdf_is_a_bad_command(tmp_path):
-    from cab_core.scene import ArticulatedObject
+    from cab_core.contracts.scene import ArticulatedObject
 
     bad = tmp_path / "bad.urdf"
     bad.write_text('<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="revolute">'
@@ -189,7 +189,7 @@ def test_object_velocity_is_the_centre_of_mass_velocity():
     velocity is the (constant) velocity of its centre of mass, which a finite difference of
     the centre's position confirms."""
     from cab_core.geometry import transform_point
-    from cab_core.scene import Box
+    from cab_core.contracts.scene import Box
 
     body = Body("bar", [Shape(Box((0.1, 0.02, 0.02)), pose=(0.2, 0, 0, 1, 0, 0, 0))], pose=(0, 0, 1, 1, 0, 0, 0),
                 angular_damping=0.0)

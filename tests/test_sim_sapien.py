@@ -13,7 +13,7 @@ pytest.importorskip("sapien")
 import sim_backend_checks as checks  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.geometry import intrinsics, pose_inv, pose_to_mat  # noqa: E402
-from cab_core.scene import Body, CameraSpec, Mesh, SceneSpec, Shape  # noqa: E402
+from cab_core.contracts.scene import Body, CameraSpec, Mesh, SceneSpec, Shape  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_sapien import renderer as sapien_renderer  # noqa: E402
 from cab_sim_sapien.simulator import SapienSimulator  # noqa: E402

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import ArticulatedObject
+from cab_core.contracts.scene import ArticulatedObject
 
 from cab_suite_codeaction import common
 from cab_suite_codeaction.assets_articulated import lid_rotation

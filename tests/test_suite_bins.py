@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cab_core.episode import VerdictTracker
+from cab_core.attempt.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 
 from cab_suite_codeaction import assets_bins, common

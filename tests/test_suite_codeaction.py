@@ -23,8 +23,8 @@ from cab_suite_codeaction import catalog
 from cab_core.errors import PluginError
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.plugins import all_tasks, build_plugin_manager, registry
-from cab_core.scene import ArticulatedObject, Box, Shape
-from cab_core.task import Task
+from cab_core.contracts.scene import ArticulatedObject, Box, Shape
+from cab_core.contracts.task import Task
 
 from cab_suite_codeaction import common, plugin
 from cab_suite_codeaction.tasks import TASK_MODULES, load_tasks

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.scene import Body, Box, Cylinder, Shape
+from cab_core.contracts.scene import Body, Box, Cylinder, Shape
 
 from cab_suite_codeaction import assets_placing as assets
 from cab_suite_codeaction import common

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cab_core.task import Task
+from cab_core.contracts.task import Task
 from cab_suite_codeaction import catalog
 from cab_suite_codeaction.tasks import TASK_MODULES
 from suite_helpers import TASKS, _cache, fake_world, task_module  # noqa: F401 (_cache: autouse)

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
-from cab_core.scene import ArticulatedObject
-from cab_core.simulator import Contact
+from cab_core.contracts.scene import ArticulatedObject
+from cab_core.contracts.simulator import Contact
 
 from cab_suite_codeaction import assets_tools as at
 from cab_suite_codeaction.common import yaw_of

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_module
 
-import cab_core.cli  # noqa: F401  (registers the resolvers)
-from cab_core.sweep import MANIFEST, fingerprint
-from cab_core.sweep_layout import path_safe, swept_component, varying_keys
+import cab_core.apps.cli  # noqa: F401  (registers the resolvers)
+from cab_core.sweep.manifest import MANIFEST, fingerprint
+from cab_core.sweep.layout import path_safe, swept_component, varying_keys
 
 BIN = os.path.dirname(sys.executable)
 CAB = os.path.join(BIN, "cab")

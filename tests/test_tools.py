@@ -11,12 +11,12 @@ import pytest
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
-from cab_core.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
+from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
 from cab_core.errors import PluginError, ToolArgumentError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_mul, pose_to_mat, quat_to_mat
-from cab_core.robot import geometry_tools as gt
-from cab_core.robot.context import ObservationStore, RobotContext
-from cab_core.simulator import Contact
+from cab_core.tools import estimate as gt
+from cab_core.tools.context import ObservationStore, RobotContext
+from cab_core.contracts.simulator import Contact
 from cab_core.tools import TOOLS, build_registry, make_tool, schemas, validate_args
 
 # -- the catalog ---------------------------------------------------------------------------------
@@ -92,8 +92,8 @@ def test_build_registry_is_fresh_and_cached_view_is_read_only():
         TOOLS["x"] = None  # type: ignore[index]
 
 
-@pytest.mark.parametrize("name", [n for n in TOOLS if TOOLS[n].handler.startswith(("cab_core.robot.observe",
-                                                                                     "cab_core.robot.geometry_tools"))])
+@pytest.mark.parametrize("name", [n for n in TOOLS if TOOLS[n].handler.startswith(("cab_core.tools.observe",
+                                                                                     "cab_core.tools.estimate"))])
 def test_local_handlers_resolve(name):
     assert callable(TOOLS[name].resolve())
 

@@ -9,7 +9,7 @@ from attempt_records import RAISING_PROGRAM, TASKS, attempt_dir, events, shared_
 
 from cab_core.analysis.records import Attempt
 from cab_core.errors import RecordError
-from cab_core.viewer import main, render, write_view
+from cab_core.analysis.viewer import main, render, write_view
 
 pytestmark = pytest.mark.sim
 

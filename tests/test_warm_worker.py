@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_module
 
-from cab_core.cli import normalise_overrides
+from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError
-from cab_core.sweep_records import infrastructure_failures, is_infrastructure_failure
-from cab_core.sweep_supervisor import _WORKERS, AttemptSupervisor, SupervisorConfig, close_workers
+from cab_core.sweep.records import infrastructure_failures, is_infrastructure_failure
+from cab_core.sweep.supervisor import _WORKERS, AttemptSupervisor, SupervisorConfig, close_workers
 
 
 def composed(*overrides: str) -> dict:
