@@ -1,3 +1,46 @@
 # cab_core first: it pins the numerics (cab_core.numerics) before anything imports numpy, so the tests
 # run with the settings every attempt process has.
 import cab_core  # noqa: F401
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def task_builds(tmp_path_factory):
+    """The suite's task instances at suite_helpers.SEEDS, built once a session on first use
+    (suite_helpers.Builds): ``task_builds[name][i]`` is task ``name`` at seed ``SEEDS[i]``."""
+    from suite_helpers import Builds, cache_dir
+
+    return Builds(cache_dir(tmp_path_factory))
+
+
+@pytest.fixture
+def process_plugins():
+    """``process_plugins(module, name)`` registers ``module`` in the process's plugin manager
+    (cab_core.plugins.plugin_manager()) as an installed plugin would be, until the test ends."""
+    from cab_core.plugins import plugin_manager
+
+    pm = plugin_manager()
+    names: list[str] = []
+
+    def register(module, name: str) -> None:
+        pm.register(module, name=name)
+        names.append(name)
+
+    yield register
+    for name in reversed(names):
+        pm.unregister(name=name)
+
+
+@pytest.fixture(scope="module")
+def aloha_spec(tmp_path_factory):
+    """The aloha_agilex embodiment (default parameters), its generated files in a cache of this
+    module's own."""
+    from cab_embodiment_aloha import embodiment
+
+    mp = pytest.MonkeyPatch()
+    mp.setenv("CAB_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+    try:
+        yield embodiment.factory({})
+    finally:
+        mp.undo()

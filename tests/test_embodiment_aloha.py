@@ -22,13 +22,8 @@ ARMS = {"left": "fl", "right": "fr"}
 
 
 @pytest.fixture(scope="module")
-def spec(tmp_path_factory) -> EmbodimentSpec:
-    mp = pytest.MonkeyPatch()
-    mp.setenv("CAB_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
-    try:
-        yield emb.factory({})
-    finally:
-        mp.undo()
+def spec(aloha_spec) -> EmbodimentSpec:
+    return aloha_spec
 
 
 @pytest.fixture(scope="module")

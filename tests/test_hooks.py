@@ -8,7 +8,7 @@ import pytest
 from cab_core import hookimpl
 
 from cab_core.contracts import hookspecs
-from cab_core.plugins import KINDS, build_plugin_manager, plugin_manager, registry
+from cab_core.plugins import KINDS, build_plugin_manager, registry
 
 
 def test_every_declared_hook_is_a_registry_kind():
@@ -30,18 +30,14 @@ class FakeProvider:
 
 
 @pytest.fixture
-def third_party():
+def third_party(process_plugins):
     """A third party's provider and context policy, installed in the process's plugin manager."""
     made = {}
     mod = types.ModuleType("third_party")
     mod.cab_model_providers = hookimpl(lambda: {"my_api": lambda cfg: made.setdefault("provider", FakeProvider(cfg))})
     mod.cab_context_policies = hookimpl(lambda: {"my_policy": lambda cfg: made.setdefault("policy", ("P", cfg))})
-    pm = plugin_manager()
-    pm.register(mod, name="third_party")
-    try:
-        yield made
-    finally:
-        pm.unregister(name="third_party")
+    process_plugins(mod, "third_party")
+    return made
 
 
 def test_a_model_harness_creates_providers_and_policies_by_name(third_party):

@@ -10,7 +10,6 @@ pytest.importorskip("mplib")
 
 from cab_core.errors import MissingDependency  # noqa: E402
 from cab_core.geometry import quat_angle  # noqa: E402
-from cab_embodiment_aloha import embodiment as emb  # noqa: E402
 from cab_embodiment_aloha import kinematics  # noqa: E402
 from cab_embodiment_aloha.params import DEFAULT_PARAMS  # noqa: E402
 from cab_embodiment_aloha.reach import tcp_quat  # noqa: E402
@@ -24,13 +23,8 @@ FORWARD = tcp_quat((0, 1, 0), (1, 0, 0))
 
 
 @pytest.fixture(scope="module")
-def spec(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("CAB_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
-    try:
-        yield emb.factory({})
-    finally:
-        mp.undo()
+def spec(aloha_spec):
+    return aloha_spec
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import sys
-import threading
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -20,47 +18,28 @@ except ImportError:
 from cab_core.errors import ConfigError
 from cab_harness_reference.anthropic_provider import AnthropicProvider, to_wire
 from cab_harness_reference.types import Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
+from fake_json_api import JsonServer
 
 
-class FakeAnthropic:
-    """Scripted Messages API: each item is (status, body-dict) or a callable(request) -> (status, body)."""
+class FakeAnthropic(JsonServer):
+    """Scripted Messages API: each item is (status, body-dict) or a callable(request) -> (status, body);
+    records each request body and its headers. Serving from the start."""
 
     def __init__(self):
+        super().__init__()
         self.script: list = []
         self.requests: list[dict] = []
         self.headers: list[dict] = []
-        fake = self
+        self.start()
 
-        class H(BaseHTTPRequestHandler):
-            def log_message(self, *a):
-                pass
-
-            def do_POST(self):
-                body = json.loads(self.rfile.read(int(self.headers["content-length"])))
-                fake.requests.append(body)
-                fake.headers.append(dict(self.headers))
-                item = fake.script.pop(0) if fake.script else (500, {"type": "error", "error": {"type": "api_error", "message": "script empty"}})
-                if callable(item):
-                    item = item(body)
-                status, out = item
-                data = json.dumps(out).encode()
-                self.send_response(status)
-                self.send_header("content-type", "application/json")
-                self.send_header("request-id", f"req_{len(fake.requests)}")
-                if status == 429:
-                    self.send_header("retry-after", "0")
-                self.send_header("content-length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), H)
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-        self.thread.start()
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
+    def answer(self, path, body, headers):
+        self.requests.append(body)
+        self.headers.append(headers)
+        item = self.script.pop(0) if self.script else (500, {"type": "error", "error": {"type": "api_error", "message": "script empty"}})
+        if callable(item):
+            item = item(body)
+        status, out = item
+        return status, out, {"request-id": f"req_{len(self.requests)}", **({"retry-after": "0"} if status == 429 else {})}
 
 
 def message(content, stop="tool_use", usage=None):

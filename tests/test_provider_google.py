@@ -5,9 +5,7 @@ from __future__ import annotations
 import base64
 import json
 import sys
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -24,50 +22,29 @@ from cab_harness_reference.google_provider import GoogleProvider, inline_schema
 from cab_harness_reference.types import (
     Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec,
 )
+from fake_json_api import JsonServer
 
 PNG = base64.b64decode(  # 1x1 PNG
     "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNk+M9QDwADhgGAWjR9awAAAABJRU5ErkJggg==")
 SIG = b"\x01opaque-thought-signature\xff"
 
 
-class _Server:
-    """Replies with a scripted list of (status, json) and records each request."""
+class _Server(JsonServer):
+    """Replies with a scripted list of (status, json) and records each request (path, headers, json);
+    a ("stall", seconds) item answers nothing after that long, so the client times out."""
 
     def __init__(self, script):
+        super().__init__()
         self.script = list(script)
         self.requests: list[dict] = []
-        outer = self
 
-        class H(BaseHTTPRequestHandler):
-            def do_POST(self):  # noqa: N802
-                body = self.rfile.read(int(self.headers.get("Content-Length") or 0))
-                outer.requests.append({"path": self.path, "headers": dict(self.headers),
-                                       "json": json.loads(body or b"{}")})
-                status, payload = outer.script.pop(0) if outer.script else (500, _err(500, "INTERNAL", "empty script"))
-                if status == "stall":  # answer too late: the client times out
-                    time.sleep(payload)
-                    return
-                data = json.dumps(payload).encode()
-                self.send_response(status)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-
-            def log_message(self, *a):
-                pass
-
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), H)
-        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *a):
-        self.httpd.shutdown()
-        self.httpd.server_close()
+    def answer(self, path, body, headers):
+        self.requests.append({"path": path, "headers": headers, "json": body})
+        status, payload = self.script.pop(0) if self.script else (500, _err(500, "INTERNAL", "empty script"))
+        if status == "stall":  # answer too late: the client times out
+            time.sleep(payload)
+            return None
+        return status, payload, {}
 
 
 def _k(d, camel, snake):

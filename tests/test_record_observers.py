@@ -15,7 +15,7 @@ from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError, PluginError
 from cab_core.attempt.observers import ReadOnlyDict, freeze
 from cab_core.plugins import select_record_observers as select
-from cab_core.plugins import build_plugin_manager, distribution_versions, plugin_manager
+from cab_core.plugins import build_plugin_manager, distribution_versions
 from cab_core.attempt.runner import attempt_spec, run_attempt
 
 
@@ -63,7 +63,7 @@ class BrokenFactory:
 
 
 @pytest.fixture
-def installed():
+def installed(process_plugins):
     """Observers registered in the process's plugin manager, as an installed plugin's would be."""
     made: dict[str, list] = {}
 
@@ -72,12 +72,8 @@ def installed():
 
     plugin = _plugin("test_observers", {"keeper": factory(Recording), "meddler": factory(Meddler),
                                         "broken": BrokenFactory})
-    pm = plugin_manager()
-    pm.register(plugin, name="test_observers")
-    try:
-        yield made
-    finally:
-        pm.unregister(name="test_observers")
+    process_plugins(plugin, "test_observers")
+    return made
 
 
 def _spec(out, observers):

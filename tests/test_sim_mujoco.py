@@ -1,7 +1,8 @@
 """The MuJoCo backend: MuJoCo-specific checks (GL
-backend choice and diagnosis, physics-only mode, options, snapshot guarantees beyond the suite).
-The shared conformance suite (cab_core.testing.sim_conformance) runs on this backend through
-`pytest --cab-conformance` (scripts/test.sh turns it on)."""
+backend choice and diagnosis, options, mass and damping, rendering from threads, an attempt
+through the CLI). What every backend guarantees beyond the suite is checked in
+tests/test_sim_backends.py; the shared conformance suite (cab_core.testing.sim_conformance) runs
+on this backend through `pytest --cab-conformance` (scripts/test.sh turns it on)."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,22 +20,8 @@ from cab_sim_mujoco.simulator import MujocoSimulator  # noqa: E402
 pytestmark = pytest.mark.sim
 
 
-def rendering():
-    return MujocoSimulator({"render": True})
-
-
-def physics_only():
-    return MujocoSimulator({"render": False})
-
-
-@pytest.fixture(scope="module")
-def render_available() -> str | None:
-    """None if this machine can render with MuJoCo, else the diagnosis."""
-    return checks.render_diagnosis(rendering)
-
-
-def test_registered_through_entry_point():
-    checks.registered_through_entry_point("mujoco", MujocoSimulator)
+MUJOCO = checks.backend("mujoco")
+rendering, physics_only = MUJOCO.rendering, MUJOCO.physics_only
 
 
 def test_hydra_config_builds_the_backend():
@@ -53,10 +40,6 @@ def test_hydra_config_builds_the_backend():
 
 
 def test_bad_options_are_config_errors():
-    with pytest.raises(ConfigError):
-        MujocoSimulator({"rendr": True})
-    with pytest.raises(ConfigError):
-        MujocoSimulator({"timestep": -1})
     with pytest.raises(ConfigError, match="impratoi"):
         MujocoSimulator({"physics": {"impratoi": 3}})
     with pytest.raises(ConfigError, match="cone"):
@@ -116,21 +99,10 @@ def test_software_renderer_is_recorded():
     assert gpu["llvmpipe"] == "no" and gpu["render_driver"] == "gpu"
 
 
-def test_versions_name_the_gl_renderer(render_available):
-    if render_available is not None:
-        pytest.skip(render_available)
-    sim = MujocoSimulator({"render": True})
-    sim.build(SceneSpec(), sc.make_embodiment())
-    try:
-        v = sim.versions()
-        assert v["render"] == "on" and v["render_device"] and v["gl_backend"] in ("egl", "osmesa", "glfw")
-        assert v["llvmpipe"] == ("yes" if "llvmpipe" in v["render_device"] else "no")
-    finally:
-        sim.close()
-
-
-def test_physics_only_build_keeps_camera_geometry():
-    checks.physics_only_build_keeps_camera_geometry(physics_only)
+def test_versions_name_the_gl_renderer():
+    v = checks.rendering_versions("mujoco")
+    assert v["render"] == "on" and v["render_device"] and v["gl_backend"] in ("egl", "osmesa", "glfw")
+    assert v["llvmpipe"] == ("yes" if "llvmpipe" in v["render_device"] else "no")
 
 
 def test_nonconvex_collision_mesh_is_rejected():
@@ -146,25 +118,6 @@ def test_nonconvex_collision_mesh_is_rejected():
     sim = MujocoSimulator({"render": False})
     sim.build(scene, sc.make_embodiment())
     sim.close()
-
-
-def test_snapshot_then_restore_replays_the_original_run():
-    """Taking the snapshot changes nothing here: mj_getState reads the whole integration state."""
-    checks.snapshot_then_restore_replays_the_original_run(physics_only, snapshot_is_free=True)
-
-
-def test_contacts_survive_a_restore():
-    checks.contacts_survive_a_restore(physics_only)
-
-
-def test_physics_only_steps_like_a_rendering_build(render_available):
-    if render_available is not None:
-        pytest.skip(render_available)
-    checks.physics_only_steps_like_a_rendering_build(rendering, physics_only)
-
-
-def test_closed_simulator_refuses_calls():
-    checks.closed_simulator_refuses_calls(physics_only)
 
 
 def test_body_damping_decays_velocity_as_physx_does():
@@ -256,13 +209,12 @@ def test_object_velocity_is_the_centre_of_mass_velocity():
         sim.close()
 
 
-def test_any_thread_may_render(render_available):
+def test_any_thread_may_render():
     """The GL context is released after each picture: threads take turns (a host may serve tool
     calls from worker threads), and every picture of one state is the same."""
     import threading
 
-    if render_available is not None:
-        pytest.skip(render_available)
+    checks.require_renderer("mujoco")
     sim = sc.build(rendering)
     try:
         images, errors = [], []
@@ -284,13 +236,12 @@ def test_any_thread_may_render(render_available):
         sim.close()
 
 
-def test_two_simulators_render_concurrently(render_available):
+def test_two_simulators_render_concurrently():
     """Two simulators in one process, each driven by its own thread at the same time, share the
     process's GL context without corrupting each other's pictures."""
     import threading
 
-    if render_available is not None:
-        pytest.skip(render_available)
+    checks.require_renderer("mujoco")
     sims = [sc.build(rendering) for _ in range(2)]
     try:
         reference = sims[0].render(sc.HEAD_CAMERA)
@@ -313,7 +264,7 @@ def test_two_simulators_render_concurrently(render_available):
             s.close()
 
 
-def test_an_attempt_through_the_cli_records_mujoco(tmp_path, render_available):
+def test_an_attempt_through_the_cli_records_mujoco(tmp_path):
     """``cab +sim=mujoco`` composes conf/sim/mujoco.yaml, a physics override reaches the model,
     and the record names the simulator, its parameters and the GL renderer."""
     import json
@@ -321,8 +272,7 @@ def test_an_attempt_through_the_cli_records_mujoco(tmp_path, render_available):
     import subprocess
     import sys
 
-    if render_available is not None:
-        pytest.skip(render_available)
+    checks.require_renderer("mujoco")
     cab = os.path.join(os.path.dirname(sys.executable), "cab")
     r = subprocess.run([cab, "+sim=mujoco", "+model=oracle", "task=click_bell", "+sim.physics.impratio=12",
                         f"hydra.run.dir={tmp_path}/d"], capture_output=True, text=True, timeout=600)

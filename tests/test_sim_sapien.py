@@ -1,7 +1,7 @@
 """The SAPIEN backend: SAPIEN-specific checks
-(camera conventions against SAPIEN's own matrices, renderer diagnosis, physics-only mode, the
-snapshot guarantees this backend gives beyond the suite).
-The shared conformance suite (cab_core.testing.sim_conformance) runs on this backend through
+(camera conventions against SAPIEN's own matrices, renderer diagnosis, options, shadows).
+What every backend guarantees beyond the suite is checked in tests/test_sim_backends.py; the shared
+conformance suite (cab_core.testing.sim_conformance) runs on this backend through
 `pytest --cab-conformance` (scripts/test.sh turns it on)."""
 from __future__ import annotations
 
@@ -21,45 +21,19 @@ from cab_sim_sapien.simulator import SapienSimulator  # noqa: E402
 pytestmark = pytest.mark.sim
 
 
-def rendering():
-    return SapienSimulator({"render": True})
+rendering = checks.backend("sapien").rendering
 
 
-def physics_only():
-    return SapienSimulator({"render": False})
-
-
-@pytest.fixture(scope="module")
-def render_available() -> str | None:
-    """None if this machine can render with SAPIEN, else the diagnosis."""
-    return checks.render_diagnosis(rendering)
-
-
-def test_registered_through_entry_point():
-    checks.registered_through_entry_point("sapien", SapienSimulator)
-
-
-def test_unknown_option_is_a_config_error():
-    with pytest.raises(ConfigError):
-        SapienSimulator({"rendr": True})
-    with pytest.raises(ConfigError):
-        SapienSimulator({"timestep": -1})
-    with pytest.raises(ConfigError, match="timestep must be a positive number"):
-        SapienSimulator({"timestep": True})  # a bool is not a duration
+def test_bad_options_are_config_errors():
     with pytest.raises(ConfigError, match="shader"):
         SapienSimulator({"shader": "no_such_shader"})
     with pytest.raises(ConfigError):
         SapienSimulator({"shadow_map_size": 0})
 
 
-def test_timestep_option_overrides_the_scene():
-    checks.timestep_option_overrides_the_scene(SapienSimulator)
-
-
-def test_camera_conventions_match_sapien(render_available):
+def test_camera_conventions_match_sapien():
     """Our OpenCV pose and K agree with SAPIEN's own extrinsic and intrinsic matrices."""
-    if render_available is not None:
-        pytest.skip(render_available)
+    checks.require_renderer("sapien")
     sim = sc.build(rendering)
     try:
         sim.set_qpos([0.4, 0.3, 0.02, 0.03])
@@ -74,10 +48,9 @@ def test_camera_conventions_match_sapien(render_available):
         sim.close()
 
 
-def test_head_camera_reproduces_codeactionbench_record(render_available):
+def test_head_camera_reproduces_codeactionbench_record():
     """FACTS B.3: the recorded head camera E and K (640x480, fovy 37 deg)."""
-    if render_available is not None:
-        pytest.skip(render_available)
+    checks.require_renderer("sapien")
     E_rec = np.array([[1, 0, 0, 0.032], [0, -0.8, -0.6, 0.45], [0, 0.6, -0.8, 1.35]])
     cam_pose_world = np.linalg.inv(np.vstack([E_rec, [0, 0, 0, 1]]))
     from cab_core.geometry import mat_to_pose
@@ -94,10 +67,6 @@ def test_head_camera_reproduces_codeactionbench_record(render_available):
         np.testing.assert_allclose(intrinsics(640, 480, 37.0), comp.get_intrinsic_matrix(), rtol=1e-5)
     finally:
         sim.close()
-
-
-def test_physics_only_build_keeps_camera_geometry():
-    checks.physics_only_build_keeps_camera_geometry(physics_only)
 
 
 def test_missing_render_device_is_diagnosed(monkeypatch):
@@ -124,18 +93,11 @@ def test_diagnosis_names_an_old_mesa(monkeypatch):
     assert "Mesa 22.3.6, too old" in msg and "bookworm-backports" in msg
 
 
-def test_versions_name_the_render_device(render_available):
-    if render_available is not None:
-        pytest.skip(render_available)
-    sim = SapienSimulator({"render": True})
-    sim.build(SceneSpec(), sc.make_embodiment())
-    try:
-        v = sim.versions()
-        assert v["sapien"].startswith("3.") and v["render"] == "on" and v["render_device"]
-        if "llvmpipe" in v["render_device"]:
-            assert v["render_driver"].startswith("lavapipe") and v.get("mesa")
-    finally:
-        sim.close()
+def test_versions_name_the_render_device():
+    v = checks.rendering_versions("sapien")
+    assert v["sapien"].startswith("3.") and v["render"] == "on" and v["render_device"]
+    if "llvmpipe" in v["render_device"]:
+        assert v["render_driver"].startswith("lavapipe") and v.get("mesa")
 
 
 def test_dynamic_nonconvex_mesh_is_rejected(tmp_path):
@@ -151,19 +113,8 @@ def test_dynamic_nonconvex_mesh_is_rejected(tmp_path):
     sim.close()
 
 
-def test_snapshot_then_restore_replays_the_original_run():
-    """A snapshot is written back into the world it is taken from (see the module docstring), so
-    that run may differ from one without it; replays are exact."""
-    checks.snapshot_then_restore_replays_the_original_run(physics_only, snapshot_is_free=False)
-
-
-def test_closed_simulator_refuses_calls():
-    checks.closed_simulator_refuses_calls(physics_only)
-
-
-def test_shadows_option_changes_the_image(render_available):
-    if render_available is not None:
-        pytest.skip(render_available)
+def test_shadows_option_changes_the_image():
+    checks.require_renderer("sapien")
     images = []
     for shadows in (False, True):
         sim = sc.build(lambda: SapienSimulator({"render": True, "shadows": shadows, "shadow_map_size": 512}))
@@ -173,13 +124,3 @@ def test_shadows_option_changes_the_image(render_available):
         finally:
             sim.close()
     assert np.abs(images[0] - images[1]).max() > 10, "shadows made no visible difference"
-
-
-def test_contacts_survive_a_restore():
-    checks.contacts_survive_a_restore(physics_only)
-
-
-def test_physics_only_steps_like_a_rendering_build(render_available):
-    if render_available is not None:
-        pytest.skip(render_available)
-    checks.physics_only_steps_like_a_rendering_build(rendering, physics_only)

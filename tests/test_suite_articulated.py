@@ -1,20 +1,20 @@
 """The ``articulated`` group of the CodeActionBench suite: open_laptop_setup_arm and
 place_dual_shoes. Deterministic seeded layouts within the FACTS ranges, consistent privileged
 facts (URDF frames, functional points), verifiers that reject the initial scene and accept
-hand-built success states, and the catalog's subgoal and spatial-checkpoint counts.
+hand-built success states, and what the spatial checkpoints refer to.
 
 Verifiers are exercised through :class:`FakeWorld` (plain data, no simulator); the ``sim`` tests use
 the project's SAPIEN backend when it and the embodiment are installed.
+
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
 """
 from __future__ import annotations
-
-import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
 
-from cab_suite_codeaction import catalog
-from cab_core.geometry import pose_mul, quat_to_mat, transform_point
+from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import ArticulatedObject
 
 from cab_suite_codeaction import common
@@ -22,59 +22,21 @@ from cab_suite_codeaction.assets_articulated import lid_rotation
 from cab_suite_codeaction.tasks import open_laptop_setup_arm as laptop_mod
 from cab_suite_codeaction.tasks import place_dual_shoes as shoes_mod
 
-import suite_helpers
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    _cache,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_rules_match_catalog,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import SEEDS, LaptopWorld, _cache, check_urdf_hinge  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, sapien_world, world_view
 
-SEEDS = range(20)
 LAPTOP = laptop_mod.TASK()
 
 
-class FakeWorld(suite_helpers.FakeWorld):
-    """The shared stand-in, plus the laptop's lid link pose (from the URDF's hinge frame)."""
-
-    def link_pose(self, name, link):
-        lap = self.info["laptop"]
-        assert name == lap["name"]
-        root = self.poses[name]
-        if link == lap["base_link"]:
-            return root.copy()
-        assert link == lap["lid_link"]
-        from cab_core.geometry import mat_to_quat
-
-        q = float(self.qpositions[name][lap["lid_joint_index"]])
-        local = np.concatenate([lap["hinge_point_base"], mat_to_quat(lid_rotation(q))])
-        return pose_mul(root, local)
-
-
-def _check_rules(rules, info, name):
-    check_rules_match_catalog(rules, catalog.task_info(name).spatial_checkpoints)
+FakeWorld = LaptopWorld  # the shared stand-in, which also serves the laptop's lid link pose
 
 
 # =================================================================================================
 # open_laptop_setup_arm
 # =================================================================================================
-def test_laptop_task_info_and_doc():
-    assert LAPTOP.info == catalog.task_info("open_laptop_setup_arm")
-    inst = LAPTOP.build(LAPTOP.info.seed, None)
-    assert LAPTOP.verifier(inst).scoring == LAPTOP.info.scoring == "final"
-    check_doc_sections(laptop_mod.__doc__)
-
-
-def test_laptop_build_is_deterministic_and_json():
-    check_build_is_deterministic_and_json(LAPTOP, required=("table", "wall", "laptop"))
-
-
-def test_laptop_layouts_and_urdf():
+def test_laptop_layouts_and_urdf(task_builds):
     layouts, models = set(), set()
-    for seed in SEEDS:
-        inst = LAPTOP.build(seed, None)
+    for inst in task_builds["open_laptop_setup_arm"]:
         (lap,) = inst.scene.articulations
         m = inst.info["laptop"]
         assert isinstance(lap, ArticulatedObject) and lap.fix_root and lap.joint_friction > 0
@@ -86,14 +48,8 @@ def test_laptop_layouts_and_urdf():
         assert lap.qpos == pytest.approx((lo + 0.2 * (hi - lo),))
         assert m["success_qpos"] == pytest.approx(lo + 0.4 * (hi - lo))
         assert inst.info["suggested_arm"] == ("right" if common.yaw_of(lap.pose[3:]) > 0 else "left")
-        root = ET.parse(lap.urdf).getroot()
-        assert {l.get("name") for l in root.iter("link")} == {m["base_link"], m["lid_link"]}
-        (joint,) = root.iter("joint")
-        assert joint.get("name") == m["lid_joint"] and joint.get("type") == "revolute"
-        lim = joint.find("limit")
-        assert (float(lim.get("lower")), float(lim.get("upper"))) == (lo, hi)
-        assert np.allclose([float(v) for v in joint.find("axis").get("xyz").split()], m["hinge_axis_base"])
-        assert np.allclose([float(v) for v in joint.find("origin").get("xyz").split()], m["hinge_point_base"])
+        check_urdf_hinge(lap.urdf, (m["base_link"], m["lid_link"]), m["lid_joint"], (lo, hi), m["hinge_point_base"],
+                         m["hinge_axis_base"])
         w, d, t = m["size"]
         assert 0.28 <= w <= 0.36 and 0.20 <= d <= 0.24 and 0.012 <= t <= 0.025
         assert m["edge_point_lid"][1] == pytest.approx(-d)  # the lid's front edge
@@ -120,9 +76,8 @@ def _laptop_success(inst, w, frac=0.6, tcp_offset=(0.0, -0.05, 0.0), arm="right"
     return v
 
 
-def test_laptop_verifier():
-    for seed in SEEDS:
-        inst = LAPTOP.build(seed, None)
+def test_laptop_verifier(task_builds):
+    for inst in task_builds["open_laptop_setup_arm"]:
         ev = LAPTOP.verifier(inst).evaluate(FakeWorld(inst))
         assert ev.success is False and ev.predicates == {"lid_open": False, "gripper_at_lid_edge": False}
     inst = LAPTOP.build(0, None)
@@ -156,7 +111,6 @@ def test_laptop_checkpoints():
     _laptop_success(inst, w)
     assert LAPTOP.subgoals(w) == [True, True]
     rules = LAPTOP.spatial_checkpoints(inst.info)
-    _check_rules(rules, inst.info, "open_laptop_setup_arm")
     assert rules[1].prerequisites == (0,)
     # the approach reference sits in front of / under the lid's front edge at the start
     w = FakeWorld(inst)
@@ -170,11 +124,8 @@ def test_laptop_checkpoints():
 # --- with the SAPIEN backend --------------------------------------------------------------------
 @pytest.mark.sim
 def test_sim_laptop_frames_hinge_and_verdicts():
-    sim, emb = sapien_backend()
-    inst = LAPTOP.build(LAPTOP.info.seed, emb)
-    m = inst.info["laptop"]
-    try:
-        sim.build(inst.scene, emb)
+    with sapien_world(LAPTOP) as (sim, emb, inst):
+        m = inst.info["laptop"]
         sim.step(LAPTOP.settle_steps())
         w = world_view(sim, emb, inst)
         v = LAPTOP.verifier(inst)
@@ -204,27 +155,12 @@ def test_sim_laptop_frames_hinge_and_verdicts():
         assert ev.success, ev
         assert ev.values["tcp_to_edge_right"] == pytest.approx(0.05, abs=0.005)
         assert LAPTOP.subgoals(w) == [True, True]
-    finally:
-        sim.close()
 
 
 # =================================================================================================
 # place_dual_shoes
 # =================================================================================================
 SHOES = shoes_mod.TASK()
-
-
-def test_shoes_task_info_and_doc():
-    assert SHOES.info == catalog.task_info("place_dual_shoes")
-    inst = SHOES.build(SHOES.info.seed, None)
-    v = SHOES.verifier(inst)
-    assert v.scoring == SHOES.info.scoring == "final"
-    assert set(v.guarded_objects) == {"left_shoe", "right_shoe"} and v.guard_min_z == pytest.approx(0.64 - 0.08)
-    check_doc_sections(shoes_mod.__doc__)
-
-
-def test_shoes_build_is_deterministic_and_json():
-    check_build_is_deterministic_and_json(SHOES, seeds=(6, 7), required=("table", "wall", "left_shoe", "right_shoe", "shoe_box"))
 
 
 def _footprint(inst, side):
@@ -237,10 +173,9 @@ def _footprint(inst, side):
     return np.array([transform_point(pose, p) for p in local])
 
 
-def test_shoes_layouts():
+def test_shoes_layouts(task_builds):
     layouts, styles = set(), set()
-    for seed in SEEDS:
-        inst = SHOES.build(seed, None)
+    for inst in task_builds["place_dual_shoes"]:
         sc = inst.scene
         assert sc.body("table").pose[2] + 0.025 == pytest.approx(0.64)  # table_z_bias -0.1
         box = sc.body("shoe_box")
@@ -262,7 +197,7 @@ def test_shoes_layouts():
         layouts.add(tuple(np.round(np.concatenate([sc.body("left_shoe").pose, sc.body("right_shoe").pose]), 6)))
     assert len(layouts) == len(SEEDS) and len(styles) >= 3
     # headings cover all directions
-    heads = [SHOES.build(s, None).info["shoes"][side]["toe_heading"] for s in SEEDS for side in ("left", "right")]
+    heads = [i.info["shoes"][side]["toe_heading"] for i in task_builds["place_dual_shoes"] for side in ("left", "right")]
     assert max(heads) > 2.0 and min(heads) < -2.0 and any(abs(h) < 1.0 for h in heads)
 
 
@@ -297,15 +232,15 @@ def _in_box(inst, w, swap=False, d_left=(0, 0, 0), d_right=(0, 0, 0), q_left=Non
     w.poses["right_shoe"] = np.array([*places[b], z, *q]) + np.r_[d_right, 0, 0, 0, 0]
 
 
-def test_shoes_verifier():
+def test_shoes_verifier(task_builds):
     from cab_core.geometry import axis_angle_quat, quat_mul
 
-    for seed in SEEDS:
-        inst = SHOES.build(seed, None)
+    for inst in task_builds["place_dual_shoes"]:
         ev = SHOES.verifier(inst).evaluate(FakeWorld(inst))
         assert ev.success is False and ev.predicates["assignment_xy"] is False
     inst = SHOES.build(6, None)
     v = SHOES.verifier(inst)
+    assert set(v.guarded_objects) == {"left_shoe", "right_shoe"}
     w = FakeWorld(inst)
     _in_box(inst, w)
     ev = v.evaluate(w)
@@ -350,7 +285,6 @@ def test_shoes_checkpoints():
     w.grip["left"] = 0.0  # subgoals ignore the grippers
     assert SHOES.subgoals(w) == [True, True]
     rules = SHOES.spatial_checkpoints(inst.info)
-    _check_rules(rules, inst.info, "place_dual_shoes")
     assert rules[2].prerequisites == (0, 1)
     w = FakeWorld(inst)
     for rule, side in zip(rules[:2], ("left", "right")):
@@ -365,19 +299,10 @@ def test_shoes_checkpoints():
 
 @pytest.mark.sim
 def test_sim_shoes_settle_and_rest_in_the_box():
-    sim, emb = sapien_backend()
-    inst = SHOES.build(SHOES.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
-        sim.step(SHOES.settle_steps())
-        before = {n: sim.get_object_pose(n) for n in ("left_shoe", "right_shoe")}
-        sim.step(250)
-        for n, p in before.items():
-            assert np.linalg.norm(sim.get_object_pose(n)[:3] - p[:3]) < 1e-3, n
-            assert abs(p[2] - 0.64) < 2e-3  # the sole stands on the lowered table
-        w = world_view(sim, emb, inst)
-        v = SHOES.verifier(inst)
-        assert v.evaluate(w).success is False
+    with sapien_world(SHOES) as (sim, emb, inst):
+        w, v, before = check_settled_scene_fails(SHOES, sim, emb, inst, 250)
+        for n in ("left_shoe", "right_shoe"):
+            assert abs(before[n][2] - 0.64) < 2e-3  # the sole stands on the lowered table
         # both shoes into the box, toes left: they stand side by side on its floor
         fake = FakeWorld(inst)
         _in_box(inst, fake)
@@ -387,5 +312,3 @@ def test_sim_shoes_settle_and_rest_in_the_box():
         ev = v.evaluate(w)
         assert ev.success, ev
         assert abs(ev.values["left_shoe_dz"]) < 0.002 and abs(ev.values["right_shoe_dz"]) < 0.002
-    finally:
-        sim.close()

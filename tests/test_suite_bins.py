@@ -1,97 +1,29 @@
 """The bins group of the CodeActionBench suite (pick_diverse_bottles, put_bottles_dustbin,
 dump_bin_bigbin): deterministic seeded layouts within the FACTS ranges, generated assets of plausible
-size, verifiers that reject the initial scene and accept hand-built success states, and checkpoint
-declarations matching the catalog.
+size, verifiers that accept hand-built success states and reject near misses, and checkpoints that
+follow the bottles.
 
 Verifiers run on :class:`FakeWorld` (plain data, no simulator); the ``sim`` tests build the real
 scene with the SAPIEN backend and check that it settles, fails the verifier, and (where the success
 state is a resting one) that a success state built in the simulator passes.
+
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
 """
 from __future__ import annotations
-
-import importlib
 
 import numpy as np
 import pytest
 
-from cab_suite_codeaction import catalog
-from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.attempt.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 
 from cab_suite_codeaction import assets_bins, common
 
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    FakeWorld,
-    _cache,
-    assert_settles,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_seeds_give_different_layouts,
-    check_verifier_false_on_the_initial_scene,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import SEEDS, TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, sapien_world, world_view
 
 NAMES = ("pick_diverse_bottles", "put_bottles_dustbin", "dump_bin_bigbin")
-TASKS = {n: importlib.import_module(f"cab_suite_codeaction.tasks.{n}").TASK() for n in NAMES}
-SEEDS = range(20)
-
-
-
-# --- common to the three tasks ---------------------------------------------------------------------
-@pytest.mark.parametrize("name", NAMES)
-def test_catalog_docstring_and_scoring(name):
-    task = TASKS[name]
-    assert task.info == catalog.task_info(name)
-    inst = task.build(task.info.seed, None)
-    v = task.verifier(inst)
-    assert v.scoring == task.info.scoring
-    if v.scoring == "latch":
-        assert v.poll_every == 1
-    doc = importlib.import_module(f"cab_suite_codeaction.tasks.{name}").__doc__
-    check_doc_sections(doc)
-    assert v.guarded_objects
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_build_is_deterministic_and_json(name):
-    task = TASKS[name]
-    check_build_is_deterministic_and_json(task)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_seeds_give_different_layouts(name):
-    task = TASKS[name]
-
-    check_seeds_give_different_layouts(task, SEEDS)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_checkpoint_declarations_match_the_catalog(name):
-    task = TASKS[name]
-    cat = catalog.task_info(name)
-    inst = task.build(cat.seed, None)
-    w = FakeWorld(inst)
-    sg = task.subgoals(w)
-    assert len(sg) == len(cat.subgoals) and all(isinstance(v, bool) for v in sg)
-    assert not any(sg)  # nothing attained at the start
-    rules = task.spatial_checkpoints(inst.info)
-    assert len(rules) == len(cat.spatial_checkpoints)
-    arm_of = {"L": "left", "R": "right", "Either": "either"}
-    for r, c in zip(rules, cat.spatial_checkpoints):
-        assert isinstance(r, SpatialRule) and r.name == c["name"] and r.arm == arm_of[c["arm"]]
-        if r.lift_above_cm is None:
-            ref = np.asarray(r.reference(w), float)
-            assert ref.shape == (3,) and np.all(np.isfinite(ref))
-        for j in r.prerequisites:
-            assert 0 <= j < len(rules)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_verifier_false_on_the_initial_scene(name):
-    task = TASKS[name]
-    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 # --- assets ---------------------------------------------------------------------------------------------
@@ -141,9 +73,7 @@ def _hold(inst, w, key, xyz):
 
 
 def test_pick_diverse_bottles_verifier():
-    task = TASKS["pick_diverse_bottles"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("pick_diverse_bottles")
     assert v.scoring == "final" and set(v.guarded_objects) == {"bottle1", "bottle2"}
     w = FakeWorld(inst)
     _hold(inst, w, "bottle1", (-0.12, -0.1, 0.95))
@@ -217,9 +147,7 @@ def _in_bin(w, key, xyz):
 
 
 def test_put_bottles_dustbin_verifier():
-    task = TASKS["put_bottles_dustbin"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("put_bottles_dustbin")
     assert v.scoring == "final" and set(v.guarded_objects) == {"bottle1", "bottle2", "bottle3"}
     w = FakeWorld(inst)
     for i, key in enumerate(("bottle1", "bottle2", "bottle3")):
@@ -283,9 +211,7 @@ def _poured(inst, w, bin_xyz=(-0.1, -0.1, 1.05), ball_z=0.208):
 
 
 def test_dump_bin_bigbin_verifier_and_latch():
-    task = TASKS["dump_bin_bigbin"]
-    inst = task.build(3, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("dump_bin_bigbin", 3)
     assert v.scoring == "latch" and v.poll_every == 1
     assert set(v.guarded_objects) == {"small_bin", *inst.info["balls"]["names"]} and v.guard_min_z == 0.05
     w = FakeWorld(inst)
@@ -340,33 +266,17 @@ def test_dump_bin_bigbin_latch_is_not_true_at_the_start():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    sim, emb = sapien_backend()
-    task = TASKS[name]
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
-        sim.step(task.settle_steps())
-        assert_settles(sim, inst, 100, tol=2e-3)
-        w = world_view(sim, emb, inst)
-        v = task.verifier(inst)
-        assert v.evaluate(w).success is False
-        assert all(v.guard(w).values())
-        assert not any(task.subgoals(w))
-    finally:
-        sim.close()
+    with sapien_world(TASKS[name]) as (sim, emb, inst):
+        check_settled_scene_fails(TASKS[name], sim, emb, inst, 100, tol=2e-3)
 
 
 @pytest.mark.sim
 def test_sim_bottles_resting_in_the_dustbin_pass():
     """Bottles dropped into the dustbin come to rest inside the verifier's region."""
-    sim, emb = sapien_backend()
     task = TASKS["put_bottles_dustbin"]
-    inst = task.build(0, emb)
-    try:
-        sim.build(inst.scene, emb)
+    with sapien_world(task, seed=0) as (sim, emb, inst):
         sim.step(10)
         for i, key in enumerate(("bottle1", "bottle2", "bottle3")):
-            h = inst.info[key]["height"]
             q = (1.0, 0.0, 0.0, 0.0) if i == 0 else tuple(axis_angle_quat([1, 0, 0], np.pi / 2))  # standing / lying
             sim.set_object_pose(key, (-0.45 + 0.08 * (i - 1), -0.13 + 0.13 * i, 0.45, *q))
         sim.step(500)
@@ -375,17 +285,12 @@ def test_sim_bottles_resting_in_the_dustbin_pass():
         ev = v.evaluate(w)
         assert ev.success, ev
         assert all(v.guard(w).values())
-    finally:
-        sim.close()
 
 
 @pytest.mark.sim
 def test_sim_balls_resting_in_the_dustbin_are_in_the_band():
-    sim, emb = sapien_backend()
     task = TASKS["dump_bin_bigbin"]
-    inst = task.build(3, emb)
-    try:
-        sim.build(inst.scene, emb)
+    with sapien_world(task, seed=3) as (sim, emb, inst):
         sim.step(10)
         for i, n in enumerate(inst.info["balls"]["names"]):
             sim.set_object_pose(n, (-0.5 + 0.025 * i, 0.02 * i, 0.5, 1.0, 0.0, 0.0, 0.0))
@@ -396,5 +301,3 @@ def test_sim_balls_resting_in_the_dustbin_are_in_the_band():
         ev = task.verifier(inst).evaluate(w)
         assert ev.success, ev
         assert task.subgoals(w) == [True, True, True]
-    finally:
-        sim.close()

@@ -1,13 +1,16 @@
-"""The CodeActionBench suite: registration, deterministic seeded layouts within the FACTS ranges,
-and verifiers that reject the initial scene and accept hand-built success states.
+"""The CodeActionBench suite: registration, the shared task helpers, and for beat_block_hammer,
+stack_blocks_three and open_microwave seeded layouts within the FACTS ranges and verifiers that
+accept hand-built success states.
 
 Verifiers are exercised through :class:`FakeWorld`, a WorldView-compatible stand-in that serves
 poses, joint positions, contacts and gripper commands from plain data (no simulator). The ``sim``
 tests use the project's SAPIEN backend when it and an embodiment are installed.
+
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
 """
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from importlib import metadata
 from pathlib import Path
 
@@ -27,19 +30,9 @@ from cab_suite_codeaction import common, plugin
 from cab_suite_codeaction.tasks import TASK_MODULES, load_tasks
 from cab_suite_codeaction.tasks import beat_block_hammer as bbh
 
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    FakeWorld,
-    _cache,
-    assert_settles,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_seeds_give_different_layouts,
-    check_verifier_false_on_the_initial_scene,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import FakeWorld, _cache, check_urdf_hinge, task_and_verifier  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, world_view
 
-SEEDS = range(20)
 # the three tasks this file covers; every other task has its own test file (tests/test_suite_*.py)
 TASKS = load_tasks(("beat_block_hammer", "stack_blocks_three", "open_microwave"))
 
@@ -77,39 +70,14 @@ def test_one_module_per_task_named_after_it():
         assert task.info == catalog.task_info(name)
 
 
-@pytest.mark.parametrize("name", sorted(TASKS))
-def test_task_info_comes_from_the_catalog(name):
-    task = TASKS[name]
-    assert task.info == catalog.task_info(name)
-    verifier = task.verifier(task.build(task.info.seed, None))
-    assert verifier.scoring == task.info.scoring
-    assert task.__class__.__module__.rsplit(".", 1)[1] == name
-    doc = __import__(task.__class__.__module__, fromlist=["x"]).__doc__
-    check_doc_sections(doc)
-
-
-# --- determinism and layouts ----------------------------------------------------------------------
-@pytest.mark.parametrize("name", sorted(TASKS))
-def test_build_is_deterministic_and_json(name):
-    task = TASKS[name]
-    check_build_is_deterministic_and_json(task)
-
-
-@pytest.mark.parametrize("name", sorted(TASKS))
-def test_seeds_give_different_layouts(name):
-    task = TASKS[name]
-
-    check_seeds_give_different_layouts(task, SEEDS, articulations=True)
-
-
+# --- layouts --------------------------------------------------------------------------------------
 def _yaw(q):
     return common.yaw_of(q)
 
 
-def test_beat_block_hammer_layouts():
+def test_beat_block_hammer_layouts(task_builds):
     task = TASKS["beat_block_hammer"]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         hammer, block = inst.scene.body("hammer"), inst.scene.body("block")
         assert hammer.kind == "dynamic" and 0.05 <= hammer.mass <= 0.2
         assert block.kind == "static"
@@ -139,10 +107,9 @@ def test_hammer_geometry_is_graspable_and_privileged_points_consistent():
     assert np.linalg.norm(d) == pytest.approx(info["head_size"][1] / 2)
 
 
-def test_stack_blocks_three_layouts():
+def test_stack_blocks_three_layouts(task_builds):
     task = TASKS["stack_blocks_three"]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         ps = [np.array(inst.scene.body(f"{c}_block").pose) for c in ("red", "green", "blue")]
         for p in ps:
             assert -0.28 <= p[0] <= 0.28 and abs(p[0]) >= 0.05
@@ -160,11 +127,10 @@ def test_stack_blocks_three_layouts():
         assert inst.info["stack_order"] == ["red", "green", "blue"]
 
 
-def test_open_microwave_layouts_and_urdf():
+def test_open_microwave_layouts_and_urdf(task_builds):
     task = TASKS["open_microwave"]
     models = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         (mw,) = inst.scene.articulations
         assert isinstance(mw, ArticulatedObject) and mw.fix_root and mw.qpos == (0.0,)
         assert -0.12 <= mw.pose[0] <= -0.02 and 0.15 <= mw.pose[1] <= 0.20
@@ -173,15 +139,9 @@ def test_open_microwave_layouts_and_urdf():
         m = inst.info["microwave"]
         models.add(m["model_id"])
         assert mw.pose[1] + m["size"][1] / 2 < 0.4  # clear of the wall
-        root = ET.parse(mw.urdf).getroot()
-        assert {l.get("name") for l in root.iter("link")} == {m["base_link"], m["door_link"]}
-        (joint,) = root.iter("joint")
-        assert joint.get("name") == m["door_joint"] and joint.get("type") == "revolute"
-        lim = joint.find("limit")
-        assert (float(lim.get("lower")), float(lim.get("upper"))) == tuple(m["door_limits"])
+        check_urdf_hinge(mw.urdf, (m["base_link"], m["door_link"]), m["door_joint"], m["door_limits"],
+                         m["hinge_point_base"], m["hinge_axis_base"])
         assert 1.5 <= m["door_limits"][1] <= 2.2
-        assert np.allclose([float(v) for v in joint.find("axis").get("xyz").split()], m["hinge_axis_base"])
-        assert np.allclose([float(v) for v in joint.find("origin").get("xyz").split()], m["hinge_point_base"])
         assert m["hinge_side"] == "left" and m["hinge_point_base"][0] < 0
         hx, hy, hz = m["handle_point_door"]
         assert m["door_width"] * 0.8 < hx < m["door_width"]  # on the free edge
@@ -202,12 +162,6 @@ def test_door_opens_toward_the_robot():
 
 
 # --- verifiers ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", sorted(TASKS))
-def test_verifier_false_on_the_initial_scene(name):
-    task = TASKS[name]
-    check_verifier_false_on_the_initial_scene(task, SEEDS)
-
-
 def _strike(inst, offset=(0.0, 0.0)):
     """Hammer turned face-down (roll +90 deg about x) with its face on the block's top centre."""
     info = inst.info
@@ -218,9 +172,7 @@ def _strike(inst, offset=(0.0, 0.0)):
 
 
 def test_beat_block_hammer_verifier():
-    task = TASKS["beat_block_hammer"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("beat_block_hammer")
     assert v.scoring == "latch" and v.poll_every == 1 and v.guarded_objects == ("hammer",)
     w = FakeWorld(inst)
     w.poses["hammer"] = _strike(inst)
@@ -251,9 +203,7 @@ def _stacked(inst, w, base_xy=(0.0, -0.1), d_green=(0, 0, 0), d_blue=(0, 0, 0)):
 
 
 def test_stack_blocks_three_verifier():
-    task = TASKS["stack_blocks_three"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("stack_blocks_three")
     assert v.scoring == "final" and set(v.guarded_objects) == {"red_block", "green_block", "blue_block"}
     w = FakeWorld(inst)
     _stacked(inst, w, d_green=(0.02, -0.02, 0.01), d_blue=(-0.024, 0.0, -0.011))
@@ -277,9 +227,7 @@ def test_stack_blocks_three_verifier():
 
 
 def test_open_microwave_verifier():
-    task = TASKS["open_microwave"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("open_microwave")
     w = FakeWorld(inst)
     upper = inst.info["microwave"]["door_limits"][1]
     for frac, ok in ((0.0, False), (0.59, False), (0.6, True), (0.7, True), (1.0, True)):
@@ -347,17 +295,8 @@ def test_base_scene_facts():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_sim_initial_scene_settles_and_fails(name):
-    sim, emb = sapien_backend({})
-    task = TASKS[name]
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
-        sim.step(task.settle_steps())
-        assert_settles(sim, inst, 250)
-        w = world_view(sim, emb, inst)
-        assert task.verifier(inst).evaluate(w).success is False
-    finally:
-        sim.close()
+    with sapien_world(TASKS[name], sim_config={}) as (sim, emb, inst):
+        check_settled_scene_fails(TASKS[name], sim, emb, inst, 250)
 
 
 def _pose_success_state(name, inst, sim):
@@ -379,20 +318,13 @@ def _pose_success_state(name, inst, sim):
 @pytest.mark.sim
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_sim_success_state_passes(name):
-    sim, emb = sapien_backend({})
     task = TASKS[name]
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
+    with sapien_world(task, sim_config={}) as (sim, emb, inst):
         sim.step(task.settle_steps())
         w = world_view(sim, emb, inst)
         v = task.verifier(inst)
         _pose_success_state(name, inst, sim)
-        sim.step(2)
-        ev = v.evaluate(w)
-        assert ev.success, ev
+        check_success_holds(task, sim, w, v, 2)
         if name != "beat_block_hammer":  # the stack and the open door stay put
             sim.step(250)
             assert v.evaluate(w).success
-    finally:
-        sim.close()

@@ -1,104 +1,28 @@
 """The handover group of the CodeActionBench suite (handover_block, handover_mic, place_mouse_pad,
-rotate_qrcode): deterministic seeded layouts within the FACTS B.6 ranges, JSON info, verifiers that
-reject the initial scene and accept hand-built success states, and checkpoint declarations that
-match the catalog. Oracle end-to-end runs are not here (the lead runs them centrally).
+rotate_qrcode): seeded layouts within the FACTS B.6 ranges, verifiers that accept hand-built
+success states and reject near misses, and the same in the SAPIEN backend. Oracle end-to-end runs
+are not here (the lead runs them centrally).
+
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
 """
 from __future__ import annotations
-
-import importlib
 
 import numpy as np
 import pytest
 
-from cab_suite_codeaction import catalog
-from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.contracts.task import Task
 
 from cab_suite_codeaction import common
 
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    FakeWorld,
-    _cache,
-    assert_settles,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_seeds_give_different_layouts,
-    check_verifier_false_on_the_initial_scene,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, task_module
 
 NAMES = ("handover_block", "handover_mic", "place_mouse_pad", "rotate_qrcode")
-SEEDS = range(20)
-
-
-def _load(name: str):
-    try:
-        return importlib.import_module(f"cab_suite_codeaction.tasks.{name}")
-    except ModuleNotFoundError:
-        return None
-
-
-MODULES = {n: m for n in NAMES if (m := _load(n)) is not None}
-TASKS = {n: m.TASK() for n, m in MODULES.items()}
-BUILT = sorted(TASKS)
-
 
 
 def _yaw(q):
     return common.yaw_of(q)
-
-
-# --- contract ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", BUILT)
-def test_task_info_and_docstring(name):
-    task = TASKS[name]
-    assert isinstance(task, Task) and task.name == name
-    assert task.info == catalog.task_info(name)
-    assert task.verifier(task.build(task.info.seed, None)).scoring == task.info.scoring
-    check_doc_sections(MODULES[name].__doc__)
-
-
-@pytest.mark.parametrize("name", BUILT)
-def test_build_is_deterministic_and_json(name):
-    task = TASKS[name]
-    check_build_is_deterministic_and_json(task)
-
-
-@pytest.mark.parametrize("name", BUILT)
-def test_seeds_give_different_layouts(name):
-    task = TASKS[name]
-
-    check_seeds_give_different_layouts(task, SEEDS)
-
-
-@pytest.mark.parametrize("name", BUILT)
-def test_checkpoint_declarations_match_the_catalog(name):
-    task = TASKS[name]
-    entry = next(t for t in catalog.load_catalog()["tasks"] if t["name"] == name)
-    inst = task.build(task.info.seed, None)
-    w = FakeWorld(inst)
-    sg = task.subgoals(w)
-    assert len(sg) == entry["subgoal_count"] and all(isinstance(v, bool) for v in sg)
-    assert not any(sg)  # nothing is attained in the initial scene
-    rules = task.spatial_checkpoints(inst.info)
-    assert len(rules) == entry["spatial_count"]
-    arms = {"L": "left", "R": "right", "Either": "either"}
-    for i, (r, c) in enumerate(zip(rules, entry["spatial_checkpoints"])):
-        assert isinstance(r, SpatialRule) and r.name == c["name"] and r.arm == arms[c["arm"]]
-        want = () if c["prerequisite"] in ("--", None) else tuple(int(p) - 1 for p in str(c["prerequisite"]).split(","))
-        assert r.prerequisites == want
-        assert all(p < i for p in r.prerequisites)
-        if r.lift_above_cm is None:
-            ref = np.asarray(r.reference(w), float)
-            assert ref.shape == (3,) and np.all(np.isfinite(ref))
-
-
-@pytest.mark.parametrize("name", BUILT)
-def test_verifier_false_on_the_initial_scene(name):
-    task = TASKS[name]
-    check_verifier_false_on_the_initial_scene(task, SEEDS)
 
 
 # --- handover_block -----------------------------------------------------------------------------------
@@ -111,10 +35,9 @@ def _block_on_pad(inst, dx=0.0, dy=0.0, dz=0.0, yaw=0.3):
 
 
 @pytest.mark.skipif("handover_block" not in TASKS, reason="not written")
-def test_handover_block_layouts():
+def test_handover_block_layouts(task_builds):
     task = TASKS["handover_block"]
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         block, pad = inst.scene.body("block"), inst.scene.body("pad")
         assert block.kind == "dynamic" and pad.kind == "static"
         assert block.shapes[0].geometry.half_size == (0.03, 0.03, 0.10)
@@ -133,9 +56,7 @@ def test_handover_block_layouts():
 
 @pytest.mark.skipif("handover_block" not in TASKS, reason="not written")
 def test_handover_block_verifier():
-    task = TASKS["handover_block"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("handover_block")
     assert v.scoring == "final" and v.guarded_objects == ("block",)
     w = FakeWorld(inst, grip=0.0)
     w.grip["right"] = 1.0
@@ -164,11 +85,10 @@ def test_handover_block_verifier():
 
 # --- handover_mic ---------------------------------------------------------------------------------------
 @pytest.mark.skipif("handover_mic" not in TASKS, reason="not written")
-def test_handover_mic_layouts():
+def test_handover_mic_layouts(task_builds):
     task = TASKS["handover_mic"]
     ids = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         mic = inst.scene.body("microphone")
         m = inst.info["microphone"]
         ids.add(m["model_id"])
@@ -231,12 +151,11 @@ def test_handover_mic_verifier():
 
 # --- place_mouse_pad ------------------------------------------------------------------------------------
 @pytest.mark.skipif("place_mouse_pad" not in TASKS, reason="not written")
-def test_place_mouse_pad_layouts():
+def test_place_mouse_pad_layouts(task_builds):
     task = TASKS["place_mouse_pad"]
-    mod = MODULES["place_mouse_pad"]
+    mod = task_module("place_mouse_pad")
     ids, colours, sides = set(), set(), set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         mouse, mat = inst.scene.body("mouse"), inst.scene.body("mat")
         assert mouse.kind == "dynamic" and mouse.mass == pytest.approx(0.05)
         assert mat.kind == "static" and mat.shapes[0].geometry.half_size == (0.035, 0.065, 0.0005)
@@ -264,9 +183,7 @@ def _mouse_on_mat(inst, dx=0.0, dy=0.0, yaw=0.0):
 
 @pytest.mark.skipif("place_mouse_pad" not in TASKS, reason="not written")
 def test_place_mouse_pad_verifier():
-    task = TASKS["place_mouse_pad"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("place_mouse_pad")
     assert v.scoring == "final" and v.guarded_objects == ("mouse",)
     w = FakeWorld(inst)
     for yaw in (0.0, np.pi, -np.pi, 0.4, np.pi - 0.4):  # front forward or backward, within ~26 deg
@@ -295,13 +212,12 @@ def test_place_mouse_pad_verifier():
 
 # --- rotate_qrcode --------------------------------------------------------------------------------------
 @pytest.mark.skipif("rotate_qrcode" not in TASKS, reason="not written")
-def test_rotate_qrcode_layouts_and_scannable_code():
+def test_rotate_qrcode_layouts_and_scannable_code(task_builds):
     cv2 = pytest.importorskip("cv2")
     task = TASKS["rotate_qrcode"]
-    mod = MODULES["rotate_qrcode"]
+    mod = task_module("rotate_qrcode")
     ids = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         board = inst.scene.body("qrcode_board")
         assert board.kind == "dynamic" and 0.05 <= board.mass <= 0.2
         x, y, z = board.pose[:3]
@@ -339,9 +255,7 @@ def _board_flat(inst, yaw=0.0, tilt=0.0, dz=0.0):
 
 @pytest.mark.skipif("rotate_qrcode" not in TASKS, reason="not written")
 def test_rotate_qrcode_verifier():
-    task = TASKS["rotate_qrcode"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("rotate_qrcode")
     assert v.scoring == "final" and v.guarded_objects == ("qrcode_board",)
     w = FakeWorld(inst)
     for yaw in (0.0, 0.12, -0.12):
@@ -402,27 +316,14 @@ def _success_state(name, inst, sim, emb) -> dict:
 
 
 @pytest.mark.sim
-@pytest.mark.parametrize("name", BUILT)
+@pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
-    sim, emb = sapien_backend()
     task = TASKS[name]
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
+    with sapien_world(task) as (sim, emb, inst):
         _home(sim, emb)
-        sim.step(task.settle_steps())
-        assert_settles(sim, inst, 125)
         grips = {a: 1.0 for a in emb.arms}
-        w = world_view(sim, emb, inst, grips)
-        v = task.verifier(inst)
-        assert v.evaluate(w).success is False
-        assert not any(task.subgoals(w))
+        w, v, _ = check_settled_scene_fails(task, sim, emb, inst, 125, grips=grips)
         grips.update(_success_state(name, inst, sim, emb))
-        sim.step(3)
-        ev = v.evaluate(w)
-        assert ev.success, ev
-        assert all(task.subgoals(w))
+        check_success_holds(task, sim, w, v, 3)
         sim.step(125)  # and it stays so
         assert v.evaluate(w).success
-    finally:
-        sim.close()

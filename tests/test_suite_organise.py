@@ -1,46 +1,30 @@
 """The "organise" tasks of the CodeActionBench suite (blocks_ranking_size, stack_bowls_three,
-hanging_mug): deterministic seeded layouts within the FACTS B.6 ranges, JSON-serialisable info,
-verifiers that reject the initial scene and accept hand-built success states, and checkpoint
-declarations matching the catalog's counts.
+hanging_mug): seeded layouts within the FACTS B.6 ranges, verifiers that accept hand-built success
+states and reject near misses, and what the spatial checkpoints accept.
 
 Verifiers are exercised through :class:`FakeWorld` (poses and gripper commands from plain data);
 the ``sim`` tests build the catalog instance with the project's SAPIEN backend.
+
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
 """
 from __future__ import annotations
-
-import importlib
 
 import numpy as np
 import pytest
 
-from cab_suite_codeaction import catalog
-from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.geometry import quat_to_mat, transform_point
 
 from cab_suite_codeaction import common
 
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    FakeWorld,
-    _cache,
-    assert_settles,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_seeds_give_different_layouts,
-    check_verifier_false_on_the_initial_scene,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import SEEDS, TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, task_module, tcp_in_rule
 
-MODULES = ("blocks_ranking_size", "stack_bowls_three", "hanging_mug")
-SEEDS = range(20)
+NAMES = ("blocks_ranking_size", "stack_bowls_three", "hanging_mug")
 
 
 def _task(name):
-    try:
-        mod = importlib.import_module(f"cab_suite_codeaction.tasks.{name}")
-    except ModuleNotFoundError:
-        pytest.skip(f"{name} is not written yet")
-    return mod, mod.TASK()
+    return task_module(name), TASKS[name]
 
 
 
@@ -48,63 +32,11 @@ def _yaw(q):
     return common.yaw_of(q)
 
 
-# --- common to the three tasks --------------------------------------------------------------------
-@pytest.mark.parametrize("name", MODULES)
-def test_catalog_docstring_and_scoring(name):
-    mod, task = _task(name)
-    assert task.name == name and task.info == catalog.task_info(name)
-    check_doc_sections(mod.__doc__)
-    inst = task.build(task.info.seed, None)
-    v = task.verifier(inst)
-    assert v.scoring == task.info.scoring == "final"
-    assert v.guarded_objects and all(o in inst.scene.names() for o in v.guarded_objects)
-
-
-@pytest.mark.parametrize("name", MODULES)
-def test_build_is_deterministic_and_json(name):
-    _, task = _task(name)
-    check_build_is_deterministic_and_json(task)
-
-
-@pytest.mark.parametrize("name", MODULES)
-def test_seeds_give_different_layouts(name):
-    _, task = _task(name)
-
-    check_seeds_give_different_layouts(task, SEEDS, articulations=True)
-
-
-@pytest.mark.parametrize("name", MODULES)
-def test_verifier_false_on_the_initial_scene(name):
-    _, task = _task(name)
-    check_verifier_false_on_the_initial_scene(task, SEEDS)
-
-
-@pytest.mark.parametrize("name", MODULES)
-def test_checkpoint_declarations_match_the_catalog(name):
-    _, task = _task(name)
-    info = task.info
-    inst = task.build(info.seed, None)
-    w = FakeWorld(inst)
-    sg = task.subgoals(w)
-    assert len(sg) == len(info.subgoals) and all(isinstance(s, bool) for s in sg) and not any(sg)
-    rules = task.spatial_checkpoints(inst.info)
-    assert len(rules) == len(info.spatial_checkpoints)
-    arms = {"L": "left", "R": "right", "Either": "either"}
-    for r, c in zip(rules, info.spatial_checkpoints):
-        assert isinstance(r, SpatialRule) and r.name == c["name"] and r.arm == arms[c["arm"]]
-        assert all(0 <= p < len(rules) for p in r.prerequisites)
-        if r.lift_above_cm is None:
-            ref = np.asarray(r.reference(w), float)
-            assert ref.shape == (3,) and np.isfinite(ref).all()
-            assert r.test(np.zeros(3)) in (True, False)
-
-
 # --- blocks_ranking_size ---------------------------------------------------------------------------
-def test_blocks_ranking_size_layouts():
+def test_blocks_ranking_size_layouts(task_builds):
     mod, task = _task("blocks_ranking_size")
     colours = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         blocks = inst.info["blocks"]
         assert [b["name"] for b in blocks] == ["block1", "block2", "block3"]
         ps = []
@@ -134,9 +66,7 @@ def _row(inst, w, xs=(-0.07, 0.0, 0.06), dys=(0.0, 0.0, 0.0), y=-0.1):
 
 
 def test_blocks_ranking_size_verifier():
-    _, task = _task("blocks_ranking_size")
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("blocks_ranking_size")
     assert set(v.guarded_objects) == {"block1", "block2", "block3"}
     w = FakeWorld(inst)
     _row(inst, w)
@@ -171,28 +101,25 @@ def test_blocks_ranking_size_verifier():
 
 
 def test_blocks_ranking_size_spatial_rules():
-    _, task = _task("blocks_ranking_size")
-    inst = task.build(0, None)
+    task, inst, _ = task_and_verifier("blocks_ranking_size")
     rules = task.spatial_checkpoints(inst.info)
     w = FakeWorld(inst)
     b1 = inst.info["blocks"][0]
     grasp = np.asarray(b1["pose"][:3]) + b1["grasp_tcp_offset"]
     w.tcp["left"][:3] = grasp + [0.015, 0.0, 0.035]
-    d = (w.tcp["left"][:3] - np.asarray(rules[0].reference(w))) * 100
-    assert rules[0].test(d) and not rules[1].test((w.tcp["left"][:3] - np.asarray(rules[1].reference(w))) * 100)
+    assert tcp_in_rule(rules[0], w, "left") and not tcp_in_rule(rules[1], w, "left")
     # the middle block set down 7 cm right of the large one
     assert rules[3].prerequisites == (1,) and rules[4].prerequisites == (2,)
     w.tcp["right"][:3] = grasp + [0.07, 0.01, -0.006]
-    assert rules[3].test((w.tcp["right"][:3] - np.asarray(rules[3].reference(w))) * 100)
+    assert tcp_in_rule(rules[3], w, "right")
     w.tcp["right"][:3] = grasp + [-0.01, 0.01, -0.006]  # on the wrong side
-    assert not rules[3].test((w.tcp["right"][:3] - np.asarray(rules[3].reference(w))) * 100)
+    assert not tcp_in_rule(rules[3], w, "right")
 
 
 # --- stack_bowls_three -----------------------------------------------------------------------------
-def test_stack_bowls_three_layouts_and_bowl():
+def test_stack_bowls_three_layouts_and_bowl(task_builds):
     mod, task = _task("stack_bowls_three")
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         names = [b["name"] for b in inst.info["bowls"]]
         assert names == ["bowl1", "bowl2", "bowl3"]
         ps = [np.asarray(inst.scene.body(n).pose) for n in names]
@@ -225,9 +152,7 @@ def _nest(w, xy=(0.0, -0.1), rise=0.021, d2=(0, 0), d3=(0, 0), order=("bowl1", "
 
 
 def test_stack_bowls_three_verifier():
-    _, task = _task("stack_bowls_three")
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("stack_bowls_three")
     assert set(v.guarded_objects) == {"bowl1", "bowl2", "bowl3"}
     w = FakeWorld(inst)
     _nest(w)
@@ -265,30 +190,28 @@ def test_stack_bowls_three_verifier():
 
 
 def test_stack_bowls_three_spatial_rules():
-    _, task = _task("stack_bowls_three")
-    inst = task.build(0, None)
+    task, inst, _ = task_and_verifier("stack_bowls_three")
     rules = task.spatial_checkpoints(inst.info)
     b = inst.info["bowl"]
     w = FakeWorld(inst)
     c = np.asarray(inst.info["bowls"][2]["pose"][:3])
     for phi in (0.0, 2.0, -2.5):  # anywhere on the ring around the bowl's axis
         w.tcp["left"][:3] = c + [b["grasp_radius"] * np.cos(phi), b["grasp_radius"] * np.sin(phi), b["grasp_tcp_dz"]]
-        assert rules[2].test((w.tcp["left"][:3] - np.asarray(rules[2].reference(w))) * 100)
-        assert not rules[0].test((w.tcp["left"][:3] - np.asarray(rules[0].reference(w))) * 100)
+        assert tcp_in_rule(rules[2], w, "left")
+        assert not tcp_in_rule(rules[0], w, "left")
     w.tcp["left"][:3] = c + [0.0, 0.0, b["grasp_tcp_dz"]]  # over the centre: not on the ring
-    assert not rules[2].test((w.tcp["left"][:3] - np.asarray(rules[2].reference(w))) * 100)
+    assert not tcp_in_rule(rules[2], w, "left")
     assert rules[3].prerequisites == (1,) and rules[4].prerequisites == (2,)
     # placing bowl2 into bowl1: the pinch ring one nesting step above bowl1's
     s = np.asarray(inst.info["bowls"][0]["pose"][:3])
     w.tcp["right"][:3] = s + [0.0, -b["grasp_radius"], b["grasp_tcp_dz"] + b["nest_rise"]]
-    assert rules[3].test((w.tcp["right"][:3] - np.asarray(rules[3].reference(w))) * 100)
+    assert tcp_in_rule(rules[3], w, "right")
 
 
 # --- hanging_mug -----------------------------------------------------------------------------------
-def test_hanging_mug_layouts_and_assets():
+def test_hanging_mug_layouts_and_assets(task_builds):
     mod, task = _task("hanging_mug")
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         mug, rack = inst.scene.body("mug"), inst.scene.body("rack")
         assert mug.kind == "dynamic" and 0.1 <= mug.mass <= 0.4 and rack.kind == "static"
         x, y, z = mug.pose[:3]
@@ -330,9 +253,7 @@ def _hung_pose(inst, shift=(0.0, 0.0), z=0.89):
 
 
 def test_hanging_mug_verifier():
-    _, task = _task("hanging_mug")
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("hanging_mug")
     assert v.guarded_objects == ("mug",)
     w = FakeWorld(inst)
     w.poses["mug"] = _hung_pose(inst)
@@ -362,17 +283,16 @@ def test_hanging_mug_verifier():
 
 
 def test_hanging_mug_spatial_rules():
-    _, task = _task("hanging_mug")
-    inst = task.build(0, None)
+    task, inst, _ = task_and_verifier("hanging_mug")
     rules = task.spatial_checkpoints(inst.info)
     assert rules[1].prerequisites == (0,)
     w = FakeWorld(inst)
     m = inst.info["mug"]
     c = np.asarray(m["pose"][:3])
     w.tcp["left"][:3] = c + [m["rim_mid_radius"], 0.0, m["grasp_tcp_dz"] + 0.03]
-    assert rules[0].test((w.tcp["left"][:3] - np.asarray(rules[0].reference(w))) * 100)
+    assert tcp_in_rule(rules[0], w, "left")
     w.tcp["left"][:3] = c + [0.06, 0.0, m["grasp_tcp_dz"]]
-    assert not rules[0].test((w.tcp["left"][:3] - np.asarray(rules[0].reference(w))) * 100)
+    assert not tcp_in_rule(rules[0], w, "left")
     # the hanging reference: over the rim opposite the handle, the handle on the peg's middle
     ref = np.asarray(rules[1].reference(w))
     rack = inst.info["rack"]
@@ -405,23 +325,10 @@ def _pose_success_state(name, inst, sim):
 
 
 @pytest.mark.sim
-@pytest.mark.parametrize("name", MODULES)
+@pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_fails_and_success_state_passes(name):
-    _, task = _task(name)
-    sim, emb = sapien_backend()
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
-        sim.step(task.settle_steps())
-        assert_settles(sim, inst, 100)
-        w = world_view(sim, emb, inst)
-        v = task.verifier(inst)
-        assert v.evaluate(w).success is False
-        assert not any(task.subgoals(w))
+    task = TASKS[name]
+    with sapien_world(task) as (sim, emb, inst):
+        w, v, _ = check_settled_scene_fails(task, sim, emb, inst, 100)
         _pose_success_state(name, inst, sim)
-        sim.step(500)
-        ev = v.evaluate(w)
-        assert ev.success, ev
-        assert all(task.subgoals(w))
-    finally:
-        sim.close()
+        check_success_holds(task, sim, w, v, 500)

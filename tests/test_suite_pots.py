@@ -1,108 +1,47 @@
 """The kitchen tasks of the CodeActionBench suite (lift_pot, grab_roller_dual_contact, move_can_pot):
-deterministic seeded layouts within the FACTS ranges, verifiers that reject the initial scene and
-accept hand-built success states, and checkpoint declarations matching the catalog.
+seeded layouts within the FACTS ranges, verifiers that accept hand-built success states and reject
+near misses, and spatial references that follow the objects.
 
 Verifiers run on :class:`FakeWorld` (plain data, no simulator); the ``sim`` tests build the real
 scene with the SAPIEN backend (physics only) and check that it settles and fails the verifier.
+
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
 """
 from __future__ import annotations
-
-import importlib
 
 import numpy as np
 import pytest
 
-from cab_suite_codeaction import catalog
-from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 
 from cab_suite_codeaction import common
 
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    FakeWorld,
-    _cache,
-    assert_settles,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_seeds_give_different_layouts,
-    check_verifier_false_on_the_initial_scene,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, sapien_world, tcp_in_rule
 
 NAMES = ("lift_pot", "grab_roller_dual_contact", "move_can_pot")
-TASKS = {n: importlib.import_module(f"cab_suite_codeaction.tasks.{n}").TASK() for n in NAMES}
-SEEDS = range(20)
-
 
 
 def _yaw(q):
     return common.yaw_of(q)
 
 
-# --- common to the three tasks ---------------------------------------------------------------------
-@pytest.mark.parametrize("name", NAMES)
-def test_catalog_docstring_and_scoring(name):
-    task = TASKS[name]
-    assert task.info == catalog.task_info(name)
-    inst = task.build(task.info.seed, None)
-    v = task.verifier(inst)
-    assert v.scoring == task.info.scoring == "final"
-    doc = importlib.import_module(f"cab_suite_codeaction.tasks.{name}").__doc__
-    check_doc_sections(doc)
-    assert v.guarded_objects and v.guard_min_z == pytest.approx(0.74 - 0.08)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_build_is_deterministic_and_json(name):
-    task = TASKS[name]
-    check_build_is_deterministic_and_json(task)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_seeds_give_different_layouts(name):
-    task = TASKS[name]
-
-    check_seeds_give_different_layouts(task, SEEDS)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_verifier_false_on_the_initial_scene(name):
-    task = TASKS[name]
-    check_verifier_false_on_the_initial_scene(task, SEEDS)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_checkpoint_declarations_match_the_catalog(name):
-    task = TASKS[name]
-    inst = task.build(task.info.seed, None)
-    w = FakeWorld(inst)
-    sg = task.subgoals(w)
-    assert len(sg) == len(task.info.subgoals) and all(isinstance(v, bool) for v in sg) and not any(sg)
-    rules = task.spatial_checkpoints(inst.info)
-    assert len(rules) == len(task.info.spatial_checkpoints)
-    arms = {"L": "left", "R": "right", "Either": "either"}
-    for i, (r, c) in enumerate(zip(rules, task.info.spatial_checkpoints)):
-        assert isinstance(r, SpatialRule) and r.name == c["name"] and r.arm == arms[c["arm"]]
-        want = () if c["prerequisite"] == "--" else tuple(int(k) - 1 for k in str(c["prerequisite"]).split(","))
-        assert r.prerequisites == want and all(p < i for p in r.prerequisites)
-        if r.lift_above_cm is None:
-            assert len(np.asarray(r.reference(w))) == 3
+def _lowest_z(body):
+    """The height of the body's lowest point (0.74 is the table top)."""
+    return body.pose[2] + common.lowest_point_z(body.shapes, body.pose[3:])
 
 
 # --- lift_pot ----------------------------------------------------------------------------------------
-def test_lift_pot_layouts():
-    task = TASKS["lift_pot"]
+def test_lift_pot_layouts(task_builds):
     models = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds["lift_pot"]:
         pot = inst.scene.body("pot")
-        x, y, z = pot.pose[:3]
+        x, y = pot.pose[:2]
         assert -0.05 <= x <= 0.05 and -0.05 <= y <= 0.05
         assert abs(_yaw(pot.pose[3:])) <= np.pi / 8 + 1e-9
         assert np.allclose(quat_to_mat(pot.pose[3:])[:, 2], (0, 0, 1))
-        low = z + common.lowest_point_z(pot.shapes, pot.pose[3:])
-        assert 0.74 <= low <= 0.7405
+        assert 0.74 <= _lowest_z(pot) <= 0.7405
         assert pot.kind == "dynamic" and 0.5 <= pot.mass <= 1.5
         p = inst.info["pot"]
         models.add(p["model_id"])
@@ -124,9 +63,7 @@ def _lifted(inst, w, dz=0.10, tilt=0.0, tcp_off=(0.0, 0.0, 0.0)):
 
 
 def test_lift_pot_verifier():
-    task = TASKS["lift_pot"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("lift_pot")
     assert v.guarded_objects == ("pot",)
     w = FakeWorld(inst, grip=0.0)
     _lifted(inst, w)
@@ -158,27 +95,24 @@ def test_lift_pot_spatial_references_follow_the_pot():
     _lifted(inst, w, dz=0.0)
     for r in rules[:2]:
         arm = r.arm
-        assert r.test(100 * (w.tcp_pose(arm)[:3] - np.asarray(r.reference(w))))
+        assert tcp_in_rule(r, w, arm)
         w2 = FakeWorld(inst)
         _lifted(inst, w2, dz=0.0, tcp_off=(0.021, 0.0, 0.0))
-        assert not r.test(100 * (w2.tcp_pose(arm)[:3] - np.asarray(r.reference(w2))))
+        assert not tcp_in_rule(r, w2, arm)
     # the lift needed: from the initial height (0.74) to 0.82
     assert rules[2].lift_above_cm == pytest.approx(100 * (0.82 - inst.info["pot"]["initial_z"]))
 
 
 # --- grab_roller_dual_contact -----------------------------------------------------------------------
-def test_grab_roller_layouts():
-    task = TASKS["grab_roller_dual_contact"]
+def test_grab_roller_layouts(task_builds):
     models = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds["grab_roller_dual_contact"]:
         roller = inst.scene.body("roller")
-        x, y, z = roller.pose[:3]
+        x, y = roller.pose[:2]
         assert -0.15 <= x <= 0.15 and -0.25 <= y <= -0.05
         assert abs(_yaw(roller.pose[3:])) <= 0.8 + 1e-9
         assert abs(quat_to_mat(roller.pose[3:])[2, 0]) < 1e-9  # the axis lies flat
-        low = z + common.lowest_point_z(roller.shapes, roller.pose[3:])
-        assert 0.74 <= low <= 0.7405
+        assert 0.74 <= _lowest_z(roller) <= 0.7405
         r = inst.info["roller"]
         models.add(r["model_id"])
         h0, h1 = (transform_point(roller.pose, h) for h in r["handle_points"])
@@ -190,9 +124,7 @@ def test_grab_roller_layouts():
 
 
 def test_grab_roller_verifier():
-    task = TASKS["grab_roller_dual_contact"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("grab_roller_dual_contact")
     assert v.guarded_objects == ("roller",)
     w = FakeWorld(inst, grip=0.0)
     w.poses["roller"][2] = 0.85
@@ -221,13 +153,12 @@ def _upright(yaw):
     return quat_mul(axis_angle_quat([0, 0, 1], yaw), [np.sqrt(0.5), np.sqrt(0.5), 0, 0])
 
 
-def test_move_can_pot_layouts():
+def test_move_can_pot_layouts(task_builds):
     from cab_suite_codeaction.tasks.move_can_pot import euler_sxyz
 
     task = TASKS["move_can_pot"]
     pots, cans, arms = set(), set(), set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         pot, can = inst.scene.body("pot"), inst.scene.body("can")
         assert np.allclose(pot.pose[:2], (0.0, 0.0)) and abs(_yaw(pot.pose[3:])) <= np.pi / 8 + 1e-9
         x, y, z = can.pose[:3]
@@ -237,8 +168,7 @@ def test_move_can_pot_layouts():
         assert ax == pytest.approx(np.pi / 2) and ay == pytest.approx(0.0, abs=1e-9)
         assert abs(quat_to_mat(can.pose[3:])[2, 1] - 1.0) < 1e-9  # axis (local +y) straight up
         for body in (pot, can):
-            low = body.pose[2] + common.lowest_point_z(body.shapes, body.pose[3:])
-            assert 0.74 <= low <= 0.7405, body.name
+            assert 0.74 <= _lowest_z(body) <= 0.7405, body.name
         info = inst.info
         assert info["arm"] == ("left" if x < 0 else "right")
         c = info["can"]
@@ -265,9 +195,7 @@ def _placed(inst, w, dis=None, dy=0.0, tilt=0.0, dz=0.0, yaw=0.4):
 
 @pytest.mark.parametrize("seed", [0, 1])  # a left and a right instance
 def test_move_can_pot_verifier(seed):
-    task = TASKS["move_can_pot"]
-    inst = task.build(seed, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("move_can_pot", seed)
     assert set(v.guarded_objects) == {"can", "pot"}
     w = FakeWorld(inst)
     _placed(inst, w)
@@ -313,16 +241,5 @@ def test_move_can_pot_euler_matches_transforms3d_convention():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    sim, emb = sapien_backend()
-    task = TASKS[name]
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
-        sim.step(task.settle_steps())
-        assert_settles(sim, inst, 250)
-        w = world_view(sim, emb, inst)
-        ev = task.verifier(inst).evaluate(w)
-        assert ev.success is False
-        assert not any(task.subgoals(w))
-    finally:
-        sim.close()
+    with sapien_world(TASKS[name]) as (sim, emb, inst):
+        check_settled_scene_fails(TASKS[name], sim, emb, inst, 250)

@@ -1,15 +1,15 @@
-"""The tool-use tasks (click_bell, press_stapler, scan_object): deterministic seeded layouts within
-the FACTS ranges, generated assets, verifiers that reject the initial scene (SAPIEN) and accept
-hand-built success states, and catalog-sized checkpoint lists."""
-from __future__ import annotations
+"""The tool-use tasks (click_bell, press_stapler, scan_object): seeded layouts within the FACTS
+ranges, generated assets, verifiers that reject the settled initial scene (SAPIEN) and accept
+hand-built success states.
 
-import importlib
-import xml.etree.ElementTree as ET
+The contract every task keeps (catalog entry, deterministic JSON builds, distinct seeded layouts, a
+verifier that rejects every initial layout, catalog checkpoints) is checked in test_suite_tasks.py.
+"""
+from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from cab_suite_codeaction import catalog
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.contracts.scene import ArticulatedObject
 from cab_core.contracts.simulator import Contact
@@ -17,69 +17,17 @@ from cab_core.contracts.simulator import Contact
 from cab_suite_codeaction import assets_tools as at
 from cab_suite_codeaction.common import yaw_of
 
-from suite_helpers import (  # noqa: F401  (_cache: autouse fixture)
-    FakeWorld,
-    _cache,
-    assert_settles,
-    check_build_is_deterministic_and_json,
-    check_doc_sections,
-    check_seeds_give_different_layouts,
-    sapien_backend,
-    world_view,
-)
+from suite_helpers import TASKS, FakeWorld, _cache, check_urdf_hinge, task_and_verifier  # noqa: F401 (_cache: autouse)
+from suite_helpers import check_settled_scene_fails, sapien_world
 
 NAMES = ("click_bell", "press_stapler", "scan_object")
-SEEDS = range(20)
 
 
-def _task(name):
-    return importlib.import_module(f"cab_suite_codeaction.tasks.{name}").TASK()
-
-
-TASKS = {n: _task(n) for n in NAMES}
-
-
-
-# --- catalog, determinism, layouts ----------------------------------------------------------------
-@pytest.mark.parametrize("name", NAMES)
-def test_catalog_entry_docstring_and_counts(name):
-    task = TASKS[name]
-    assert task.info == catalog.task_info(name)
-    inst = task.build(task.info.seed, None)
-    v = task.verifier(inst)
-    assert v.scoring == task.info.scoring
-    if v.scoring == "latch":
-        assert v.poll_every == 1
-    doc = importlib.import_module(f"cab_suite_codeaction.tasks.{name}").__doc__
-    check_doc_sections(doc)
-    w = FakeWorld(inst)
-    subs = task.subgoals(w)
-    assert len(subs) == len(task.info.subgoals) and all(isinstance(s, bool) for s in subs)
-    rules = task.spatial_checkpoints(inst.info)
-    assert len(rules) == len(task.info.spatial_checkpoints)
-    for r, c in zip(rules, task.info.spatial_checkpoints):
-        assert r.name == c["name"] and r.arm == {"L": "left", "R": "right", "Either": "either"}[c["arm"]]
-        assert np.asarray(r.reference(w)).shape == (3,)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_build_is_deterministic_and_json(name):
-    task = TASKS[name]
-    check_build_is_deterministic_and_json(task)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_seeds_give_different_layouts(name):
-    task = TASKS[name]
-
-    check_seeds_give_different_layouts(task, SEEDS, articulations=True)
-
-
-def test_click_bell_layouts():
+# --- layouts ----------------------------------------------------------------------------------------
+def test_click_bell_layouts(task_builds):
     task = TASKS["click_bell"]
     models = set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         bell = inst.scene.body("bell")
         assert bell.kind == "static"
         x, y, z = bell.pose[:3]
@@ -93,11 +41,10 @@ def test_click_bell_layouts():
     assert models == {0, 1}
 
 
-def test_press_stapler_layouts_and_urdf():
+def test_press_stapler_layouts_and_urdf(task_builds):
     task = TASKS["press_stapler"]
     models, yaws = set(), []
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         (st,) = inst.scene.articulations
         assert isinstance(st, ArticulatedObject) and st.fix_root and st.qpos == (0.0,)
         x, y, z = st.pose[:3]
@@ -106,13 +53,8 @@ def test_press_stapler_layouts_and_urdf():
         yaws.append(yaw_of(st.pose[3:]))
         s = inst.info["stapler"]
         models.add(s["model_id"])
-        root = ET.parse(st.urdf).getroot()
-        assert {l.get("name") for l in root.iter("link")} == {s["base_link"], s["arm_link"]}
-        (joint,) = root.iter("joint")
-        assert joint.get("name") == s["hinge_joint"] and joint.get("type") == "revolute"
-        lim = joint.find("limit")
-        assert (float(lim.get("lower")), float(lim.get("upper"))) == tuple(s["hinge_limits"])
-        assert np.allclose([float(v) for v in joint.find("origin").get("xyz").split()], s["hinge_point_base"])
+        check_urdf_hinge(st.urdf, (s["base_link"], s["arm_link"]), s["hinge_joint"], s["hinge_limits"],
+                         s["hinge_point_base"])
         # the press point is on the cover's top, in front of the hinge, behind the nose
         L, W, H = s["size"]
         px, py, pz = np.add(s["hinge_point_base"], s["contact_points_arm"][2])
@@ -122,11 +64,10 @@ def test_press_stapler_layouts_and_urdf():
     assert max(yaws) - min(yaws) > 3.0
 
 
-def test_scan_object_layouts():
+def test_scan_object_layouts(task_builds):
     task = TASKS["scan_object"]
     sides, scanners, boxes = set(), set(), set()
-    for seed in SEEDS:
-        inst = task.build(seed, None)
+    for inst in task_builds[task.name]:
         info = inst.info
         sc, bx = inst.scene.body("scanner"), inst.scene.body("tea_box")
         assert sc.kind == bx.kind == "dynamic" and 0.1 <= sc.mass <= 0.25 and 0.05 <= bx.mass <= 0.2
@@ -173,9 +114,7 @@ def test_stapler_hinge_presses_the_nose_down():
 
 # --- verifiers on hand-built states -------------------------------------------------------------
 def test_click_bell_verifier():
-    task = TASKS["click_bell"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("click_bell")
     assert v.scoring == "latch" and v.guarded_objects == ()
     w = FakeWorld(inst)
     arm = inst.info["side_arm"]
@@ -221,9 +160,7 @@ def test_click_bell_gripper_bodies_from_the_embodiment():
 
 
 def test_press_stapler_verifier():
-    task = TASKS["press_stapler"]
-    inst = task.build(0, None)
-    v = task.verifier(inst)
+    task, inst, v = task_and_verifier("press_stapler")
     assert v.scoring == "latch" and v.guarded_objects == ()
     w = FakeWorld(inst)
     s = inst.info["stapler"]
@@ -301,17 +238,7 @@ def test_scan_object_verifier():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    sim, emb = sapien_backend()
-    task = TASKS[name]
-    inst = task.build(task.info.seed, emb)
-    try:
-        sim.build(inst.scene, emb)
-        sim.step(task.settle_steps())
-        assert_settles(sim, inst, 100)
+    with sapien_world(TASKS[name]) as (sim, emb, inst):
+        check_settled_scene_fails(TASKS[name], sim, emb, inst, 100)
         for a in inst.scene.articulations:
             assert np.allclose(sim.get_object_qpos(a.name), a.qpos or (), atol=1e-3)
-        w = world_view(sim, emb, inst)
-        ev = task.verifier(inst).evaluate(w)
-        assert ev.success is False and task.subgoals(w) == [False] * len(task.info.subgoals)
-    finally:
-        sim.close()
