@@ -24,7 +24,7 @@ MAX_LEVELS = 7
 WINGS = (
     ("cab_core.apps", "cab_core.testing"),  # the command-line programs; the conformance suites
     ("cab_core.analysis",),  # reports, the viewer, measures over records
-    ("cab_core.sweep.manifest",),  # many attempts: manifest, layout, supervisor, child
+    ("cab_core.sweep",),  # many attempts: manifest, layout, supervisor, child
     ("cab_core.attempt",),  # one attempt: spec, world, serving, finishing, records
     ("cab_core.tools", "cab_core.sandbox"),  # the tools the agent calls; the confined run_code
     ("cab_core.config", "cab_core.conf", "cab_core.plugins"),  # Hydra configuration; the plugin registry
