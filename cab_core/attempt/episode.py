@@ -23,7 +23,7 @@ from cab_core.attempt.record import RECORD_VERSION
 from cab_core.attempt.recording import Recorder
 from cab_core.attempt.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.spec import AttemptSpec
-from cab_core.attempt.world import RECORD_CAMERA, BuiltWorld, close_quietly, create_parts
+from cab_core.attempt.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
 from cab_core.contracts.task import SceneInstance, Task
 from cab_core.contracts.verifier import WorldView
 from cab_core.tools import build_registry
@@ -60,12 +60,7 @@ class Episode:
     def open(cls, spec: AttemptSpec, observers=None) -> "Episode":
         """The attempt ``spec`` describes, its task, simulator, planner and embodiment created
         through the plugin registry (the simulator is closed again if building fails)."""
-        task, sim, planner, emb = create_parts(spec)
-        try:
-            return cls(spec, task, sim, planner, emb, observers)
-        except BaseException:
-            close_quietly(sim)
-            raise
+        return with_parts(spec, lambda *parts: cls(spec, *parts, observers))
 
     # -- set-up -------------------------------------------------------------------------------
     def _setup(self) -> None:

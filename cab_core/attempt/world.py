@@ -85,12 +85,7 @@ class BuiltWorld:
     @classmethod
     def open(cls, spec: "AttemptSpec", video_size: tuple[int, int] | None = None) -> "BuiltWorld":
         """The world of ``spec``, its parts created through the plugin registry."""
-        task, sim, planner, emb = create_parts(spec)
-        try:
-            return cls(spec, task, sim, planner, emb, video_size)
-        except BaseException:
-            close_quietly(sim)
-            raise
+        return with_parts(spec, lambda *parts: cls(spec, *parts, video_size))
 
 
 def create_parts(spec: "AttemptSpec") -> tuple:
@@ -105,6 +100,17 @@ def create_parts(spec: "AttemptSpec") -> tuple:
     planner = create("planners", spec.planner, spec.planner_cfg)
     sim = create("simulators", spec.sim, spec.sim_cfg)
     return tasks[spec.task], sim, planner, emb
+
+
+def with_parts(spec: "AttemptSpec", make):
+    """``make(task, simulator, planner, embodiment)`` on the parts of ``spec`` (:func:`create_parts`);
+    the simulator is closed again if ``make`` fails."""
+    task, sim, planner, emb = create_parts(spec)
+    try:
+        return make(task, sim, planner, emb)
+    except BaseException:
+        close_quietly(sim)
+        raise
 
 
 def close_quietly(sim) -> None:
