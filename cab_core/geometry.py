@@ -1,7 +1,15 @@
-"""Small rigid-body helpers over numpy. Poses are [x, y, z, qw, qx, qy, qz]; quaternions are wxyz."""
+"""Small rigid-body helpers over numpy, the pinhole camera model, and how poses and orientations
+read in a tool result.
+
+Poses are [x, y, z, qw, qx, qy, qz]; quaternions are wxyz. Cameras follow OpenCV: a pinhole K
+(pixels, no distortion) and a 3x4 extrinsic E = [R|t] mapping world to camera
+(p_cam = R p_world + t; camera +x right, +y down, +z forward). This is the one home of the camera
+math the tools and the hosts use. Imports nothing else of cab_core.
+"""
 from __future__ import annotations
 
 import math
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -121,3 +129,160 @@ def intrinsics(width: int, height: int, fovy_deg: float) -> np.ndarray:
     """Pinhole K with square pixels from the vertical field of view."""
     f = (height / 2.0) / np.tan(np.deg2rad(fovy_deg) / 2.0)
     return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+# ==============================================================================================
+# camera math (pinhole K, world->camera E = [R|t], OpenCV axes)
+# ==============================================================================================
+MIN_DEPTH_M = 1e-6  # a point is "in front of" a camera when its camera z exceeds this
+
+
+def extrinsic_from_pose(cam_pose_world) -> np.ndarray:
+    """3x4 world->camera matrix E from an OpenCV-convention camera pose in the world."""
+    return pose_to_mat(pose_inv(cam_pose_world))[:3, :]
+
+
+def camera_centre(E) -> np.ndarray:
+    """World position of the camera centre: -R^T t."""
+    E = np.asarray(E, float)
+    return -E[:, :3].T @ E[:, 3]
+
+
+def world_to_camera(E, p) -> np.ndarray:
+    """One world point in camera coordinates: R p + t."""
+    E = np.asarray(E, float)
+    return E[:, :3] @ p + E[:, 3]
+
+
+def camera_to_world(E, p_cam) -> np.ndarray:
+    """One camera-frame point in world coordinates: R^T (p_cam - t)."""
+    E = np.asarray(E, float)
+    return E[:, :3].T @ (p_cam - E[:, 3])
+
+
+def back_project(K, px: Sequence[float]) -> np.ndarray:
+    """The camera-frame point at depth 1 on the viewing ray of pixel ``px``: K^-1 [u, v, 1]."""
+    return np.linalg.solve(np.asarray(K, float), np.array([px[0], px[1], 1.0]))
+
+
+def project_points(K, E, pts) -> tuple[np.ndarray, np.ndarray]:
+    """World points (N,3) -> pixels (N,2) and camera depths (N,). Pixels of points behind the
+    camera are NaN."""
+    pts = np.atleast_2d(np.asarray(pts, float))
+    pc = pts @ np.asarray(E, float)[:, :3].T + np.asarray(E, float)[:, 3]
+    z = pc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uvw = pc @ np.asarray(K, float).T
+        uv = uvw[:, :2] / uvw[:, 2:3]
+    uv[z <= MIN_DEPTH_M] = np.nan
+    return uv, z
+
+
+def pixel_ray(K, E, px: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """World origin (camera centre) and unit direction of the viewing ray through pixel ``px``. A
+    ray without a usable direction (non-finite, or no length) has the direction [0, 0, 0]: check it
+    with :func:`degenerate_direction`."""
+    with np.errstate(all="ignore"):
+        d_cam = back_project(K, px)
+        d = np.asarray(E, float)[:, :3].T @ d_cam
+        n = float(np.linalg.norm(d))
+    if not (math.isfinite(n) and n > 1e-12):
+        return camera_centre(E), np.zeros(3)
+    return camera_centre(E), d / n
+
+
+def degenerate_direction(d: np.ndarray) -> bool:
+    """Whether a direction from :func:`pixel_ray` is unusable (not finite, not of unit length)."""
+    return not (np.all(np.isfinite(d)) and abs(float(np.linalg.norm(d)) - 1.0) < 1e-6)
+
+
+# ==============================================================================================
+# how numbers, poses and orientations read in a tool result
+# ==============================================================================================
+def rnd(x: Any, nd: int = 6) -> Any:
+    """JSON-able copy of numbers/arrays rounded to ``nd`` decimals (None and non-finite kept as None)."""
+    if x is None:
+        return None
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return round(float(x), nd) + 0.0 if math.isfinite(float(x)) else None  # + 0.0: no "-0.0"
+    if isinstance(x, np.ndarray):
+        return rnd(x.tolist(), nd)
+    if isinstance(x, (list, tuple)):
+        return [rnd(v, nd) for v in x]
+    if isinstance(x, dict):
+        return {k: rnd(v, nd) for k, v in x.items()}
+    return x
+
+
+def pose_block(pose: Sequence[float]) -> list:
+    return rnd(np.asarray(pose, float), 6)
+
+
+_DIR_NAMES = {(0, 1): "right (+x)", (0, -1): "left (-x)", (1, 1): "forward (+y)", (1, -1): "backward (-y)",
+              (2, 1): "up (+z)", (2, -1): "down (-z)"}
+_LINE_NAMES = {0: "left-right (x)", 1: "forward-backward (y)", 2: "vertical (z)"}
+
+
+def describe_direction(v: Sequence[float]) -> str:
+    """Plain words for a world direction, e.g. 'down (-z)' or 'mostly forward (+y), tilted 20 deg down (-z)'."""
+    v = np.asarray(v, float)
+    v = v / (np.linalg.norm(v) or 1.0)
+    order = np.argsort(-np.abs(v))
+    i, j = int(order[0]), int(order[1])
+    main = _DIR_NAMES[(i, 1 if v[i] > 0 else -1)]
+    if abs(v[i]) >= math.cos(math.radians(5)):
+        return main
+    tilt = math.degrees(math.atan2(abs(v[j]), abs(v[i])))
+    return f"mostly {main}, tilted {tilt:.0f} deg toward {_DIR_NAMES[(j, 1 if v[j] > 0 else -1)]}"
+
+
+def describe_line(v: Sequence[float]) -> str:
+    """Plain words for an unoriented line direction."""
+    v = np.abs(np.asarray(v, float))
+    i = int(np.argmax(v))
+    if v[i] >= math.cos(math.radians(5)):
+        return _LINE_NAMES[i]
+    return f"mostly {_LINE_NAMES[i]}"
+
+
+_SNAPSHOT_NAMES = (("+x (robot right)", "-x (robot left)"), ("+y (forward)", "-y (toward robot)"),
+                   ("+z (up)", "-z (down)"))
+
+
+def _snapshot_words(v, line: bool = False) -> str:
+    """The snapshot form's words for a direction (or, with ``line``, an unoriented line)."""
+    i = int(np.argmax(np.abs(v)))
+    s = _SNAPSHOT_NAMES[i][0 if v[i] >= 0 else 1]
+    if line:
+        s = s.split(" ")[0].lstrip("+-") + "-axis line"
+    return f"mostly {s}" if abs(v[i]) < 0.95 else s
+
+
+def orientation_block(quat_wxyz: Sequence[float], *, snapshot: bool = False) -> dict:
+    """The ``orientation`` block that accompanies a reported gripper pose: the gripper's approach
+    (+x) and opening (+y) axes in world coordinates, and how they read in words.
+
+    Two forms, both as recorded attempts hold them: the full form of observation and geometry
+    results (axes to 6 decimals, the normal axis, the convention) and, with ``snapshot``, the
+    compact form of the two-arm robot snapshots inside action results (``observed_before``,
+    ``observed_after``: axes to 4 decimals, shorter words)."""
+    r = quat_to_mat(quat_wxyz)
+    a, o = r[:, 0], r[:, 1]
+    if snapshot:
+        return {"approach_axis_world": [round(float(x), 4) for x in a],
+                "opening_axis_world": [round(float(x), 4) for x in o],
+                "reads_as": {"approach": _snapshot_words(a), "opening_line": _snapshot_words(o, line=True)}}
+    return {
+        "approach_axis_world": rnd(a),
+        "opening_axis_world": rnd(o),
+        "normal_axis_world": rnd(r[:, 2]),
+        "reads_as": {
+            "approach": f"approach points {describe_direction(a)}",
+            "opening": f"fingers open and close along {describe_line(o)}",
+        },
+        "convention": "gripper +x = approach (wrist toward fingertips), +y = finger-opening line, +z = x cross y",
+    }

@@ -4,6 +4,7 @@ a broken host ends an attempt as an infrastructure failure, which sweeps retry a
 Each reproduction of issue 12 is one test here, on MuJoCo (the fastest simulator to start)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -19,7 +20,7 @@ from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.episode import Episode
 from cab_core.errors import InfrastructureFault, SimulatorError
 from cab_core.plugins import all_tasks, create
-from cab_core.tools import estimate as geometry_tools
+from cab_core import geometry
 from cab_core.attempt.runner import attempt_spec
 from cab_core.tools import TOOLS, validate_args
 
@@ -125,8 +126,8 @@ def test_degenerate_geometry_says_so(ep, head):
     p = _call(ep, "plane_intersect", {"obs_id": head, "px": [320, 300], "plane_point_xyz": [0, 0, 0.75],
                                       "plane_normal_xyz": [0, 0, 1], "plane_offset_sigma_m": 0.01})
     assert p["valid"] is True and p["failure"] is None and p["value"][2] == pytest.approx(0.75, abs=1e-6)
-    d = geometry_tools.pixel_ray(np.eye(3), np.hstack([np.eye(3), np.zeros((3, 1))]), [np.inf, 0.0])[1]
-    assert geometry_tools.degenerate_direction(d)
+    d = geometry.pixel_ray(np.eye(3), np.hstack([np.eye(3), np.zeros((3, 1))]), [np.inf, 0.0])[1]
+    assert geometry.degenerate_direction(d)
 
 
 @pytest.mark.parametrize("bbox, extent, code", [
@@ -160,19 +161,17 @@ def test_schema_declares_every_numeric_range():
 
 
 # -- the fault rule --------------------------------------------------------------------------------
-def _raise_in(monkeypatch, tool: str, exc: BaseException):
-    td = TOOLS[tool]
-    mod = __import__(td.handler.split(":")[0], fromlist=["x"])
-
+def _raise_in(monkeypatch, ep, tool: str, exc: BaseException):
+    """Make ``tool``'s handler raise ``exc`` in the registry ``ep`` serves its calls from."""
     def boom(ctx, args):
         raise exc
 
-    monkeypatch.setattr(mod, tool, boom)
+    monkeypatch.setitem(ep.registry, tool, dataclasses.replace(ep.registry[tool], handler=boom))
 
 
 def test_an_exception_while_serving_a_call_is_the_agents_tool_error(ep, monkeypatch):
     n0 = ep.tool_errors
-    _raise_in(monkeypatch, "get_arm_pose", ValueError(f"degenerate quaternion at {Path(__file__).resolve()}"))
+    _raise_in(monkeypatch, ep, "get_arm_pose", ValueError(f"degenerate quaternion at {Path(__file__).resolve()}"))
     p = _call(ep, "get_arm_pose", {"arm": "left"})
     assert p["code"] == "tool_error"
     assert p["error"].startswith("tool error: get_arm_pose could not complete this call (ValueError: ")
@@ -190,7 +189,7 @@ def test_an_exception_while_serving_a_call_is_the_agents_tool_error(ep, monkeypa
 @pytest.mark.parametrize("exc", [SimulatorError("physics blew up"), KeyError("x"), ZeroDivisionError()],
                          ids=lambda e: type(e).__name__)
 def test_simulator_and_library_errors_are_tool_errors(ep, monkeypatch, exc):
-    _raise_in(monkeypatch, "capture_head", exc)
+    _raise_in(monkeypatch, ep, "capture_head", exc)
     assert _call(ep, "capture_head", {})["code"] == "tool_error"
 
 
@@ -200,7 +199,7 @@ def test_only_a_broken_host_ends_the_attempt_as_an_infrastructure_fault(tmp_path
     assert faults.is_infrastructure_fault(exc)
     e = _episode(tmp_path)
     try:
-        _raise_in(monkeypatch, "get_arm_pose", exc)
+        _raise_in(monkeypatch, e, "get_arm_pose", exc)
         r = e.call("get_arm_pose", {"arm": "left"})
         assert r.ended and e.termination["reason"] == "host_fault"
         assert "not your doing" in r.payload["error"]
@@ -213,7 +212,7 @@ def test_only_a_broken_host_ends_the_attempt_as_an_infrastructure_fault(tmp_path
 def test_infrastructure_fault_inside_a_program_ends_the_attempt(tmp_path, monkeypatch):
     e = _episode(tmp_path)
     try:
-        _raise_in(monkeypatch, "get_arm_pose", InfrastructureFault("simulator server stopped answering"))
+        _raise_in(monkeypatch, e, "get_arm_pose", InfrastructureFault("simulator server stopped answering"))
         r = e.call("run_code", {"code": "get_arm_pose(arm='left')"})
         assert r.ended and e.termination["reason"] == "host_fault"
     finally:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from importlib import resources
 
 import numpy as np
@@ -14,10 +15,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
 from cab_core.errors import PluginError, ToolArgumentError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_mul, pose_to_mat, quat_to_mat
-from cab_core.tools import estimate as gt
+from cab_core import geometry as gt
 from cab_core.tools.context import ObservationStore, RobotContext
 from cab_core.contracts.simulator import Contact
-from cab_core.tools import TOOLS, build_registry, make_tool, schemas, validate_args
+from cab_core.tools import CATALOG as DECLARED, DONE, RUN_CODE, TOOLS, build_registry, schemas, validate_args
+from cab_core.tools import estimate, motion, observe
+from cab_core.tools import models as m
+from cab_core.tools.registry import ToolDef, tool
 
 # -- the catalog ---------------------------------------------------------------------------------
 CATALOG = yaml.safe_load(resources.files("cab_suite_codeaction").joinpath("data/catalog.yaml").read_text())
@@ -43,7 +47,10 @@ def test_flags_follow_the_catalog(entry):
         assert t.destructive and not t.read_only
     elif group in ("observation", "geometry"):
         assert t.read_only and not t.destructive
-    assert t.handler.split(":")[1] == t.name
+    if t.name in ("run_code", "done"):  # served by the episode host
+        assert t.handler is None
+    else:
+        assert t.handler.__name__ == t.name and t.handler.tool_def is t
 
 
 @pytest.mark.parametrize("name", list(TOOLS))
@@ -73,7 +80,7 @@ def test_registration_refuses_an_undocumented_argument():
         x: float
 
     with pytest.raises(PluginError, match="Bad.x"):
-        make_tool("bad", "geometry", Bad, "m", "read", "d")
+        build_registry([ToolDef(name="bad", group="geometry", kind="read", args=Bad, description="d")])
 
     class Inner(BaseModel):
         y: int
@@ -83,7 +90,7 @@ def test_registration_refuses_an_undocumented_argument():
         items: list[Inner] = Field(description="nested")
 
     with pytest.raises(PluginError, match="Inner.y"):
-        make_tool("bad", "geometry", Outer, "m", "read", "d")
+        build_registry([ToolDef(name="bad", group="geometry", kind="read", args=Outer, description="d")])
 
 
 def test_build_registry_is_fresh_and_cached_view_is_read_only():
@@ -92,10 +99,30 @@ def test_build_registry_is_fresh_and_cached_view_is_read_only():
         TOOLS["x"] = None  # type: ignore[index]
 
 
-@pytest.mark.parametrize("name", [n for n in TOOLS if TOOLS[n].handler.startswith(("cab_core.tools.observe",
-                                                                                     "cab_core.tools.estimate"))])
-def test_local_handlers_resolve(name):
-    assert callable(TOOLS[name].resolve())
+def test_each_tool_is_declared_once_next_to_its_handler():
+    """The registry's handler is the function itself, declared in its own module with @tool; its
+    docstring is the description; only run_code and done (served by the host) have none."""
+    handlers = [e for e in DECLARED if not isinstance(e, ToolDef)]
+    assert [e for e in DECLARED if isinstance(e, ToolDef)] == [RUN_CODE, DONE]
+    assert {h.__module__ for h in handlers} == {observe.__name__, estimate.__name__, motion.__name__}
+    for h in handlers:
+        assert getattr(sys.modules[h.__module__], h.__name__) is h is TOOLS[h.__name__].handler
+        assert TOOLS[h.__name__].description == " ".join(h.__doc__.split())
+    declared = {f.__name__ for mod in (observe, estimate, motion) for f in vars(mod).values()
+                if callable(f) and isinstance(getattr(f, "tool_def", None), ToolDef)}
+    assert declared == {h.__name__ for h in handlers}  # no declared handler left out of the catalog
+
+
+def test_a_handler_without_docstring_or_outside_the_catalog_is_refused():
+    def nameless(ctx, args):
+        pass
+
+    with pytest.raises(TypeError, match="docstring"):
+        tool(m.CaptureHeadArgs, group="observation", kind="read")(nameless)
+    with pytest.raises(PluginError, match="not declared as a tool"):
+        build_registry([nameless])
+    with pytest.raises(PluginError, match="duplicate tool 'done'"):
+        build_registry([DONE, DONE])
 
 
 @pytest.mark.parametrize("name,raw,needle", [
@@ -264,7 +291,7 @@ def ctx() -> RobotContext:
 
 
 def call(ctx, name, **kw):
-    return TOOLS[name].resolve()(ctx, validate_args(name, kw))
+    return TOOLS[name].handler(ctx, validate_args(name, kw))
 
 
 # ==============================================================================================

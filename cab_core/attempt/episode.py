@@ -233,14 +233,3 @@ class Episode:
     def __exit__(self, *exc):
         self.close()
 
-
-def run_code(ctx, args):  # pragma: no cover - served by the CallServer itself
-    from cab_core.errors import CabError
-
-    raise CabError("run_code is executed by the episode host, not through the registry")
-
-
-def done(ctx, args):  # pragma: no cover - served by the CallServer itself
-    from cab_core.errors import CabError
-
-    raise CabError("done is executed by the episode host, not through the registry")

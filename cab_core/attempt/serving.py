@@ -123,12 +123,13 @@ class CallServer:
 
     def _serve(self, name: str, args: Any, direct: bool) -> tuple[dict, list[str], str | None]:
         try:
-            if name not in self.registry or (not direct and name in ("run_code", "done")):
+            tool = self.registry.get(name)
+            if tool is None or (not direct and tool.handler is None):  # no run_code or done inside programs
                 raise ToolArgumentError(f"unknown tool {name!r}")
             model = validate_args(name, args)
-            if name == "run_code":
+            if name == "run_code":  # served here; done never reaches _serve (see call)
                 return self._run_code(model.code)
-            out = self.registry[name].resolve()(self.ctx, model)
+            out = tool.handler(self.ctx, model)
             return dict(out.payload), list(out.obs_ids), out.status
         except ToolArgumentError as e:
             msg = str(e)
@@ -159,7 +160,7 @@ class CallServer:
 
             cfg = SandboxConfig(**{k: v for k, v in (self.spec.sandbox or {}).items()})
             cfg.max_internal_calls = self.spec.run_code_max_internal_calls
-            names = [n for n in self.registry if n not in ("run_code", "done")]
+            names = [n for n, t in self.registry.items() if t.handler is not None]  # the robot tools
             self.sandbox = Sandbox(names, self._dispatch_internal, self._image, cfg)
         return self.sandbox
 

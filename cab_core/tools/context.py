@@ -1,4 +1,5 @@
-"""What tool handlers see of the host: the world (through contracts), observations, the clock.
+"""What tool handlers see of the host: the world (through contracts), observations (and drawing on
+them), the clock.
 
 Handlers must never put privileged data (object names or poses, verifier state) in a payload.
 """
@@ -11,14 +12,14 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from cab_core.errors import ToolArgumentError
-from cab_core.geometry import pose_inv, pose_to_mat
+from cab_core.geometry import extrinsic_from_pose
+from cab_core.tools.models import CAMERAS
+from cab_core.tools.overlay import Canvas
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.embodiment import EmbodimentSpec
     from cab_core.contracts.planner import Planner
     from cab_core.contracts.simulator import Simulator
-
-CAMERAS = ("head_camera", "left_camera", "right_camera")
 
 
 @dataclass
@@ -89,11 +90,6 @@ class ObservationStore:
 
     def latest_tick(self) -> int:
         return max((o.tick for o in self._obs.values()), default=-1)
-
-
-def extrinsic_from_pose(cam_pose_world: np.ndarray) -> np.ndarray:
-    """3x4 world->camera matrix from an OpenCV-convention camera pose."""
-    return pose_to_mat(pose_inv(cam_pose_world))[:3, :]
 
 
 class RobotContext:
@@ -167,9 +163,12 @@ class RobotContext:
     def camera_E(self, camera: str) -> np.ndarray:
         return extrinsic_from_pose(self.sim.camera_pose(camera))
 
-    def capture(self, camera: str, annotation: dict | None = None) -> Observation:
+    def _known_camera(self, camera: str) -> None:
         if camera not in CAMERAS:
             raise ToolArgumentError(f"camera must be one of {list(CAMERAS)}, got {camera!r}")
+
+    def capture(self, camera: str, annotation: dict | None = None) -> Observation:
+        self._known_camera(camera)
         from cab_core.errors import ObservationUnavailable, SimulatorError
 
         try:
@@ -178,3 +177,20 @@ class RobotContext:
             raise ObservationUnavailable(f"{camera}: {e}") from e
         return self.obs.add(camera, img, self.camera_K(camera), self.camera_E(camera), self.tick,
                             self.clock.steps, annotation)
+
+    def capture_annotated(self, camera: str, painter: Callable[[Canvas, np.ndarray, np.ndarray], dict]) -> Observation:
+        """Render ``camera`` now, let ``painter(canvas, K, E)`` draw and return the annotation, store
+        the drawn image as one new observation."""
+        self._known_camera(camera)
+        img = self.sim.render(camera)
+        K, E = np.asarray(self.camera_K(camera), float), np.asarray(self.camera_E(camera), float)
+        canvas = Canvas(img)
+        annotation = painter(canvas, K, E)
+        return self.obs.add(camera, canvas.image(), K, E, self.tick, self.clock.steps, annotation)
+
+    def annotated_copy(self, obs: Observation, painter: Callable[[Canvas], dict]) -> Observation:
+        """A new observation: ``obs``'s image with drawings, same camera, calibration and tick."""
+        canvas = Canvas(obs.image)
+        annotation = painter(canvas)
+        return self.obs.add(obs.camera, canvas.image(), obs.K, obs.E, obs.tick, obs.physics_step, annotation,
+                            source_obs_id=obs.obs_id)

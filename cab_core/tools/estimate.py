@@ -9,92 +9,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cab_core.errors import ToolArgumentError
-from cab_core.geometry import mat_to_quat, pose_inv, pose_mul, pose_to_mat, quat_angle, quat_to_mat
-from cab_core.tools.registry import ToolOutput
-from cab_core.tools.context import CAMERAS, Observation, RobotContext
+from cab_core.geometry import (MIN_DEPTH_M, back_project, camera_to_world, degenerate_direction, extrinsic_from_pose,
+                               mat_to_quat, orientation_block, pixel_ray, pose_block, pose_inv, pose_mul, pose_to_mat,
+                               project_points, quat_angle, quat_to_mat, rnd, world_to_camera)
+from cab_core.tools import models as m
+from cab_core.tools.models import WORKSPACE
 from cab_core.tools.overlay import AXIS_COLOURS, PALETTE, Canvas, convex_hull, in_frame
+from cab_core.tools.registry import ToolOutput, observation_output, tool
 
-MIN_DEPTH_M = 1e-6  # a point is "in front of" a camera when its camera z exceeds this
-WORKSPACE = {"x": (-0.8, 0.8), "y": (-0.8, 0.8), "z": (0.4, 1.5)}  # FACTS §A.5 envelope, metres
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.tools.context import Observation, RobotContext
+
 _PAR_TOL = 1e-6  # |cos| below which a ray counts as parallel to a plane
 MIN_BOX_EXTENT_PX = 1.0  # scale_from_object_size: a box extent below one pixel carries no scale
 MIN_ESTIMATE_DEPTH_M = 0.01  # a depth estimate nearer than this to the camera is degenerate
 
 
 # ==============================================================================================
-# small helpers shared with observe.py
+# the shape of an estimate, and what it was computed from
 # ==============================================================================================
-def rnd(x: Any, nd: int = 6) -> Any:
-    """JSON-able copy of numbers/arrays rounded to ``nd`` decimals (None and non-finite kept as None)."""
-    if x is None:
-        return None
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return round(float(x), nd) + 0.0 if math.isfinite(float(x)) else None  # + 0.0: no "-0.0"
-    if isinstance(x, np.ndarray):
-        return rnd(x.tolist(), nd)
-    if isinstance(x, (list, tuple)):
-        return [rnd(v, nd) for v in x]
-    if isinstance(x, dict):
-        return {k: rnd(v, nd) for k, v in x.items()}
-    return x
-
-
-_DIR_NAMES = {(0, 1): "right (+x)", (0, -1): "left (-x)", (1, 1): "forward (+y)", (1, -1): "backward (-y)",
-              (2, 1): "up (+z)", (2, -1): "down (-z)"}
-_LINE_NAMES = {0: "left-right (x)", 1: "forward-backward (y)", 2: "vertical (z)"}
-
-
-def describe_direction(v: Sequence[float]) -> str:
-    """Plain words for a world direction, e.g. 'down (-z)' or 'mostly forward (+y), tilted 20 deg down (-z)'."""
-    v = np.asarray(v, float)
-    v = v / (np.linalg.norm(v) or 1.0)
-    order = np.argsort(-np.abs(v))
-    i, j = int(order[0]), int(order[1])
-    main = _DIR_NAMES[(i, 1 if v[i] > 0 else -1)]
-    if abs(v[i]) >= math.cos(math.radians(5)):
-        return main
-    tilt = math.degrees(math.atan2(abs(v[j]), abs(v[i])))
-    return f"mostly {main}, tilted {tilt:.0f} deg toward {_DIR_NAMES[(j, 1 if v[j] > 0 else -1)]}"
-
-
-def describe_line(v: Sequence[float]) -> str:
-    """Plain words for an unoriented line direction."""
-    v = np.abs(np.asarray(v, float))
-    i = int(np.argmax(v))
-    if v[i] >= math.cos(math.radians(5)):
-        return _LINE_NAMES[i]
-    return f"mostly {_LINE_NAMES[i]}"
-
-
-def orientation_block(quat_wxyz: Sequence[float]) -> dict:
-    """The ``orientation`` block that accompanies every reported gripper pose."""
-    r = quat_to_mat(quat_wxyz)
-    a, o, z = r[:, 0], r[:, 1], r[:, 2]
-    return {
-        "approach_axis_world": rnd(a),
-        "opening_axis_world": rnd(o),
-        "normal_axis_world": rnd(z),
-        "reads_as": {
-            "approach": f"approach points {describe_direction(a)}",
-            "opening": f"fingers open and close along {describe_line(o)}",
-        },
-        "convention": "gripper +x = approach (wrist toward fingertips), +y = finger-opening line, +z = x cross y",
-    }
-
-
-def pose_block(pose: Sequence[float]) -> list:
-    return rnd(np.asarray(pose, float), 6)
-
-
 def estimate(value: Any, kind: str, *, frame: str, units: str, provenance: dict, uncertainty: dict | None = None,
              coarse: bool = False, valid: bool = True, failure: tuple[str, str] | None = None) -> dict:
     return {
@@ -108,45 +46,6 @@ def estimate(value: Any, kind: str, *, frame: str, units: str, provenance: dict,
         "failure": None if failure is None else {"code": failure[0], "message": failure[1]},
         "provenance": provenance,
     }
-
-
-# ==============================================================================================
-# camera math (pinhole K, world->camera E = [R|t], OpenCV axes)
-# ==============================================================================================
-def camera_centre(E: np.ndarray) -> np.ndarray:
-    E = np.asarray(E, float)
-    return -E[:, :3].T @ E[:, 3]
-
-
-def project_points(K: np.ndarray, E: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World points (N,3) -> pixels (N,2) and camera depths (N,). Pixels of points behind the
-    camera are NaN."""
-    pts = np.atleast_2d(np.asarray(pts, float))
-    pc = pts @ np.asarray(E, float)[:, :3].T + np.asarray(E, float)[:, 3]
-    z = pc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uvw = pc @ np.asarray(K, float).T
-        uv = uvw[:, :2] / uvw[:, 2:3]
-    uv[z <= MIN_DEPTH_M] = np.nan
-    return uv, z
-
-
-def pixel_ray(K: np.ndarray, E: np.ndarray, px: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-    """World origin (camera centre) and unit direction of the viewing ray through pixel ``px``. A
-    ray without a usable direction (non-finite, or no length) has the direction [0, 0, 0]: check it
-    with :func:`degenerate_direction`."""
-    with np.errstate(all="ignore"):
-        d_cam = np.linalg.solve(np.asarray(K, float), np.array([px[0], px[1], 1.0]))
-        d = np.asarray(E, float)[:, :3].T @ d_cam
-        n = float(np.linalg.norm(d))
-    if not (math.isfinite(n) and n > 1e-12):
-        return camera_centre(E), np.zeros(3)
-    return camera_centre(E), d / n
-
-
-def degenerate_direction(d: np.ndarray) -> bool:
-    """Whether a direction from :func:`pixel_ray` is unusable (not finite, not of unit length)."""
-    return not (np.all(np.isfinite(d)) and abs(float(np.linalg.norm(d)) - 1.0) < 1e-6)
 
 
 def outside_workspace(X: np.ndarray) -> str | None:
@@ -175,37 +74,14 @@ def require_current(ctx: RobotContext, obs: Observation) -> None:
             "observation and pass its obs_id")
 
 
-def capture_annotated(ctx: RobotContext, camera: str, painter: Callable[[Canvas, np.ndarray, np.ndarray], dict]
-                      ) -> Observation:
-    """Render ``camera`` now, let ``painter(canvas, K, E)`` draw and return the annotation, store
-    the drawn image as one new observation."""
-    if camera not in CAMERAS:
-        raise ToolArgumentError(f"camera must be one of {list(CAMERAS)}, got {camera!r}")
-    img = ctx.sim.render(camera)
-    K, E = np.asarray(ctx.camera_K(camera), float), np.asarray(ctx.camera_E(camera), float)
-    canvas = Canvas(img)
-    annotation = painter(canvas, K, E)
-    return ctx.obs.add(camera, canvas.image(), K, E, ctx.tick, ctx.clock.steps, annotation)
-
-
-def annotated_copy(ctx: RobotContext, obs: Observation, painter: Callable[[Canvas], dict]) -> Observation:
-    """A new observation: ``obs``'s image with drawings, same camera, calibration and tick."""
-    canvas = Canvas(obs.image)
-    annotation = painter(canvas)
-    return ctx.obs.add(obs.camera, canvas.image(), obs.K, obs.E, obs.tick, obs.physics_step, annotation,
-                       source_obs_id=obs.obs_id)
-
-
-def observation_output(obs: Observation, **extra) -> ToolOutput:
-    payload = obs.summary()
-    payload.update(extra)
-    return ToolOutput(payload=payload, obs_ids=[obs.obs_id])
-
-
 # ==============================================================================================
 # project / ray / plane_intersect
 # ==============================================================================================
+@tool(m.ProjectArgs, group="geometry", kind="read", result=m.Estimate)
 def project(ctx: RobotContext, args) -> ToolOutput:
+    """Projects a world point (m) into an observation's image with its calibration snapshot: value [u, v] in
+    pixels, or null when the point is behind the camera; also its camera depth (m) and whether it falls in
+    frame. Use it to check a 3D estimate against the image."""
     obs = ctx.obs.get(args.obs_id)
     uv, z = project_points(obs.K, obs.E, np.array(args.xyz))
     behind = not z[0] > MIN_DEPTH_M
@@ -219,7 +95,11 @@ def project(ctx: RobotContext, args) -> ToolOutput:
         failure=("BEHIND_CAMERA", "the point is behind the camera (camera depth <= 0)") if behind else None))
 
 
+@tool(m.RayArgs, group="geometry", kind="read", result=m.Estimate)
 def ray(ctx: RobotContext, args) -> ToolOutput:
+    """Back-projects a pixel of an observation into a world-frame viewing ray: origin = camera centre (m), dir =
+    unit direction. Direction only: an RGB pixel carries no depth. Uses the observation's calibration
+    snapshot. Pixels are [u, v] in that observation's image (top-left origin, u right, v down)."""
     obs = ctx.obs.get(args.obs_id)
     origin, d = pixel_ray(obs.K, obs.E, args.px)
     prov = {**_obs_prov(obs), "px": rnd(args.px, 3), "pixel_in_frame": in_frame(args.px, obs.size_hw),
@@ -234,7 +114,13 @@ def _ray_plane(C, d, p0, n) -> float:
     return float(np.dot(n, p0 - C) / np.dot(n, d))
 
 
+@tool(m.PlaneIntersectArgs, group="geometry", kind="read", result=m.Estimate)
 def plane_intersect(ctx: RobotContext, args) -> ToolOutput:
+    """Intersects a pixel's viewing ray with a plane you specify (point and normal, world m) and returns the 3D
+    point with propagated 1-sigma uncertainty from your pixel and plane-offset sigmas, amplified by obliquity
+    (1/|cos| of the ray-normal angle) and range. Always coarse: it is only as good as your plane. Fails with
+    value null when the ray is parallel to the plane or the hit is behind the camera; a hit outside the
+    workspace envelope is returned with valid=false (OUTSIDE_WORKSPACE)."""
     obs = ctx.obs.get(args.obs_id)
     C, d = pixel_ray(obs.K, obs.E, args.px)
     p0 = np.asarray(args.plane_point_xyz, float)
@@ -288,7 +174,7 @@ def plane_intersect(ctx: RobotContext, args) -> ToolOutput:
            "covariance_m2": rnd(cov, 9),
            "basis": "1-sigma from your pixel_sigma_px and plane_offset_sigma_m; excludes any error of the plane's normal"}
     prov.update({
-        "range_m": rnd(s), "camera_depth_m": rnd(float((obs.E[:, :3] @ X + obs.E[:, 3])[2])),
+        "range_m": rnd(s), "camera_depth_m": rnd(float(world_to_camera(obs.E, X)[2])),
         "obliquity_amplification": rnd(amp, 4),
         "pixel_jacobian_m_per_px": {"d_du": rnd(J[:, 0]), "d_dv": rnd(J[:, 1])},
         "sensitivities": {"m_per_px": rnd(float(np.linalg.norm(J) / math.sqrt(2))),
@@ -325,7 +211,13 @@ def _triangulate_px(ob: Observation, oa: Observation, pb, pa):
     return _midpoint(C1, d1, C2, d2), (C1, d1, C2, d2)
 
 
+@tool(m.TriangulateCorrespondenceArgs, group="geometry", kind="read", result=m.Estimate)
 def triangulate_correspondence(ctx: RobotContext, args) -> ToolOutput:
+    """Triangulates one scene point from a motion pair: you give the pixel of the same point in the 'before' and
+    'after' images; the two viewing rays from the measured camera poses are intersected by the two-ray
+    midpoint method. Returns the world point (m) with 1-sigma uncertainty from your pixel sigma, the ray gap,
+    the triangulation angle and depths. The correspondence itself is not verified: a large ray gap means the
+    pixels do not match."""
     pair = ctx.pairs.get(args.pair_id)
     if pair is None:
         raise ToolArgumentError(f"unknown pair_id {args.pair_id!r} (use a pair_id returned by capture_motion_pair)")
@@ -354,8 +246,8 @@ def triangulate_correspondence(ctx: RobotContext, args) -> ToolOutput:
     X, s, t, P1, P2 = res
     prov.update({"ray_gap_m": rnd(float(np.linalg.norm(P1 - P2))),
                  "depths": {"before_range_m": rnd(s), "after_range_m": rnd(t),
-                            "before_camera_z_m": rnd(float((ob.E[:, :3] @ X + ob.E[:, 3])[2])),
-                            "after_camera_z_m": rnd(float((oa.E[:, :3] @ X + oa.E[:, 3])[2]))}})
+                            "before_camera_z_m": rnd(float(world_to_camera(ob.E, X)[2])),
+                            "after_camera_z_m": rnd(float(world_to_camera(oa.E, X)[2]))}})
     if s <= 0 or t <= 0:
         return fail("BEHIND_CAMERA", "the rays meet behind one of the cameras: the pixels do not correspond")
 
@@ -400,7 +292,12 @@ def triangulate_correspondence(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # scale_from_object_size
 # ==============================================================================================
+@tool(m.ScaleFromObjectSizeArgs, group="geometry", kind="read", result=m.Estimate)
 def scale_from_object_size(ctx: RobotContext, args) -> ToolOutput:
+    """Coarse camera depth (m, along the optical axis) of an object from its pixel bounding box and your prior
+    of its physical extent: Z = f * known_extent / pixel_extent. Assumes the extent is roughly parallel to
+    the image plane. Uncertainty is null unless you give known_extent_sigma_m. Also reports the implied world
+    point at the box centre."""
     obs = ctx.obs.get(args.obs_id)
     x1, y1, x2, y2 = args.bbox
     fx, fy = float(obs.K[0, 0]), float(obs.K[1, 1])
@@ -413,8 +310,7 @@ def scale_from_object_size(ctx: RobotContext, args) -> ToolOutput:
         pix, norm = math.hypot(w_px, h_px), math.hypot(w_px / fx, h_px / fy)
     Z = args.known_extent_m / norm
     centre = [(x1 + x2) / 2, (y1 + y2) / 2]
-    x_cam = Z * np.linalg.solve(obs.K, np.array([centre[0], centre[1], 1.0]))
-    point = obs.E[:, :3].T @ (x_cam - obs.E[:, 3])
+    point = camera_to_world(obs.E, Z * back_project(obs.K, centre))
     unc = None
     if args.known_extent_sigma_m is not None:
         rel = args.known_extent_sigma_m / args.known_extent_m
@@ -516,7 +412,12 @@ def _inner_tips_fk(ctx: RobotContext, arm: str) -> tuple[np.ndarray, np.ndarray,
 # ==============================================================================================
 # scale_from_gripper
 # ==============================================================================================
+@tool(m.ScaleFromGripperArgs, group="geometry", kind="read", result=m.ObservationSummary)
 def scale_from_gripper(ctx: RobotContext, args) -> ToolOutput:
+    """Captures a fresh image and marks the two inner fingertip points of an arm (from forward kinematics) in
+    it: their true distance (m), pixel endpoints, in-frame flags, pixel span, camera depths and metres per
+    pixel along the segment. A metric scale reference valid near the fingertips' depth. Does not move the
+    robot."""
     tips, tcp, links = _inner_tips_fk(ctx, args.arm)
     opening = quat_to_mat(tcp[3:])[:, 1]
     true_dist = float(np.linalg.norm(tips[0] - tips[1]))
@@ -558,14 +459,19 @@ def scale_from_gripper(ctx: RobotContext, args) -> ToolOutput:
             "source": "inner fingertip points from forward kinematics; the robot did not move",
         }
 
-    obs = capture_annotated(ctx, args.camera, paint)
+    obs = ctx.capture_annotated(args.camera, paint)
     return observation_output(obs)
 
 
 # ==============================================================================================
 # draw_marks
 # ==============================================================================================
+@tool(m.DrawMarksArgs, group="observation", kind="read", result=m.ObservationSummary)
 def draw_marks(ctx: RobotContext, args) -> ToolOutput:
+    """Draws 1-12 numbered, coloured markers with your labels at pixels of an existing observation and returns a
+    new annotated observation (same camera, tick and calibration). Reports for each mark its colour, whether
+    it is in frame and its label box. Pixels are [u, v] in that observation's image (top-left origin, u
+    right, v down)."""
     src = ctx.obs.get(args.obs_id)
 
     def paint(c: Canvas) -> dict:
@@ -578,7 +484,7 @@ def draw_marks(ctx: RobotContext, args) -> ToolOutput:
         return {"tool": "draw_marks", "marks": marks,
                 "note": "numbered markers drawn on a copy; pixel coordinates refer to the source image"}
 
-    return observation_output(annotated_copy(ctx, src, paint))
+    return observation_output(ctx.annotated_copy(src, paint))
 
 
 # ==============================================================================================
@@ -597,7 +503,12 @@ def grasp_quats(approach, opening) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return q1, q2, a, o
 
 
+@tool(m.GraspQuatCandidatesArgs, group="geometry", kind="read")
 def grasp_quat_candidates(ctx: RobotContext | None, args) -> ToolOutput:
+    """Converts a gripper approach axis (wrist toward fingertips) and opening axis (finger line), both in world
+    coordinates and orthogonal, into the two wxyz quaternions with TCP +x = approach and +y = +/- opening;
+    they differ by a 180 degree roll about the approach axis. Pure conversion: unranked, no reachability
+    check."""
     q1, q2, a, o = grasp_quats(args.approach_axis_world, args.opening_axis_world)
     cands = []
     for label, q, sign in (("A", q1, 1.0), ("B", q2, -1.0)):
@@ -633,7 +544,12 @@ def camera_arm(ctx: RobotContext, camera: str) -> str:
     raise ToolArgumentError(f"no arm carries camera {camera!r}")
 
 
+@tool(m.CameraAimPoseArgs, group="geometry", kind="read")
 def camera_aim_pose(ctx: RobotContext, args) -> ToolOutput:
+    """Pure geometry: computes a TCP pose that points a wrist camera at a world target from a given pitch
+    (degrees; 90 = approach straight down) with the TCP `standoff` metres above the target, using the
+    calibrated camera mount. Returns the target TCP pose and the target's predicted pixel and depth in that
+    camera. No planning, no motion; check reachability before moving."""
     arm = camera_arm(ctx, args.camera)
     spec = ctx.arm(arm)
     target = np.asarray(args.target_xyz, float)
@@ -675,7 +591,7 @@ def camera_aim_pose(ctx: RobotContext, args) -> ToolOutput:
     if pos is not None:
         pose = np.concatenate([pos, q])
         cam_pose = pose_mul(pose, mount)
-        E = pose_to_mat(pose_inv(cam_pose))[:3, :]
+        E = extrinsic_from_pose(cam_pose)
         K = np.asarray(ctx.camera_K(args.camera), float)
         uv, z = project_points(K, E, target)
         h, w = ctx.sim.camera_size(args.camera)
@@ -811,7 +727,12 @@ _GRIPPER_NOTE = ("finger silhouettes are boxes from the embodiment's public fing
                  "collision or reachability verdict.")
 
 
+@tool(m.PreviewTcpPoseArgs, group="geometry", kind="read", result=m.ObservationSummary)
 def preview_tcp_pose(ctx: RobotContext, args) -> ToolOutput:
+    """Draws the gripper at a proposed TCP pose (world m, wxyz) into a current-tick observation: finger
+    silhouettes, inner-tip markers, grasp centre, approach arrow with 1 cm ticks and axes, and returns a new
+    annotated observation with pixel positions, per-finger boxes, in-view flags and optional offsets to a
+    reference pixel or world point. No collision or reachability verdict."""
     src = ctx.obs.get(args.obs_id)
     require_current(ctx, src)
     g = _gripper_at(ctx, src, args.arm, args.tcp_xyz, args.quat_wxyz, args.finger_gap_m)
@@ -846,7 +767,7 @@ def preview_tcp_pose(ctx: RobotContext, args) -> ToolOutput:
         ann["note"] = _GRIPPER_NOTE
         return ann
 
-    return observation_output(annotated_copy(ctx, src, paint))
+    return observation_output(ctx.annotated_copy(src, paint))
 
 
 def _aabb(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -863,7 +784,11 @@ def _iou(a: list | None, b: list | None) -> float | None:
     return inter / union if union > 0 else 0.0
 
 
+@tool(m.CompareTcpPosesArgs, group="geometry", kind="read", result=m.ObservationSummary)
 def compare_tcp_poses(ctx: RobotContext, args) -> ToolOutput:
+    """Draws 2-4 proposed TCP poses (numbered) into a current-tick observation and compares them pairwise: grasp
+    centre offset and distance (m), approach angle (deg), finger-box overlap and separation for different
+    arms, projected overlap and which is nearer to the camera. No collision or reachability verdict."""
     src = ctx.obs.get(args.obs_id)
     require_current(ctx, src)
     gs = [_gripper_at(ctx, src, c.arm, c.tcp_xyz, c.quat_wxyz, c.finger_gap_m) for c in args.candidates]
@@ -902,4 +827,4 @@ def compare_tcp_poses(ctx: RobotContext, args) -> ToolOutput:
                 "note": _GRIPPER_NOTE + " finger_bbox_overlap/finger_separation_m use world axis-aligned boxes around "
                         "both fingers (different arms only); projected_bbox_overlap is the image IoU of the silhouettes."}
 
-    return observation_output(annotated_copy(ctx, src, paint))
+    return observation_output(ctx.annotated_copy(src, paint))

@@ -15,7 +15,7 @@ call. Result models document payloads; they allow extra keys so handlers can add
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
 
@@ -24,6 +24,10 @@ Arm = Literal["left", "right"]
 CameraName = Literal["head_camera", "left_camera", "right_camera"]
 WristCamera = Literal["left_camera", "right_camera"]
 EvidenceView = Literal["overview", "left_wrist", "right_wrist"]
+CAMERAS: tuple[str, ...] = get_args(CameraName)  # head_camera, left_camera, right_camera
+
+WORKSPACE = {"x": (-0.8, 0.8), "y": (-0.8, 0.8), "z": (0.4, 1.5)}  # FACTS §A.5 envelope, metres
+CONTACT_IMPULSE_THRESHOLD = 1e-4  # N*s, sensor floor of finger contact (FACTS §A.5)
 
 ORTHOGONALITY_TOL = 1e-6  # |dot| of the normalised approach and opening axes
 FINGER_GAP_RANGE_M = (0.048, 0.142)  # FK distance between finger-link origins

@@ -10,22 +10,24 @@ allowance. The agent gets no error figures: it reads ``commanded`` against ``obs
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cab_core.errors import ToolArgumentError
-from cab_core.geometry import quat_angle, quat_normalize, quat_to_mat
-from cab_core.tools.context import RobotContext
-from cab_core.tools.registry import ToolOutput
+from cab_core.geometry import orientation_block, quat_angle, quat_normalize
+from cab_core.tools import models as m
+from cab_core.tools.models import CONTACT_IMPULSE_THRESHOLD, WORKSPACE
+from cab_core.tools.registry import ToolOutput, tool
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.tools.context import RobotContext
 
 MAX_STEP_M = 0.30
 LEG_M = 0.03
-WORKSPACE = {"x": (-0.8, 0.8), "y": (-0.8, 0.8), "z": (0.4, 1.5)}
 REACH_CORRECTION_TRIGGER_M = 0.01
 REACH_MAX_CORRECTIONS = 2
 REACH_MISS_M = 0.02  # a reach that ends further than this from its target did not complete
-CONTACT_IMPULSE_THRESHOLD = 1e-4
 STALL_PROGRESS_M = 0.001
 LEG_MAX_JOINT_JUMP = 0.6  # rad: a Cartesian leg of <= 3 cm needing more is a configuration switch
 JOINT_SPEED = 1.2  # rad/s cap for joint-space interpolation of legs
@@ -53,22 +55,6 @@ HARNESS_PARAMETERS = {
 # ---------------------------------------------------------------------------------------------
 def _r(a, n=5):
     return [round(float(x), n) for x in np.asarray(a).reshape(-1)]
-
-
-def orientation_block(q) -> dict:
-    m = quat_to_mat(q)
-    approach, opening = m[:, 0], m[:, 1]
-    return {"approach_axis_world": _r(approach, 4), "opening_axis_world": _r(opening, 4),
-            "reads_as": {"approach": _reads(approach), "opening_line": _reads(opening, line=True)}}
-
-
-def _reads(v, line: bool = False) -> str:
-    names = [("+x (robot right)", "-x (robot left)"), ("+y (forward)", "-y (toward robot)"), ("+z (up)", "-z (down)")]
-    i = int(np.argmax(np.abs(v)))
-    s = names[i][0 if v[i] >= 0 else 1]
-    if line:
-        s = s.split(" ")[0].lstrip("+-") + "-axis line"
-    return f"mostly {s}" if abs(v[i]) < 0.95 else s
 
 
 def arm_contacts(ctx: RobotContext, arm: str) -> dict:
@@ -111,7 +97,7 @@ def robot_snapshot(ctx: RobotContext) -> dict:
     out = {}
     for arm in sorted(ctx.emb.arms):
         tcp = ctx.tcp_pose(arm)
-        out[arm] = {"tcp_pose": _r(tcp), "orientation": orientation_block(tcp[3:]),
+        out[arm] = {"tcp_pose": _r(tcp), "orientation": orientation_block(tcp[3:], snapshot=True),
                     "gripper_val": round(ctx.gripper_cmd[arm], 4), "finger_gap_m": round(ctx.finger_gap(arm), 5),
                     "contact": arm_contacts(ctx, arm)}
     return out
@@ -350,7 +336,11 @@ def _clamp(delta: np.ndarray) -> tuple[np.ndarray, bool]:
 # ---------------------------------------------------------------------------------------------
 # tools
 # ---------------------------------------------------------------------------------------------
+@tool(m.MoveDeltaArgs, group="motion", kind="act", result=m.ActionResult)
 def move_delta(ctx: RobotContext, args) -> ToolOutput:
+    """Moves one arm's TCP by a world-frame displacement (m), holding the call-start orientation. The norm is
+    clamped to 0.30 m (direction kept); by default it runs as guarded legs of at most 0.03 m that stop on
+    stall or deviation. Returns an ActionResult. Consumes simulated time."""
     arm = args.arm
     ctx.arm(arm)
     raw = np.array([args.dx, args.dy, args.dz], float)
@@ -385,7 +375,10 @@ def move_delta(ctx: RobotContext, args) -> ToolOutput:
                    abort_reason=st["reason"] if st["status"] == "ABORTED" else None)
 
 
+@tool(m.MoveBothDeltaArgs, group="motion", kind="act", result=m.ActionResult)
 def move_both_delta(ctx: RobotContext, args) -> ToolOutput:
+    """Moves both TCPs by world-frame displacements (m) together. A FAILED result may still mean one arm moved
+    (execution.partial). Returns an ActionResult with a sync block. Consumes simulated time."""
     deltas = {}
     commanded: dict[str, Any] = {}
     before = robot_snapshot(ctx)
@@ -476,7 +469,11 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
                    arms=arms, planning="SUCCEEDED", execution="COMPLETED", steps=steps)
 
 
+@tool(m.ReachTcpArgs, group="motion", kind="act", result=m.ActionResult)
 def reach_tcp(ctx: RobotContext, args) -> ToolOutput:
+    """Moves one arm's TCP to an absolute world position (m) and optional orientation (wxyz; default keeps the
+    call-start orientation): one full plan, then a guarded waypoint fallback and up to 2 correction plans.
+    Returns an ActionResult; compare commanded with observed_after. Consumes simulated time."""
     arm = args.arm
     ctx.arm(arm)
     before = robot_snapshot(ctx)
@@ -486,7 +483,10 @@ def reach_tcp(ctx: RobotContext, args) -> ToolOutput:
     return _plan_and_go(ctx, {arm: target}, ctx.next_action_id(), commanded, before)
 
 
+@tool(m.ReachBothTcpArgs, group="motion", kind="act", result=m.ActionResult)
 def reach_both_tcp(ctx: RobotContext, args) -> ToolOutput:
+    """Moves both TCPs to absolute world positions (m) with optional orientations, planned and executed
+    together. A FAILED result may still mean one arm moved (execution.partial). Consumes simulated time."""
     before = robot_snapshot(ctx)
     targets = {"left": _target_pose(ctx, "left", args.left_xyz, args.left_quat),
                "right": _target_pose(ctx, "right", args.right_xyz, args.right_quat)}
@@ -496,7 +496,11 @@ def reach_both_tcp(ctx: RobotContext, args) -> ToolOutput:
     return _plan_and_go(ctx, targets, ctx.next_action_id(), commanded, before)
 
 
+@tool(m.ProbeContactAlongArgs, group="motion", kind="act", result=m.ActionResult)
 def probe_contact_along(ctx: RobotContext, args) -> ToolOutput:
+    """Moves one arm's TCP along a world direction in small steps until the set of fingers in contact changes or
+    the distance is used up (distance clamped to 0.30 m, step to 0.03 m). SUCCESS means only that contact
+    changed; the result reports the stop reason, transition and finger poses. Consumes simulated time."""
     arm = args.arm
     ctx.arm(arm)
     d = np.asarray(args.direction_xyz, float)
@@ -538,7 +542,11 @@ def probe_contact_along(ctx: RobotContext, args) -> ToolOutput:
                    steps=out["steps"], partial=False, failure=failure, abort_reason=reason)
 
 
+@tool(m.SetGripperArgs, group="motion", kind="act", result=m.ActionResult)
 def set_gripper(ctx: RobotContext, args) -> ToolOutput:
+    """Drives one gripper to a normalised opening (1 = open, 0 = closed) over about 0.8 s. SUCCESS means the
+    actuation completed, not that something is held: read finger_gap_m and contact in the result. Consumes
+    simulated time."""
     arm = args.arm
     spec = ctx.arm(arm)
     pos = float(args.pos)
@@ -572,7 +580,11 @@ def set_gripper(ctx: RobotContext, args) -> ToolOutput:
                    before=before, arms=[arm], planning="NOT_APPLICABLE", execution="COMPLETED", steps=steps)
 
 
+@tool(m.CheckTcpPoseReachabilityArgs, group="geometry", kind="plan")
 def check_tcp_pose_reachability(ctx: RobotContext, args) -> ToolOutput:
+    """Asks the motion planner for a trajectory from the current arm configuration to a TCP pose without moving:
+    whether one was found, planner status and diagnostics. Only robot self-collision is modelled (no table,
+    objects or other arm)."""
     arm = args.arm
     ctx.arm(arm)
     target = _target_pose(ctx, arm, args.target_xyz, args.target_quat)
@@ -597,7 +609,12 @@ def check_tcp_pose_reachability(ctx: RobotContext, args) -> ToolOutput:
                        "stage": "planner_query", "reason": _planner_block(res)["meaning"]})
 
 
+@tool(m.CaptureMotionPairArgs, group="geometry", kind="act", result=m.ObservationPair)
 def capture_motion_pair(ctx: RobotContext, args) -> ToolOutput:
+    """Moves one arm by a small world-frame displacement (dx, dy, dz in m) as a real guarded motion, capturing
+    its wrist RGB before and after. Returns both observations, the motion's ActionResult, the measured camera
+    translation and rotation, contact evidence and validity flags, and a pair_id for
+    triangulate_correspondence. Consumes simulated time."""
     from types import SimpleNamespace
 
     arm = args.arm
@@ -626,8 +643,3 @@ def capture_motion_pair(ctx: RobotContext, args) -> ToolOutput:
                "images": [obs_before.obs_id, obs_after.obs_id]}
     return ToolOutput(payload, [obs_before.obs_id, obs_after.obs_id], status=motion.status, physics_steps=motion.physics_steps)
 
-
-def camera_aim_pose(ctx: RobotContext, args) -> ToolOutput:
-    from cab_core.tools.estimate import camera_aim_pose as impl
-
-    return impl(ctx, args)

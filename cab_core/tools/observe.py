@@ -5,18 +5,21 @@ Nothing here reads object state. Contact feedback names only the robot's own fin
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cab_core.errors import SimulatorError
 from cab_core.contracts.simulator import ROBOT
-from cab_core.tools.registry import ToolOutput
-from cab_core.tools.context import CAMERAS, Observation, RobotContext
-from cab_core.tools.estimate import WORKSPACE, capture_annotated, observation_output, orientation_block, pose_block, rnd
-from cab_core.tools.overlay import Canvas
+from cab_core.errors import SimulatorError
+from cab_core.geometry import orientation_block, pose_block, rnd
+from cab_core.tools import models as m
+from cab_core.tools.models import CAMERAS, CONTACT_IMPULSE_THRESHOLD, WORKSPACE
+from cab_core.tools.registry import ToolOutput, observation_output, tool
 
-CONTACT_IMPULSE_THRESHOLD = 1e-4  # N*s, sensor floor (FACTS §A.5)
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.tools.context import Observation, RobotContext
+    from cab_core.tools.overlay import Canvas
+
 DRIVE_CLOSED_BELOW = 0.2  # commanded value below which the drive counts as "commanded closed"
 _CONVENTION = ("E = [R|t] maps world to camera (p_cam = R p_world + t); camera +x right, +y down, +z forward; "
                "K pinhole, pixels, no distortion")
@@ -30,7 +33,12 @@ def _param(ctx: RobotContext, key: str, default: float) -> float:
 # ==============================================================================================
 # get_world_frame
 # ==============================================================================================
+@tool(m.GetWorldFrameArgs, group="observation", kind="read", result=m.ObservationSummary)
 def get_world_frame(ctx: RobotContext, args) -> ToolOutput:
+    """Captures a fresh head-camera image with a display-only legend glyph in a screen corner and returns the
+    world conventions: +x robot-right (left arm at -x, right arm at +x), +y forward away from the robot, +z
+    up, metres, seconds, radians, wxyz quaternions, pixel convention. The legend is a schematic: it gives no
+    pixel-to-world correspondence."""
     def paint(c: Canvas, K, E) -> dict:
         box = c.world_frame_legend("bottom_left")
         return {
@@ -51,7 +59,7 @@ def get_world_frame(ctx: RobotContext, args) -> ToolOutput:
             "visibility": {"legend_drawn": True, "world_axes_projected": False},
         }
 
-    obs = capture_annotated(ctx, "head_camera", paint)
+    obs = ctx.capture_annotated("head_camera", paint)
     return observation_output(obs)
 
 
@@ -99,7 +107,13 @@ def _merge(dst: dict, src: dict) -> None:
             dst[k] = v
 
 
+@tool(m.GetEmbodimentArgs, group="observation", kind="read")
 def get_embodiment(ctx: RobotContext, args) -> ToolOutput:
+    """Describes the robot: arms and their sides, gripper geometry (max opening 0.08 m, finger-gap range,
+    empty-close gap), the TCP convention (nominal grasp centre; flange behind it along the approach axis,
+    fingertip plane ahead), gripper-local axes (+x approach, +y opening line), cameras (qualitatively),
+    reachability notes and motion limits (max single displacement 0.30 m, guarded leg 0.03 m). No scene facts
+    and no preferred grasp."""
     emb = ctx.emb
     g = next(iter(emb.arms.values())).gripper
     arms = {}
@@ -157,7 +171,12 @@ def get_embodiment(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # get_camera_info
 # ==============================================================================================
+@tool(m.GetCameraInfoArgs, group="observation", kind="read")
 def get_camera_info(ctx: RobotContext, args) -> ToolOutput:
+    """Returns the current calibration of one camera: 3x3 pinhole K (pixels, no distortion), 3x4 extrinsic E =
+    [R|t] mapping world to camera (p_cam = R p_world + t; camera +x right, +y down, +z forward) and image
+    size [H, W]. Wrist cameras move with their arm, so E changes after motion. A read failure returns
+    available=false with null fields."""
     cam = args.camera
     out: dict[str, Any] = {"camera": cam, "available": True, "K": None, "E": None, "size_hw": None,
                            "freshness": "current", "read_failures": 0, "convention": _CONVENTION, "tick": ctx.tick}
@@ -184,7 +203,11 @@ def _arm_pose_block(ctx: RobotContext, arm: str) -> dict:
         return {"ee_pose": None, "tcp_pose": None, "orientation": None, "read_failures": 1}
 
 
+@tool(m.GetArmPoseArgs, group="observation", kind="read")
 def get_arm_pose(ctx: RobotContext, args) -> ToolOutput:
+    """Measured flange (ee_pose) and TCP pose of one arm, world frame [x,y,z,qw,qx,qy,qz], with an orientation
+    block: approach_axis_world (gripper +x), opening_axis_world (gripper +y) and plain-text readings such as
+    'approach points down (-z)'."""
     ctx.arm(args.arm)
     out = {"arm": args.arm, **_arm_pose_block(ctx, args.arm), "tick": ctx.tick,
            "note": "measured; tcp_pose is the nominal grasp centre, ee_pose the flange behind it"}
@@ -202,7 +225,12 @@ def _gripper_block(ctx: RobotContext, arm: str) -> dict:
             "drive_commanded_closed": val < DRIVE_CLOSED_BELOW, "read_failures": fails}
 
 
+@tool(m.GetGripperStateArgs, group="observation", kind="read")
 def get_gripper_state(ctx: RobotContext, args) -> ToolOutput:
+    """Gripper readback of one arm: gripper_val (the last command, 1 = open, 0 = closed), opening_m = command x
+    0.08 m, finger_gap_m (physical distance between finger-link origins from forward kinematics, metres) and
+    drive_commanded_closed (command < 0.2). A closed command with a gap above the empty-close gap suggests
+    something between the fingers."""
     b = _gripper_block(ctx, args.arm)
     empty = ctx.arm(args.arm).gripper.empty_close_gap_m
     out = {"arm": args.arm, **b, "tick": ctx.tick,
@@ -254,7 +282,12 @@ def _contact_summary(ctx: RobotContext, arm: str) -> dict:
             "total_impulse": rnd(c["total_impulse"], 8), "unit": "N*s", "threshold": CONTACT_IMPULSE_THRESHOLD}
 
 
+@tool(m.GetGraspContactArgs, group="observation", kind="read")
 def get_grasp_contact(ctx: RobotContext, args) -> ToolOutput:
+    """Anonymous contact between one arm's fingers and anything that is not the robot, during the last physics
+    step: total and per-finger impulse (N*s, threshold 1e-4), fingers_in_contact, and the world pose of each
+    contacting finger link. Finger-finger and robot self-contact are excluded; the touched body is never
+    named."""
     arm = args.arm
     c = finger_contacts(ctx, arm)
     out: dict[str, Any] = {"available": c["available"], "read_failures": c["read_failures"],
@@ -303,7 +336,12 @@ def _joint_state(ctx: RobotContext, arm: str) -> dict:
             "units": {"revolute": ["rad", "rad/s"], "prismatic": ["m", "m/s"]}, "read_failures": fails}
 
 
+@tool(m.GetRobotStateArgs, group="observation", kind="read")
 def get_robot_state(ctx: RobotContext, args) -> ToolOutput:
+    """Combined state of one or both arms: flange and TCP poses with orientation blocks, gripper readback,
+    anonymous finger contact summary and joint_state (names, types, positions in rad or m, velocities in
+    rad/s or m/s). The only tool that returns joint positions and velocities. World frame: metres, +x
+    robot-right, +y forward, +z up; poses [x,y,z,qw,qx,qy,qz]."""
     arms = {}
     for arm in args.arms:
         pose = _arm_pose_block(ctx, arm)
@@ -322,7 +360,10 @@ def get_robot_state(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # captures
 # ==============================================================================================
+@tool(m.CaptureHeadArgs, group="observation", kind="read", result=m.ObservationSummary)
 def capture_head(ctx: RobotContext, args) -> ToolOutput:
+    """Captures the fixed head camera (RGB, 640x480 in the benchmark) and returns the image with its obs_id,
+    tick and calibration snapshot (K, E, size). No depth."""
     return observation_output(ctx.capture("head_camera"))
 
 
@@ -338,7 +379,11 @@ def _observation_set(ctx: RobotContext, shots: list[tuple[str, str]]) -> ToolOut
     return ToolOutput(payload=payload, obs_ids=ids)
 
 
+@tool(m.CaptureWristArgs, group="observation", kind="read", result=m.ObservationSet)
 def capture_wrist(ctx: RobotContext, args) -> ToolOutput:
+    """Captures wrist-camera RGB (320x240): the active arm's wrist, or with views='both' also the opposite wrist
+    (roles active/opposite). active_arm='none' with views='both' captures both wrists without roles. Each
+    image has its obs_id and calibration snapshot."""
     if args.active_arm == "none":
         shots = [(f"{a}_wrist", f"{a}_camera") for a in sorted(ctx.emb.arms)]
     else:
@@ -350,7 +395,10 @@ def capture_wrist(ctx: RobotContext, args) -> ToolOutput:
     return _observation_set(ctx, shots)
 
 
+@tool(m.CaptureEvidenceViewsArgs, group="observation", kind="read", result=m.ObservationSet)
 def capture_evidence_views(ctx: RobotContext, args) -> ToolOutput:
+    """Captures several views at the same tick: 'overview' (head camera), 'left_wrist', 'right_wrist' (default
+    all three, in that order), each with obs_id and calibration. Use it to check a state from several angles."""
     out = _observation_set(ctx, [(v, _VIEW_CAMERA[v]) for v in args.views])
     if args.active_arm is not None:
         roles = out.payload["roles"]

@@ -1,18 +1,37 @@
-"""The tool registry: one ToolDef per tool; schemas come from the pydantic argument models.
+"""What a tool is: its declaration (:class:`ToolDef`), made by :func:`tool` on the handler itself,
+and what a handler returns (:class:`ToolOutput`).
 
-Handlers are referenced by dotted path (``"cab_core.tools.motion:move_delta"``) and resolved on
-first use, so the registry can be listed and its schemas printed without a simulator.
+A robot tool is declared once, on its handler, in the module of its kind (``observe``,
+``estimate``, ``motion``)::
+
+    @tool(m.RayArgs, group="geometry", kind="read", result=m.Estimate)
+    def ray(ctx: RobotContext, args: m.RayArgs) -> ToolOutput:
+        \"\"\"Back-projects a pixel of an observation into a world-frame viewing ray: ...\"\"\"
+
+The tool's name is the function's, its description (the text the agent reads) the function's
+docstring with every run of whitespace folded to one space, so the docstring may wrap freely but
+cannot carry a paragraph break. ``run_code`` and ``done`` are served by the episode host itself
+(:class:`~cab_core.attempt.serving.CallServer`): they are plain :class:`ToolDef` values without a
+handler. :mod:`cab_core.tools` lists every declaration in catalog order and builds the registry.
+
 A handler has the signature ``handler(ctx: RobotContext, args: <ArgsModel>) -> ToolOutput``.
+This module imports nothing else of cab_core, so a handler module can import it.
 """
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Literal, Optional
 
 from pydantic import BaseModel
 
 Group = Literal["observation", "geometry", "feedback", "motion", "composition", "control"]
+
+# What a call does, from which its flags follow: "read" (read-only), "plan" (read-only planner
+# query), "act" (moves the robot and advances physics: destructive), "code" (run_code: may move the
+# robot, so destructive), "done" (free).
+Kind = Literal["read", "plan", "act", "code", "done"]
+
+Handler = Callable[..., "ToolOutput"]
 
 
 @dataclass
@@ -25,22 +44,38 @@ class ToolOutput:
     physics_steps: int = 0
 
 
+def observation_output(obs: Any, **extra) -> ToolOutput:
+    """The result of a tool that returns one observation: its summary (plus ``extra`` keys) and its image."""
+    payload = obs.summary()
+    payload.update(extra)
+    return ToolOutput(payload=payload, obs_ids=[obs.obs_id])
+
+
 @dataclass(frozen=True)
 class ToolDef:
     name: str
     group: Group
+    kind: Kind
     args: type[BaseModel]
-    handler: str  # "module:function"
     description: str
-    read_only: bool = True  # MCP readOnlyHint
-    destructive: bool = False  # MCP destructiveHint (motion)
-    advances_physics: bool = False
-    charged: bool = True  # done is free
+    handler: Optional[Handler] = None  # None: served by the episode host (run_code, done)
     result: type[BaseModel] | None = None  # documented result model, when there is one
 
-    def resolve(self) -> Callable[..., ToolOutput]:
-        mod, fn = self.handler.split(":")
-        return getattr(importlib.import_module(mod), fn)
+    @property
+    def read_only(self) -> bool:  # MCP readOnlyHint
+        return self.kind in ("read", "plan")
+
+    @property
+    def destructive(self) -> bool:  # MCP destructiveHint (motion, programs)
+        return self.kind in ("act", "code")
+
+    @property
+    def advances_physics(self) -> bool:
+        return self.kind == "act"
+
+    @property
+    def charged(self) -> bool:  # done is free
+        return self.kind != "done"
 
     def json_schema(self) -> dict:
         s = self.args.model_json_schema()
@@ -50,3 +85,25 @@ class ToolDef:
     def spec(self) -> dict:
         """Provider-neutral function-tool description: name, description, parameters."""
         return {"name": self.name, "description": self.description, "parameters": self.json_schema()}
+
+
+def description_of(fn: Callable) -> str:
+    """A handler's docstring as the one-paragraph description the agent reads."""
+    text = " ".join((fn.__doc__ or "").split())
+    if not text:
+        raise TypeError(f"tool {fn.__name__}: its docstring is the description the agent reads, and it has none")
+    return text
+
+
+def tool(args: type[BaseModel], *, group: Group, kind: Kind,
+         result: type[BaseModel] | None = None) -> Callable[[Handler], Handler]:
+    """Declare the decorated handler a tool: name, description (its docstring), argument model,
+    group, kind and documented result model. The function itself is returned unchanged, with its
+    declaration as ``fn.tool_def`` (the registry refuses undocumented arguments when it is built)."""
+
+    def declare(fn: Handler) -> Handler:
+        fn.tool_def = ToolDef(name=fn.__name__, group=group, kind=kind, args=args,  # type: ignore[attr-defined]
+                              description=description_of(fn), handler=fn, result=result)
+        return fn
+
+    return declare
