@@ -217,7 +217,9 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     assert problems[f"{TASKS[0]}/oracle/seed-0/attempt-2"].startswith("result.json is not valid JSON")
     assert problems[f"{TASKS[1]}/idle/seed-0/attempt-1"] == "result.json lacks 'verdict'"
     assert problems[f"{TASKS[1]}/scripted/seed-0/attempt-1"].startswith("events.jsonl line 3 is not valid JSON")
-    assert problems[f"{TASKS[0]}/idle/seed-0/attempt-2"] == "malformed record (KeyError: 'attained')"
+    # refused when read: the record's model (cab_core.attempt.record) names what the checkpoint lacks
+    assert problems[f"{TASKS[0]}/idle/seed-0/attempt-2"].startswith("result.json lacks 'checkpoints.spatial[0].name'")
+    assert "result.json lacks 'checkpoints.spatial[0].attained'" in problems[f"{TASKS[0]}/idle/seed-0/attempt-2"]
     assert r["attempts"] == len(results(sweep)) - 6
     assert cfg(r, "oracle")["attempts"] == 1 and cfg(r, "oracle")["tasks"] == 1
     md = (d / "report.md").read_text()

@@ -3,7 +3,9 @@
 Analysis (report, viewer, replay, regrade) reads only these records, never a simulator. A sweep may
 be partial (attempts still running, or killed: ``events.jsonl`` without ``result.json``) or hold
 corrupt files; :func:`scan` sorts directories into finished attempts, in-flight ones and problems,
-and never raises for a bad record.
+and never raises for a bad record. ``result.json`` is validated through its model
+(:class:`cab_core.attempt.record.AttemptRecord`); analysis reads it as the typed record or, where
+that is simpler, as the dict it was parsed from.
 """
 from __future__ import annotations
 
@@ -14,25 +16,11 @@ from functools import cached_property
 from pathlib import Path
 
 from cab_core.attempt.agent_record import AgentRecord
+from cab_core.attempt.record import AttemptRecord, parse_record, read_json_object
 from cab_core.errors import RecordError
 from cab_core.sweep.records import SET_ASIDE
 
-# keys a result.json must carry for analysis, with the type each must have
-REQUIRED = {"task": str, "seed": int, "attempt": int, "sim": str, "model": str, "harness": str,
-            "verdict": dict, "termination": dict, "claim": dict, "budget": dict}
-
-
-def read_json(path: Path) -> dict:
-    """One JSON object from ``path``; a missing or unparsable file is a RecordError."""
-    try:
-        obj = json.loads(Path(path).read_text())
-    except FileNotFoundError as e:
-        raise RecordError(f"{path.name} is missing") from e
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise RecordError(f"{path.name} is not valid JSON: {e}") from e
-    if not isinstance(obj, dict):
-        raise RecordError(f"{path.name} does not hold a JSON object")
-    return obj
+read_json = read_json_object  # one JSON object from a file; a missing or unparsable file is a RecordError
 
 
 def read_jsonl(path: Path) -> list[dict]:
@@ -59,39 +47,38 @@ class InfrastructureResult(RecordError):
     """The result of an attempt whose every try failed for reasons that are not the model's."""
 
 
-def check_result(result: dict) -> None:
-    """Raise RecordError naming the first key analysis needs that is missing or mistyped
-    (InfrastructureResult for an attempt excluded as an infrastructure failure)."""
-    verdict = result.get("verdict")
-    if isinstance(verdict, dict) and verdict.get("excluded"):
-        detail = (result.get("termination") or {}).get("detail", "")
-        raise InfrastructureResult(f"excluded ({verdict['excluded']}): {detail}".rstrip(": "))
-    for key, typ in REQUIRED.items():
-        if key not in result:
-            raise RecordError(f"result.json lacks {key!r}")
-        if not isinstance(result[key], typ) or (typ is int and isinstance(result[key], bool)):
-            raise RecordError(f"result.json {key!r} should be {typ.__name__}, got {type(result[key]).__name__}")
-    if not isinstance(result["verdict"].get("success"), bool):
-        raise RecordError("result.json verdict.success should be true or false")
-    if not isinstance(result["termination"].get("reason"), str):
-        raise RecordError("result.json termination.reason is missing")
-    AgentRecord.of_result(result)  # optional; when present, of the documented shape
+def check_result(result: dict) -> AttemptRecord:
+    """The typed record of a parsed ``result.json``: RecordError (:class:`MalformedRecord
+    <cab_core.attempt.record.MalformedRecord>`) naming what does not match the record's model,
+    InfrastructureResult for an attempt excluded as an infrastructure failure."""
+    record = parse_record(result)
+    if record.excluded:
+        detail = record.termination.detail or ""
+        raise InfrastructureResult(f"excluded ({record.verdict.excluded or 'infrastructure_failure'}): {detail}"
+                                   .rstrip(": "))
+    return record
 
 
 @dataclass
 class Attempt:
-    """One finished attempt's records. ``rel``: its directory relative to the scanned root."""
+    """One finished attempt's records. ``rel``: its directory relative to the scanned root;
+    ``result``: ``result.json`` as parsed, ``record``: the same, typed (validated on load)."""
     dir: Path
     rel: str
     result: dict
+    record: AttemptRecord | None = None
+
+    def __post_init__(self):
+        if self.record is None:
+            self.record = check_result(self.result)
 
     @classmethod
     def load(cls, d: Path, root: Path | None = None) -> "Attempt":
         d = Path(d)
         result = read_json(d / "result.json")
-        check_result(result)
+        record = check_result(result)
         rel = os.path.relpath(d, root) if root is not None else d.name
-        return cls(d, rel.replace(os.sep, "/"), result)
+        return cls(d, rel.replace(os.sep, "/"), result, record)
 
     @cached_property
     def events(self) -> list[dict]:
@@ -116,7 +103,7 @@ class Attempt:
 
     @property
     def success(self) -> bool:
-        return bool(self.result["verdict"]["success"])
+        return bool(self.record.verdict.success)
 
     def start_event(self) -> dict:
         return next((e for e in self.events if e.get("kind") == "attempt_start"), {})

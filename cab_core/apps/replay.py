@@ -105,9 +105,9 @@ def execute(attempt: Attempt, out: Path) -> ReplayAgent:
     episode = Episode.open(spec, observers=[])  # a replay re-checks the record; the original's observers need not be installed
     try:
         agent.run(episode)
-        term = attempt.result["termination"]
-        if not episode.ended and term["reason"] not in EPISODE_ENDINGS:
-            episode.end(term["reason"], term.get("detail", ""))
+        term = attempt.record.termination
+        if not episode.ended and term.reason not in EPISODE_ENDINGS:
+            episode.end(term.reason, term.detail or "")
         episode.finish()
     finally:
         episode.close()
@@ -168,7 +168,7 @@ def validate(original: Attempt, replayed: Attempt, tol: float = TOLERANCE_M) -> 
     v = Validation(original.rel, os.path.relpath(replayed.dir, original.dir).replace(os.sep, "/"))
     compare_calls(v, original.events, replayed.events)
     compare_snapshots(v, original.snapshots, replayed.snapshots, tol)
-    ta, tb = original.result["termination"]["reason"], replayed.result["termination"]["reason"]
+    ta, tb = original.record.termination.reason, replayed.record.termination.reason
     if ta != tb:
         v.fail(f"termination {ta!r} recorded, {tb!r} in the replay")
     v.original_success, v.replay_success = original.success, replayed.success
@@ -214,7 +214,7 @@ def regrade(attempt_dir: Path) -> dict:
                if c["attained"] != ((recorded.get(kind) or [{}] * c["index"])[c["index"] - 1].get("attained"))]
     stage, why = Classifier()(a)
     return {"attempt": str(a.dir), "success": a.success,
-            "claim": claim_category(a.result["claim"].get("success_claim"), a.success),
+            "claim": claim_category(a.record.claim.success_claim, a.success),
             "checkpoints": ck, "checkpoints_changed": changed, "failure_stage": stage, "failure_detail": why}
 
 

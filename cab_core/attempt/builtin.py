@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cab_core.errors import AttemptEnded, ConfigError
 from cab_core.contracts.hookspecs import hookimpl
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.harness import AttemptSession
 
 
 class DirectHarness:
@@ -24,7 +27,7 @@ class DirectHarness:
 
         self._agent = create("agents", model_cfg.get("agent", model_cfg.get("name")), model_cfg)
 
-    def run(self, episode, model_cfg: dict) -> None:
+    def run(self, episode: AttemptSession, model_cfg: dict) -> None:
         if self._agent is None:
             self.preflight(model_cfg)
         agent, self._agent = self._agent, None
@@ -40,7 +43,7 @@ class IdleAgent:
     def __init__(self, cfg: dict):
         self.cfg = cfg
 
-    def run(self, episode) -> None:
+    def run(self, episode: AttemptSession) -> None:
         episode.call("done", {"report": "idle agent: no action taken", "success_claim": False})
 
 
@@ -51,7 +54,7 @@ class OracleAgent:
     def __init__(self, cfg: dict):
         self.cfg = cfg
 
-    def run(self, episode) -> None:
+    def run(self, episode: AttemptSession) -> None:
         def call(tool: str, **kwargs: Any) -> dict:
             r = episode.call(tool, kwargs)
             if r.ended and tool != "done":
@@ -97,7 +100,7 @@ class ScriptedAgent:
                 raise ConfigError(f"script item {i} has both 'args' and 'arguments'; give one")
         self.items = items
 
-    def run(self, episode) -> None:
+    def run(self, episode: AttemptSession) -> None:
         for it in self.items:
             r = episode.call(it["tool"], (it["args"] if "args" in it else it.get("arguments")) or {})
             if r.ended:

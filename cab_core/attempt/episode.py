@@ -19,7 +19,7 @@ import numpy as np
 
 from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.finishing import VerdictTracker, attempt_checkpoints, versions
-from cab_core.attempt.record import RECORD_VERSION
+from cab_core.attempt.record import RECORD_VERSION, AttemptRecord, MalformedRecord
 from cab_core.attempt.recording import Recorder
 from cab_core.attempt.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.spec import AttemptSpec
@@ -51,7 +51,8 @@ class Episode:
         self.recorder = Recorder(self.out, observers)
         self.ended = False
         self.termination: dict | None = None
-        self.result: dict | None = None
+        self.result: dict | None = None  # result.json as written (AttemptRecord.dump())
+        self.record: AttemptRecord | None = None  # the same, typed
         self.agent: dict | None = None  # who played, when the harness knows (cab_core.attempt.agent_record)
         self._t_start = time.monotonic()
         self._setup()
@@ -185,34 +186,38 @@ class Episode:
         self._render_video()
         checkpoints = attempt_checkpoints(self.built, self.out, verdict)
         self.server.close()
-        s = self.spec
-        self.result = {
-            "record_version": RECORD_VERSION,
-            "task": s.task, "seed": s.seed, "attempt": s.attempt, "sim": s.sim, "embodiment": s.embodiment,
-            "planner": s.planner, "model": s.model, "harness": s.harness,
-            **({"agent": self.agent} if self.agent is not None else {}),
-            "instruction": self.task.info.instruction,
-            "scoring": self.verifier.scoring,
-            **({"perturbation": self.perturbation} if self.perturbation is not None else {}),
-            "verdict": verdict,
-            "termination": self.termination,
-            "claim": self.claim,
-            "budget": self.ledger.summary(),
-            "timing": {"wall_seconds": round(time.monotonic() - self._t_start, 3),
-                       "setup_seconds": round(self.setup_seconds, 3)},
-            "counts": {"charged_calls": self.server.calls, "observations": len(self.obs._obs),
-                       "tool_errors": self.tool_errors},
-            "sandbox": {"confinement": getattr(self.sandbox, "confinement", None),
-                        "layers": getattr(self.sandbox, "confinement_layers", None),
-                        "note": getattr(self.sandbox, "confinement_note", None)},
-            "versions": self.versions(),
-            "checkpoints": checkpoints,
-            "video": {"file": "video.mp4", "frames": self.recorder.video.frames, "every_steps": self._video_every,
-                      "rendered": "in the loop" if self._video_render_seconds is None else "after the attempt",
-                      **({} if self._video_render_seconds is None
-                         else {"render_seconds": round(self._video_render_seconds, 3)})}
-            if self.recorder.video else None,
-        }
+        s, video = self.spec, self.recorder.video
+        fields = dict(
+            record_version=RECORD_VERSION,
+            task=s.task, seed=s.seed, attempt=s.attempt, sim=s.sim, embodiment=s.embodiment,
+            planner=s.planner, model=s.model, harness=s.harness, agent=self.agent,
+            instruction=self.task.info.instruction,
+            scoring=self.verifier.scoring,
+            perturbation=self.perturbation,
+            verdict=verdict,
+            termination=self.termination,
+            claim=self.claim,
+            budget=self.ledger.summary(),
+            timing={"wall_seconds": round(time.monotonic() - self._t_start, 3),
+                    "setup_seconds": round(self.setup_seconds, 3)},
+            counts={"charged_calls": self.server.calls, "observations": len(self.obs._obs),
+                    "tool_errors": self.tool_errors},
+            sandbox={"confinement": getattr(self.sandbox, "confinement", None),
+                     "layers": getattr(self.sandbox, "confinement_layers", None),
+                     "note": getattr(self.sandbox, "confinement_note", None)},
+            versions=self.versions(),
+            checkpoints=checkpoints,
+            video={"file": "video.mp4", "frames": video.frames, "every_steps": self._video_every,
+                   "rendered": "in the loop" if self._video_render_seconds is None else "after the attempt",
+                   "render_seconds": None if self._video_render_seconds is None
+                   else round(self._video_render_seconds, 3)} if video else None,
+        )
+        try:
+            self.record = AttemptRecord.build(**fields)
+            self.result = self.record.dump()
+        except MalformedRecord as e:  # never lose the attempt: written as assembled; readers refuse it
+            self.recorder.event("record_invalid", problems=e.problems)
+            self.result = {k: v for k, v in fields.items() if not (v is None and k in AttemptRecord.omit_if_none)}
         self.recorder.event("attempt_end", termination=self.termination, claim=self.claim)
         self.recorder.finish(self.result)
         return self.result

@@ -1,11 +1,12 @@
 """The state of one attempt directory inside a sweep, as resume and the supervisor see it.
 
-An attempt directory is *complete* when its ``result.json`` validates: the record schema, the
-identity of the attempt it should hold, and the completeness of the records it points to (the event
-log ends with ``attempt_end``, the observations and the video it counts exist), and it is not an
-infrastructure failure. Anything else that holds records is *partial*: a worker killed mid-attempt,
-or a try that failed for reasons that are not the model's. Partial records are never deleted: they
-are moved aside into ``set_aside/NN-<why>/`` inside the same attempt directory.
+An attempt directory is *complete* when its ``result.json`` validates: the record schema
+(:class:`cab_core.attempt.record.AttemptRecord`), the identity of the attempt it should hold, and the
+completeness of the records it points to (the event log ends with ``attempt_end``, the observations
+and the video it counts exist), and it is not an infrastructure failure. Anything else that holds
+records is *partial*: a worker killed mid-attempt, or a try that failed for reasons that are not the
+model's. Partial records are never deleted: they are moved aside into ``set_aside/NN-<why>/`` inside
+the same attempt directory.
 """
 from __future__ import annotations
 
@@ -15,15 +16,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cab_core.attempt.faults import INFRASTRUCTURE_TERMINATIONS
-from cab_core.attempt.record import RECORD_VERSION, write_json_atomic
+from cab_core.attempt.record import (INFRA_REASON, RECORD_VERSION, AttemptRecord, Infrastructure,
+                                     MalformedRecord, parse_record, write_record)
 
 SET_ASIDE = "set_aside"
 INFRA_LOG = "infrastructure.jsonl"
-INFRA_REASON = "infrastructure_failure"
 # Terminations that are failures of the infrastructure, not of the model (the fault rule).
 INFRA_TERMINATIONS = INFRASTRUCTURE_TERMINATIONS
-_RESULT_KEYS = ("task", "seed", "attempt", "sim", "model", "verdict", "termination", "claim", "budget", "timing",
-                "versions")
 _IDENTITY = ("task", "seed", "attempt", "sim", "model")
 
 
@@ -33,10 +32,12 @@ class RecordCheck:
     state: str
     problems: list[str] = field(default_factory=list)
     result: dict | None = None
+    record: AttemptRecord | None = None  # the result, typed (when it validates)
 
 
 def is_infrastructure_failure(result: dict) -> bool:
-    """True for a result that must not count for or against the model (reports exclude it)."""
+    """True for a result that must not count for or against the model (reports exclude it). For a
+    raw dict, unvalidated (:attr:`AttemptRecord.excluded` is the same rule on a validated record)."""
     infra = result.get("infrastructure") or {}
     return bool(infra.get("failed")) or (result.get("termination") or {}).get("reason") == INFRA_REASON
 
@@ -69,44 +70,37 @@ def _last_event_kind(events: Path) -> str | None:
     return None
 
 
-def _named_by_client(res: dict) -> bool:
+def _named_by_client(rec: AttemptRecord) -> bool:
     """An attempt whose configuration left the model unnamed and whose harness named it after the
     agent that played it (``agent.named_by == "client"``, e.g. ``mcp:<client>``): its ``model``
     differs from the planned one by design, so it is not another attempt's record."""
-    agent = res.get("agent")
-    return isinstance(agent, dict) and agent.get("named_by") == "client"
+    return rec.agent is not None and rec.agent.named_by == "client"
 
 
-def _problems(d: Path, res: object, expect: dict) -> list[str]:
-    if not isinstance(res, dict):
-        return ["result.json is not an object"]
-    out = []
-    if res.get("record_version") != RECORD_VERSION:
-        out.append(f"record_version {res.get('record_version')!r} is not {RECORD_VERSION!r}")
-    out += [f"result.json lacks {k!r}" for k in _RESULT_KEYS if k not in res]
-    out += [f"{k} is {res.get(k)!r}, expected {v!r}" for k, v in expect.items()
-            if k in res and res[k] != v and not (k == "model" and _named_by_client(res))]
+def _problems(d: Path, res: object, expect: dict) -> tuple[list[str], AttemptRecord | None]:
+    try:
+        rec = parse_record(res)
+    except MalformedRecord as e:
+        return e.problems, None
+    out = [f"{k} is {getattr(rec, k)!r}, expected {v!r}" for k, v in expect.items()
+           if getattr(rec, k) != v and not (k == "model" and _named_by_client(rec))]
     if out:
-        return out
-    if is_infrastructure_failure(res):
-        return [f"infrastructure failure: {(res.get('termination') or {}).get('detail')}"]
-    if not isinstance((res.get("verdict") or {}).get("success"), bool):
-        out.append("verdict.success is not a boolean")
-    if not isinstance((res.get("termination") or {}).get("reason"), str):
-        out.append("termination.reason is missing")
+        return out, rec
+    if rec.excluded:
+        return [f"infrastructure failure: {rec.termination.detail}"], rec
     events = d / "events.jsonl"
     if not events.is_file():
         out.append("events.jsonl is missing")
     elif _last_event_kind(events) != "attempt_end":
         out.append("events.jsonl does not end with attempt_end")
-    n_obs = int((res.get("counts") or {}).get("observations") or 0)
+    n_obs = int((rec.counts.observations if rec.counts else None) or 0)
     have = len(list((d / "observations").glob("*.png"))) if (d / "observations").is_dir() else 0
     if have < n_obs:
         out.append(f"{n_obs} observations recorded, {have} image files present")
-    video = res.get("video")
-    if video and not ((d / video["file"]).is_file() and (d / video["file"]).stat().st_size > 0):
-        out.append(f"video {video['file']} is missing or empty")
-    return out
+    video = rec.video
+    if video and not ((d / video.file).is_file() and (d / video.file).stat().st_size > 0):
+        out.append(f"video {video.file} is missing or empty")
+    return out, rec
 
 
 def check_attempt(attempt_dir: Path, expect: dict | None = None, job_log: str | None = None) -> RecordCheck:
@@ -122,8 +116,8 @@ def check_attempt(attempt_dir: Path, expect: dict | None = None, job_log: str | 
         res = json.loads(rp.read_text())
     except (OSError, json.JSONDecodeError) as e:
         return RecordCheck("partial", [f"result.json unreadable: {e}"])
-    probs = _problems(d, res, {k: v for k, v in (expect or {}).items() if k in _IDENTITY})
-    return RecordCheck("partial" if probs else "complete", probs, res if isinstance(res, dict) else None)
+    probs, rec = _problems(d, res, {k: v for k, v in (expect or {}).items() if k in _IDENTITY})
+    return RecordCheck("partial" if probs else "complete", probs, res if isinstance(res, dict) else None, rec)
 
 
 def set_aside(attempt_dir: Path, why: str, job_log: str | None = None) -> str | None:
@@ -161,23 +155,20 @@ def write_infrastructure_result(attempt_dir: Path, identity: dict, failures: lis
     """The result of an attempt whose every try failed for reasons that are not the model's: no
     verdict, marked so that reports exclude it and a resumed sweep runs it again."""
     last = failures[-1] if failures else {}
-    result = {
-        "record_version": RECORD_VERSION, **identity,
-        "verdict": {"success": None, "excluded": INFRA_REASON},
-        "termination": {"reason": INFRA_REASON,
-                        "detail": f"{len(failures)} tries failed; last: {last.get('kind')}: {last.get('detail')}"},
-        "claim": {"success_claim": None, "report": None},
-        "budget": {}, "timing": {}, "versions": {},
-        "infrastructure": {"failed": True, "failures": failures},
-    }
-    write_json_atomic(Path(attempt_dir) / "result.json", result)
-    return result
+    record = AttemptRecord.build(
+        record_version=RECORD_VERSION, **identity,
+        verdict={"success": None, "excluded": INFRA_REASON},
+        termination={"reason": INFRA_REASON,
+                     "detail": f"{len(failures)} tries failed; last: {last.get('kind')}: {last.get('detail')}"},
+        claim={"success_claim": None, "report": None},
+        budget={}, timing={}, versions={},
+        infrastructure={"failed": True, "failures": failures})
+    return write_record(Path(attempt_dir) / "result.json", record)
 
 
 def annotate_result(attempt_dir: Path, failures: list[dict]) -> dict:
     """Add the infrastructure failures that preceded a good try to its ``result.json`` (atomically)."""
     rp = Path(attempt_dir) / "result.json"
-    res = json.loads(rp.read_text())
-    res["infrastructure"] = {"failed": False, "failures": failures}
-    write_json_atomic(rp, res)
-    return res
+    record = parse_record(json.loads(rp.read_text()))
+    record.infrastructure = Infrastructure.model_validate({"failed": False, "failures": failures})
+    return write_record(rp, record)

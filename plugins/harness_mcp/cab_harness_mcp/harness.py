@@ -34,6 +34,7 @@ import threading
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cab_core.apps import stdio
 from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
@@ -43,6 +44,9 @@ from cab_core.errors import AttemptEnded, ConfigError
 from .bridge import CallBridge, Job
 from .server import build_server, instructions_text, tool_list, tool_result
 from .transport import HttpServerThread, ServerThread, StdioServerThread
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.harness import AttemptSession
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +160,7 @@ class McpHarness:
             self._stdio = stdio.claim()
 
     # -- hooks for the vendor launchers ---------------------------------------------------------
-    def on_serving(self, episode, transport: ServerThread) -> None:
+    def on_serving(self, episode: AttemptSession, transport: ServerThread) -> None:
         """Called once the server accepts connections."""
 
     def agent_gone(self) -> str | None:
@@ -167,7 +171,7 @@ class McpHarness:
         """Whether to score and write the record now, ``ended_for_s`` after the attempt ended."""
         return True
 
-    def before_finish(self, episode) -> None:
+    def before_finish(self, episode: AttemptSession) -> None:
         """Last records of the harness (the records close when the attempt is finished)."""
 
     def on_stop(self) -> None:
@@ -206,7 +210,7 @@ class McpHarness:
     # -- the attempt --------------------------------------------------------------------------
     agent_kind = "mcp_client"  # the ``kind`` of result.json's ``agent`` block
 
-    def run(self, episode, model_cfg: dict) -> None:
+    def run(self, episode: AttemptSession, model_cfg: dict) -> None:
         self._model_cfg = dict(model_cfg or {})
         self.before_build(episode.spec)  # when the runner did not call it
         episode.recorder.event("mcp_server_start", **self._info)
@@ -239,7 +243,7 @@ class McpHarness:
             print(f"cab: attempt {spec.task} served over MCP at {transport.url} (endpoint and token: {path})",
                   file=sys.stderr, flush=True)
 
-    def _serve(self, episode, bridge: CallBridge, transport: ServerThread) -> None:
+    def _serve(self, episode: AttemptSession, bridge: CallBridge, transport: ServerThread) -> None:
         s = self.settings
         ended_at: float | None = None
         finished_at = 0.0
@@ -267,7 +271,7 @@ class McpHarness:
                     time.monotonic() - finished_at >= s.linger_s and bridge.pending() == 0)):
                 break
 
-    def _ending(self, episode, bridge: CallBridge, transport: ServerThread) -> tuple[str, str] | None:
+    def _ending(self, episode: AttemptSession, bridge: CallBridge, transport: ServerThread) -> tuple[str, str] | None:
         s = self.settings
         if transport.finished:
             if transport.error is not None:
@@ -282,7 +286,7 @@ class McpHarness:
             return "client_idle", f"no request from the MCP client for {s.idle_timeout_s:g} s"
         return None
 
-    def _note_clients(self, episode) -> None:
+    def _note_clients(self, episode: AttemptSession) -> None:
         """Record the client identities the server has seen since the last look (an ``mcp_client``
         event each) and re-attribute the attempt. Once result.json is written the records are
         closed: a client that comes later is answered "the attempt has ended" and not recorded."""
@@ -297,14 +301,14 @@ class McpHarness:
                                    session=session)
         self._attribute(episode)
 
-    def _attribute(self, episode) -> None:
+    def _attribute(self, episode: AttemptSession) -> None:
         """The attempt's configuration name and ``agent`` block, from the config and the clients
         recorded so far (kept current, so that whoever writes result.json writes them)."""
         first = self._clients[0] if self._clients else None
         episode.spec.model, named_by = attempt_model_name(self._model_cfg, first)
         episode.agent = AgentRecord(self.agent_kind, named_by, first, list(self._clients)).as_dict()
 
-    def _execute(self, episode, job: Job):
+    def _execute(self, episode: AttemptSession, job: Job):
         """Run one queued call; returns its MCP result (the caller delivers it)."""
         try:
             r = episode.call(job.name, job.arguments)

@@ -56,11 +56,15 @@ import shutil
 import signal
 import subprocess
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cab_core.errors import ConfigError, MissingDependency
 
 from .harness import McpHarness, write_private_json
 from .transport import HttpServerThread
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.harness import AttemptSession
 
 TRANSCRIPT = "vendor_transcript.jsonl"
 USAGE = "vendor_usage.json"
@@ -153,7 +157,7 @@ class VendorLauncher(McpHarness):
             env[TOKEN_ENV] = transport.token
         return env
 
-    def on_serving(self, episode, transport) -> None:
+    def on_serving(self, episode: AttemptSession, transport) -> None:
         self._out = out = Path(episode.out)
         workdir = out / "vendor_workdir"
         workdir.mkdir(exist_ok=True)
@@ -189,7 +193,7 @@ class VendorLauncher(McpHarness):
             except subprocess.TimeoutExpired:
                 continue
 
-    def before_finish(self, episode) -> None:
+    def before_finish(self, episode: AttemptSession) -> None:
         self._terminate()
         for f in self._files:
             f.close()

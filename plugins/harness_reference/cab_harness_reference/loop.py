@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import time
+from typing import TYPE_CHECKING
 
 from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.errors import AttemptEnded, CabError, ConfigError
@@ -16,6 +17,9 @@ from cab_core.attempt.pricing import cost, usage_dict
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
 from .types import Capabilities, Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.harness import AttemptSession
 
 MAX_NO_TOOL_TURNS = 3
 CANCELLED = "cancelled: an earlier action in this response aborted"
@@ -64,7 +68,7 @@ class ReferenceHarness:
 
     # -- helpers ------------------------------------------------------------------------------
     @staticmethod
-    def _tools(episode) -> list[ToolSpec]:
+    def _tools(episode: AttemptSession) -> list[ToolSpec]:
         return [ToolSpec(t["name"], t.get("description", ""), t.get("parameters") or {"type": "object", "properties": {}})
                 for t in episode.tool_specs()]
 
@@ -82,12 +86,13 @@ class ReferenceHarness:
                 raise
             return ReferenceContextPolicy.from_cfg(cfg)  # the plugin is not installed (tests from source)
 
-    def _images(self, episode, obs_ids: list[str], cap: int, call: ToolCall) -> tuple[list[Image], list[str]]:
+    def _images(self, episode: AttemptSession, obs_ids: list[str], cap: int,
+                call: ToolCall) -> tuple[list[Image], list[str]]:
         shown, withheld = result_images(episode, obs_ids, cap)
         return [Image(png, oid, f"{oid} from {call.name} ({call.call_id})") for oid, png in shown], withheld
 
     # -- the loop -----------------------------------------------------------------------------
-    def run(self, episode, model_cfg: dict) -> None:
+    def run(self, episode: AttemptSession, model_cfg: dict) -> None:
         if self.provider is None:
             self.preflight(model_cfg)
         provider = self.provider
@@ -186,7 +191,7 @@ class ReferenceHarness:
         episode.recorder.event("model_usage_total", **{k: round(v, 6) if isinstance(v, float) else v
                                                        for k, v in totals.items()}, turns=turn)
 
-    def _run_calls(self, episode, calls: list[ToolCall], history: list[Message], caps: Capabilities,
+    def _run_calls(self, episode: AttemptSession, calls: list[ToolCall], history: list[Message], caps: Capabilities,
                    max_images: int) -> None:
         aborted = False
         results: list[ToolResult] = []

@@ -1,0 +1,176 @@
+"""What a harness is, and what it may use of the attempt it drives: the one protocol between the
+harnesses and the attempt.
+
+A harness (hook ``cab_harnesses``: ``{name: factory(cfg)}``, :class:`HarnessFactory`) runs an agent
+through one attempt. The runner (:func:`cab_core.attempt.runner.run_attempt`) creates it, calls the
+optional members it has (:class:`HarnessHooks`: ``preflight``, then ``before_build``), builds the
+attempt, and calls :meth:`Harness.run` with the running attempt seen as an :class:`AttemptSession`
+(:class:`cab_core.attempt.episode.Episode` is one). A harness uses nothing of the attempt beyond
+:class:`AttemptSession`; a model-free agent of the core's ``direct`` harness (hook ``cab_agents``)
+is a :class:`ModelFreeAgent` and gets the same session.
+
+Protocols only: nothing here runs, and this module imports nothing of cab at run time.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+if TYPE_CHECKING:  # pragma: no cover
+    from pathlib import Path
+
+    import numpy as np
+
+    from cab_core.attempt.serving import ToolResponse
+    from cab_core.attempt.spec import AttemptSpec
+    from cab_core.contracts.task import Task
+    from cab_core.contracts.verifier import WorldView
+
+
+@runtime_checkable
+class CallLimit(Protocol):
+    """One budget of the session's ledger, as a harness reads it."""
+
+    #: the limit (for ``tool_calls``: the number of charged calls the attempt allows)
+    limit: float
+
+
+@runtime_checkable
+class SessionLedger(Protocol):
+    """The attempt's budgets, as far as a harness reads or credits them (the episode enforces them
+    itself: a harness never needs to)."""
+
+    #: the tool-call budget; a harness sizes its own turn limit from ``tool_calls.limit``
+    tool_calls: CallLimit
+
+    def remaining(self) -> dict:
+        """What every tool result shows: ``tool_calls_remaining``, ``tool_calls_limit``,
+        ``sim_seconds_remaining``, ``sim_seconds_limit`` (the system prompt states them)."""
+        ...
+
+    def exhausted_reason(self) -> str | None:
+        """The budget that is spent (``sim_budget``, ``wall_budget``, ``tool_budget``), None while
+        none is; a harness checks ``wall_budget`` between model turns, where no call is made."""
+        ...
+
+    def credit_wall(self, seconds: float) -> None:
+        """Give back wall-clock time the harness spent waiting on a provider outage (capped at one
+        extra wall budget)."""
+        ...
+
+
+@runtime_checkable
+class EventLog(Protocol):
+    """The attempt's event log (``events.jsonl``), as a harness writes to it."""
+
+    def event(self, kind: str, **data: Any) -> dict:
+        """Append one event of ``kind`` (the harness's own: model turns, usage, provider failures,
+        MCP clients...) with JSON-able ``data``; returns the event as written."""
+        ...
+
+
+@runtime_checkable
+class AttemptSession(Protocol):
+    """The running attempt, as a harness (and a model-free agent) sees it."""
+
+    #: the attempt, fully resolved (task, seed, budgets, model config, sandbox settings...); read
+    #: only, except ``spec.model``, which a harness that learns who played (an MCP client naming
+    #: itself) may set before the attempt finishes
+    spec: AttemptSpec
+    #: the attempt's record directory (a harness keeps its own logs there)
+    out: Path
+    #: True once the attempt has ended (an ending call, a spent budget, :meth:`end`)
+    ended: bool
+    #: why it ended: ``{"reason": ..., "detail": ...}``; None while it runs
+    termination: dict | None
+    #: ``result.json`` as written once :meth:`finish` has run, else None
+    result: dict | None
+    #: who played, when the harness knows more than the config (``result.json`` ``agent``, the
+    #: shape of :class:`cab_core.attempt.agent_record.AgentRecord`); set by the harness, None if unknown
+    agent: dict | None
+    #: the budgets (:class:`SessionLedger`)
+    ledger: SessionLedger
+    #: the event log (:class:`EventLog`)
+    recorder: EventLog
+    #: the task (privileged: only the oracle agent uses it, for ``task.oracle``)
+    task: Task
+    #: the privileged view of the world (only the oracle agent uses it, to compute its targets)
+    world: WorldView
+
+    @property
+    def instruction(self) -> str:
+        """The task's instruction, as the agent is given it."""
+        ...
+
+    def tool_specs(self) -> list[dict]:
+        """Every tool the agent may call: name, description and JSON schema of its arguments."""
+        ...
+
+    def call(self, name: str, args: dict | None = None) -> ToolResponse:
+        """One direct tool call by the agent, executed and recorded by the attempt: charged to the
+        tool-call budget (``done`` is free), refused once a budget is spent (the attempt then ends).
+        Raises :class:`cab_core.errors.AttemptEnded` when the attempt has already ended."""
+        ...
+
+    def image(self, obs_id: str) -> np.ndarray:
+        """The image of an observation a tool result named (``ToolResponse.obs_ids``), RGB uint8."""
+        ...
+
+    def end(self, reason: str, detail: str = "") -> None:
+        """End the attempt from the harness's side (the agent stopped, a provider failed, a turn
+        limit...); the first ending wins, later ones change nothing."""
+        ...
+
+    def finish(self) -> dict:
+        """Score the attempt and write ``result.json`` (an attempt not yet ended ends as
+        ``no_done``); returns the result. Idempotent; the runner calls it after :meth:`Harness.run`
+        when the harness did not."""
+        ...
+
+
+@runtime_checkable
+class Harness(Protocol):
+    """What every harness has. Its optional members are :class:`HarnessHooks`."""
+
+    def run(self, session: AttemptSession, model_cfg: dict) -> None:
+        """Drive the agent through the attempt until it has ended (or end it: :meth:`AttemptSession.end`).
+        ``model_cfg``: the model's configuration (``model.*``). An exception ends the attempt as
+        ``harness_error`` (``host_fault`` for an infrastructure fault, :mod:`cab_core.attempt.faults`)."""
+        ...
+
+
+class HarnessHooks(Protocol):
+    """The optional members of a harness: the runner calls each one a harness has, in this order."""
+
+    def preflight(self, model_cfg: dict) -> None:
+        """Check what the harness needs (credentials, endpoints, an agent's config) before any
+        simulator starts; raise :class:`cab_core.errors.ConfigError` naming what is missing."""
+        ...
+
+    def before_build(self, spec: AttemptSpec) -> None:
+        """Called with the attempt's spec after ``preflight`` and before the world is built (a server
+        can start answering its client meanwhile)."""
+        ...
+
+    def close(self) -> None:
+        """Called when building the world failed after ``before_build``: release what it started."""
+        ...
+
+
+class HarnessFactory(Protocol):
+    """A value of the ``cab_harnesses`` hook: ``factory(cfg)`` returns the :class:`Harness` of one
+    attempt. Optional attribute ``speaks_on_stdio = True`` (read with ``getattr(factory,
+    "speaks_on_stdio", False)``): the harness serves its agent a protocol on stdin/stdout, so
+    ``cab harness=<name>`` reserves stdout for it before anything else prints (unless
+    ``harness.transport=`` names another transport)."""
+
+    def __call__(self, cfg: dict) -> Harness:
+        ...
+
+
+@runtime_checkable
+class ModelFreeAgent(Protocol):
+    """A model-free agent of the ``direct`` harness (hook ``cab_agents``: oracle, idle, scripted...)."""
+
+    def run(self, session: AttemptSession) -> None:
+        """Make the agent's calls through ``session`` until it is done or the attempt has ended."""
+        ...
