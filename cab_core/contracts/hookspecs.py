@@ -66,14 +66,16 @@ def cab_harnesses() -> dict[str, Callable[[dict], Any]]:
     """Harnesses drive an agent through one attempt's tool session: ``{"my_harness": factory}``
     (the core's own is ``direct``, for the model-free agents of :func:`cab_agents`; others drive a
     model through a provider and a context policy, or serve an external agent).
-    ``factory(cfg)`` returns an object with ``run(episode, model_cfg) -> None`` and, optionally,
+    ``factory(cfg)`` returns an object with ``run(session, model_cfg) -> None`` (``session``: the
+    running attempt, :class:`cab_core.contracts.harness.AttemptSession`) and, optionally,
     ``preflight(model_cfg) -> None``, called before any simulator starts (credentials, endpoints);
     it raises ``ConfigError`` naming what is missing. Also optional: ``before_build(spec)``, called
     with the ``AttemptSpec`` after the preflight and before the world is built (a server can start
     answering its client meanwhile), and ``close()``, called if building the world fails after it.
     A factory with the attribute ``speaks_on_stdio = True`` serves its agent a protocol on
     stdin/stdout: ``cab harness=<name>`` then reserves stdout for it before anything else prints
-    (unless ``harness.transport=`` names another transport)."""
+    (unless ``harness.transport=`` names another transport). :mod:`cab_core.contracts.harness`
+    states all of this as protocols (``Harness``, ``HarnessHooks``, ``HarnessFactory``)."""
 
 
 @hookspec
