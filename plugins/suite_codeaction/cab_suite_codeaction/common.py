@@ -372,9 +372,10 @@ def arm_names(embodiment: Any) -> list[str]:
 
 class CodeActionTask(Task):
     """A catalog task of this suite: ``name`` selects the catalog entry (instruction, seed,
-    scoring, budgets). A task lays out its objects on the base scene (``lay_out``), names its
-    verifier (``verifier_class``) and its subgoals' predicates (``subgoal_predicates``), and
-    writes its reference solution (``oracle``)."""
+    scoring, budgets); unless a subclass sets it, it is the name of the subclass's module (the
+    suite's task modules are named after their catalog entries). A task lays out its objects on
+    the base scene (``lay_out``), names its verifier (``verifier_class``) and its subgoals'
+    predicates (``subgoal_predicates``), and writes its reference solution (``oracle``)."""
 
     name: str = ""
     #: the task's verifier class, built from a scene's info (``verifier`` and ``evaluate`` use it)
@@ -388,6 +389,11 @@ class CodeActionTask(Task):
     #: at each within budgets on every simulator, and under small perturbations (cab-suite-check
     #: --seed-set heldout [--perturb N])
     seed_sets = {"heldout": tuple(range(100, 120))}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if not cls.__dict__.get("name"):
+            cls.name = cls.__module__.rsplit(".", 1)[-1]
 
     def __init__(self) -> None:
         self.info: TaskInfo = task_info(self.name)

@@ -211,10 +211,10 @@ class Hands:
         self.move(dz=retreat, what="retreat", ok=TOLERANT)
 
     def park(self, world, x: float, what: str = "step aside", planned_rise: float = 0.08) -> None:
-        """Withdraw to the TCP's ``x`` (by at most 0.3 m), 5 cm back and 5 cm up, so the other arm can
-        reach the middle (a gripper parked near it meets the other arm's wrist); where the straight
-        move fails (e.g. the wrist roll at its limit), a planned reach there instead, ``planned_rise``
-        up."""
+        """Withdraw the TCP sideways toward x = ``x`` (a straight move of at most 0.3 m), 5 cm back and
+        5 cm up, so the other arm can reach the middle (a gripper parked near it meets the other arm's
+        wrist); where the straight move fails (e.g. the wrist roll at its limit), a planned reach to
+        ``x`` instead, ``planned_rise`` up."""
         r = self.move(dx=float(np.clip(x - world.tcp_pose(self.arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05, what=what,
                       ok=TOLERANT)
         if r["status"] == "FAILED":

@@ -37,7 +37,6 @@ from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axi
 from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, LatchVerifier, lowest_point_z, pose_list, rand_pose,
                       sample_until, srgb, vec, yaw_of)
 
-NAME = "beat_block_hammer"
 GRASP_TCP_ABOVE_AXIS = 0.026  # the expert's top-down handle grasp: TCP this far above the handle axis
 
 # --- the hammer, in its body frame ---------------------------------------------------------------
@@ -139,7 +138,6 @@ class BeatBlockHammerVerifier(LatchVerifier):
 
 
 class BeatBlockHammer(CodeActionTask):
-    name = NAME
     verifier_class = BeatBlockHammerVerifier
     # (1) the hammer's face aligned with and touching the block (the latch predicate)
     subgoal_predicates = (("face_over_block", "hammer_touches_block"),)
@@ -196,7 +194,6 @@ class BeatBlockHammer(CodeActionTask):
             "latch_subgoals": [0],
         }
         return info
-
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """(1) Approach hammer: the expert's top-down grasp over the handle; (2) Strike: where the

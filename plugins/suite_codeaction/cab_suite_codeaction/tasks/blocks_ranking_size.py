@@ -41,7 +41,6 @@ from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, grippers_open
                       srgb, vec, yaw_of)
 from ..oracle import Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
 
-NAME = "blocks_ranking_size"
 HALF_RANGES = ((0.030, 0.033), (0.024, 0.027), (0.018, 0.021))  # block1 (largest) .. block3
 BLOCK_NAMES = ("block1", "block2", "block3")
 BLOCK_DENSITY = 600.0  # kg/m^3, painted wood: 0.05 .. 0.29 kg
@@ -114,7 +113,6 @@ class BlocksRankingSizeVerifier(Verifier):
 
 
 class BlocksRankingSize(CodeActionTask):
-    name = NAME
     verifier_class = BlocksRankingSizeVerifier
     subgoal_predicates = (("large_middle_aligned",), ("middle_small_aligned",),
                           ("large_middle_aligned", "middle_small_aligned", "size_order"))

@@ -33,7 +33,6 @@ from ..assets_tools import BELL_KNOB_RADIUS, BELL_VARIANTS, bell_geometry, bell_
 from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, sample_until, vec
 from ..oracle import Hands, top_down_quat
 
-NAME = "click_bell"
 TOLERANCE = (0.025, 0.025, 0.03)
 GRIPPER_CLOSED = 0.2
 TIP_AHEAD = 0.0354  # fingertips ahead of the TCP: a top-down press puts the TCP this far above the knob
@@ -89,7 +88,6 @@ class ClickBellVerifier(LatchVerifier):
 
 
 class ClickBell(CodeActionTask):
-    name = NAME
     verifier_class = ClickBellVerifier
     # (1) knob contact with the selected gripper closed (the latched event, when it holds)
     subgoal_predicates = (("side_gripper_closed", "knob_contact"),)
@@ -123,7 +121,6 @@ class ClickBell(CodeActionTask):
             "latch_subgoals": [0],
         }
         return info
-
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Press: the TCP where the expert's closed fingertips rest on the knob (top-down)."""

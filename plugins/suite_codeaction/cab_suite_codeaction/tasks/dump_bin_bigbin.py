@@ -45,7 +45,6 @@ from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BINS, TABLE_
 from ..common import CodeActionTask, LatchVerifier, arm_names, draw_variant, pose_list, rand_pose, sample_until, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
 
-NAME = "dump_bin_bigbin"
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 N_BALLS = 5
@@ -138,7 +137,6 @@ class DumpBinBigbinVerifier(LatchVerifier):
 
 
 class DumpBinBigbin(CodeActionTask):
-    name = NAME
     table_x = TABLE_X
     verifier_class = DumpBinBigbinVerifier
     subgoal_predicates = (("small_bin_raised",), ("balls_in_band",), ("small_bin_raised", "balls_in_band"))

@@ -37,7 +37,6 @@ from ..assets_pots import ROLLER_VARIANTS, roller_geometry, roller_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of
 from ..oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
 
-NAME = "grab_roller_dual_contact"
 MODEL_IDS = (0, 2)
 RAISED_Z = 0.80
 GRIPPER_CLOSED = 0.2
@@ -82,7 +81,6 @@ class GrabRollerVerifier(Verifier):
 
 
 class GrabRollerDualContact(CodeActionTask):
-    name = NAME
     verifier_class = GrabRollerVerifier
     subgoal_predicates = (("left_contact",), ("right_contact",), ("roller_raised",),
                           ("left_closed", "right_closed", "roller_raised", "left_contact", "right_contact"))

@@ -36,7 +36,6 @@ from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, mar
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, srgb, vec, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis
 
-NAME = "handover_block"
 BLOCK_HALF = (0.03, 0.03, 0.10)
 BLOCK_SPAWN_Z = 0.842  # FACTS B.6: 2 mm above the table top for the 0.10 half-height
 BLOCK_BASE_QUAT = (0.981, 0.0, 0.0, 0.195)
@@ -89,7 +88,6 @@ class HandoverBlockVerifier(Verifier):
 
 
 class HandoverBlock(CodeActionTask):
-    name = NAME
     verifier_class = HandoverBlockVerifier
     subgoal_predicates = (("block_on_pad",),)
 

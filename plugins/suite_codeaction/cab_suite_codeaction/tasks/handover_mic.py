@@ -38,7 +38,6 @@ from ..assets_handover import microphone
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until
 from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, top_down_quat
 
-NAME = "handover_mic"
 MODEL_IDS = (0, 4, 5)
 RAISED_Z = 0.92
 GRIPPER_OPEN = 0.8
@@ -95,7 +94,6 @@ class HandoverMicVerifier(Verifier):
 
 
 class HandoverMic(CodeActionTask):
-    name = NAME
     verifier_class = HandoverMicVerifier
     subgoal_predicates = (("on_receiver_side",), ("raised", "on_receiver_side", "gripper_contact"))
 

@@ -42,7 +42,6 @@ from ..assets_organise import Vessel, revolved, rod, tilt_correction, vessel_col
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, srgb, vec, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat
 
-NAME = "hanging_mug"
 
 # --- the mug, in its frame: origin at the bottom centre, +z up the axis, handle along +x -------------
 MUG = Vessel(r_bottom=0.039, r_rim=0.041, height=0.095, wall=0.004, base=0.006)
@@ -171,7 +170,6 @@ class HangingMugVerifier(Verifier):
 
 
 class HangingMug(CodeActionTask):
-    name = NAME
     verifier_class = HangingMugVerifier
     subgoal_predicates = (("mug_at_peg", "mug_high"),)
 

@@ -38,7 +38,6 @@ from ..assets_pots import POT_VARIANTS, pot_geometry, pot_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of
 from ..oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
 
-NAME = "lift_pot"
 MODEL_IDS = (0, 1)
 RAISED_Z = 0.82  # absolute (table top 0.74)
 HANDLE_TOLERANCE = 0.03
@@ -80,7 +79,6 @@ class LiftPotVerifier(Verifier):
 
 
 class LiftPot(CodeActionTask):
-    name = NAME
     verifier_class = LiftPotVerifier
     subgoal_predicates = (("left_at_handle",), ("right_at_handle",), ("pot_raised",),
                           ("pot_raised", "left_at_handle", "right_at_handle", "pot_upright"))

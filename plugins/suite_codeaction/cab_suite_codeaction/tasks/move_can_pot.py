@@ -45,7 +45,6 @@ from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, dr
                       sample_until, vec, yaw_of)
 from ..oracle import TOLERANT, Hands, top_down_quat
 
-NAME = "move_can_pot"
 POT_IDS = tuple(range(len(POT_VARIANTS)))
 CAN_IDS = tuple(sorted(CAN_VARIANTS))
 UPRIGHT_Q = (math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)  # can axis (local +y) -> world +z
@@ -108,7 +107,6 @@ class MoveCanPotVerifier(GrippersOpenVerifier):
 
 
 class MoveCanPot(CodeActionTask):
-    name = NAME
     verifier_class = MoveCanPotVerifier
     # (1) beside the pot; (2) beside it, upright and set down
     subgoal_predicates = (("on_start_side", "near_pot", "aligned_with_pot"),

@@ -37,7 +37,6 @@ from ..assets_articulated import (HINGE_DAMPING, HINGE_FRICTION, LAPTOP_VARIANTS
 from ..common import CodeActionTask, arm_names, draw_variant, pose_list, rand_pose, urdf_asset, vec, yaw_of
 from ..oracle import TOLERANT, Hands, tcp_quat
 
-NAME = "open_laptop_setup_arm"
 START_FRACTION = 0.2
 OPEN_FRACTION = 0.4
 EDGE_TOLERANCE = 0.1  # m, TCP to the lid's front-edge centre
@@ -110,7 +109,6 @@ class OpenLaptopVerifier(Verifier):
 
 
 class OpenLaptopSetupArm(CodeActionTask):
-    name = NAME
     verifier_class = OpenLaptopVerifier
     subgoal_predicates = (("lid_open",), ("lid_open", "gripper_at_lid_edge"))
 

@@ -36,7 +36,6 @@ from ..oracle import TOLERANT, Hands, tcp_quat
 from ..common import (CodeActionTask, box_inertia, draw_variant, hinged_urdf, pose_list, rand_pose, srgb, urdf_asset,
                       urdf_inertial, urdf_part, vec)
 
-NAME = "open_microwave"
 OPEN_FRACTION = 0.6
 DOOR_UPPER = 2.0  # rad (about 115 deg)
 JOINT_DAMPING = 0.3  # N m s / rad: the door stops within ~0.15 s of being let go (measured)
@@ -187,7 +186,6 @@ class OpenMicrowaveVerifier(Verifier):
 
 
 class OpenMicrowave(CodeActionTask):
-    name = NAME
     verifier_class = OpenMicrowaveVerifier
     # (1) the door at >= 60% of its upper joint limit
     subgoal_predicates = (("door_open",),)
@@ -234,7 +232,6 @@ class OpenMicrowave(CodeActionTask):
             },
         }
         return info
-
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """(1) Approach microwave: the expert's grasp of the handle bar (follows the door);

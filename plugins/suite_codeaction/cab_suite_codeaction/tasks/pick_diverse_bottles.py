@@ -37,7 +37,6 @@ from ..assets_bins import DIVERSE_BOTTLES, bottle_body, bottle_info
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, yaw_of
 from ..oracle import Hands, tcp_quat, world_point
 
-NAME = "pick_diverse_bottles"
 TARGET_XY = {"bottle1": (-0.06, -0.105), "bottle2": (0.06, -0.105)}
 XY_TOLERANCE = 0.1
 MIN_Z = 0.89
@@ -82,7 +81,6 @@ class PickDiverseBottlesVerifier(Verifier):
 
 
 class PickDiverseBottles(CodeActionTask):
-    name = NAME
     verifier_class = PickDiverseBottlesVerifier
     subgoal_predicates = (("bottle1_xy", "bottle1_raised"), ("bottle2_xy", "bottle2_raised"),
                           ("bottle1_xy", "bottle1_raised", "bottle2_xy", "bottle2_raised"))

@@ -37,7 +37,6 @@ from ..assets_placing import BREAD_BASKETS, BREAD_BASKET_MASS, BREAD_MASS, bread
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
 
-NAME = "place_bread_basket"
 BASKET_XY = (0.0, -0.2)
 BREAD_IDS = (0, 1, 3, 5, 6)
 N_BREADS = 2
@@ -160,7 +159,6 @@ class PlaceBreadBasketVerifier(GrippersOpenVerifier):
 
 
 class PlaceBreadBasket(CodeActionTask):
-    name = NAME
     verifier_class = PlaceBreadBasketVerifier
 
     def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:

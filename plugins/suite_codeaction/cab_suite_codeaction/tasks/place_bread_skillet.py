@@ -48,7 +48,6 @@ from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, ran
 from ..oracle import TOLERANT, Hands, closest_opening, tcp_quat, top_down_quat, yaw_axis
 from .place_bread_basket import grasp_tcp_dz
 
-NAME = "place_bread_skillet"
 BREAD_IDS = (0, 1, 3, 5, 6)
 XY_TOLERANCE = 0.035
 Z_TOLERANCE = 0.06
@@ -105,7 +104,6 @@ class PlaceBreadSkilletVerifier(Verifier):
 
 
 class PlaceBreadSkillet(CodeActionTask):
-    name = NAME
     verifier_class = PlaceBreadSkilletVerifier
     # (1) the bread aligned with the pan point and within 6 cm in height; (2) that, with neither
     # gripper touching the bread

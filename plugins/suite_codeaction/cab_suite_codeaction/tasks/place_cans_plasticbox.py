@@ -34,7 +34,6 @@ from ..assets_placing import CAN_MASS, PLASTIC_BOX_MASS, can_shapes, plastic_box
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose
 from ..oracle import TOLERANT, BothHands, expect, top_down_quat
 
-NAME = "place_cans_plasticbox"
 CAN_IDS = (0, 1, 2, 3, 5, 6)
 BOX_IDS = (3, 5)
 XY_TOLERANCE = 0.04
@@ -71,7 +70,6 @@ class PlaceCansPlasticboxVerifier(GrippersOpenVerifier):
 
 
 class PlaceCansPlasticbox(CodeActionTask):
-    name = NAME
     verifier_class = PlaceCansPlasticboxVerifier
     # (1) the first can within 4 cm in xy of either box point, (2) the second can likewise
     subgoal_predicates = (("can1_in_box",), ("can2_in_box",))

@@ -47,7 +47,6 @@ from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, draw_variant,
                       sample_until, vec)
 from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat
 
-NAME = "place_dual_shoes"
 TABLE_Z_BIAS = -0.1
 BOX_XY = (0.0, -0.13)
 SLOT_OFFSET = 0.04  # places at box y -+ 0.04: (0, -0.17) "left shoe", (0, -0.09) "right shoe"
@@ -151,7 +150,6 @@ class PlaceDualShoesVerifier(Verifier):
 
 
 class PlaceDualShoes(CodeActionTask):
-    name = NAME
     table_z_bias = TABLE_Z_BIAS
     verifier_class = PlaceDualShoesVerifier
     subgoal_predicates = (("assignment_xy",), ("assignment_xy", "heights", "orientations"))

@@ -41,7 +41,6 @@ from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, po
                       yaw_of)
 from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
 
-NAME = "place_mouse_pad"
 MODEL_IDS = (0, 1, 2)
 TOL_X, TOL_Y = 0.015, 0.012
 ORIENT_TARGET, ORIENT_TOL = 0.49, 0.015
@@ -83,7 +82,6 @@ class PlaceMousePadVerifier(GrippersOpenVerifier):
 
 
 class PlaceMousePad(CodeActionTask):
-    name = NAME
     verifier_class = PlaceMousePadVerifier
     subgoal_predicates = (("centred",), ("centred", "aligned"))
 

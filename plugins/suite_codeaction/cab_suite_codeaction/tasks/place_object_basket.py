@@ -44,7 +44,6 @@ from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, ran
 from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, top_down_quat
 from .place_bread_basket import grasp_tcp_dz
 
-NAME = "place_object_basket"
 RISE = 0.02
 UPRIGHT = 0.5
 NEAR_L1 = 0.15
@@ -89,7 +88,6 @@ class PlaceObjectBasketVerifier(Verifier):
 
 
 class PlaceObjectBasket(CodeActionTask):
-    name = NAME
     verifier_class = PlaceObjectBasketVerifier
     # (1) the object near and touching the basket; (2) the basket raised > 2 cm; (3) everything
     # together (the raised upright basket carrying the raised object off the table)

@@ -35,7 +35,6 @@ from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER
 from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, vec, yaw_of
 from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
 
-NAME = "press_stapler"
 TOLERANCE = (0.03, 0.03, 0.03)
 TIP_AHEAD = 0.0354  # fingertips ahead of the TCP: a top-down press puts the TCP this far above the cover
 PRESS_DEPTH = 0.012  # the oracle commands the fingertips this far below the resting cover
@@ -103,7 +102,6 @@ class PressStaplerVerifier(LatchVerifier):
 
 
 class PressStapler(CodeActionTask):
-    name = NAME
     verifier_class = PressStaplerVerifier
     # (1) stapler contact at the press point (the latched event, when it holds)
     subgoal_predicates = (("press_contact",),)
@@ -142,7 +140,6 @@ class PressStapler(CodeActionTask):
             "suggested_arm": "left" if pose[0] < 0 else "right",
         }
         return info
-
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Press: the TCP where the expert's fingertips rest on the press point (top-down)."""

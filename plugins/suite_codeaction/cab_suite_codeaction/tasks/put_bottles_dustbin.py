@@ -38,7 +38,6 @@ from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_b
 from ..common import CodeActionTask, pose_list, rand_pose, sample_until
 from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
 
-NAME = "put_bottles_dustbin"
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 BOTTLE_IDS = (1, 2, 3)
@@ -125,7 +124,6 @@ class PutBottlesDustbinVerifier(Verifier):
 
 
 class PutBottlesDustbin(CodeActionTask):
-    name = NAME
     table_x = TABLE_X
     verifier_class = PutBottlesDustbinVerifier
 

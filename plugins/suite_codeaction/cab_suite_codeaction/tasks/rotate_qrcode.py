@@ -39,7 +39,6 @@ from ..assets_handover import QR_BOARD_HALF, qr_board
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
 
-NAME = "rotate_qrcode"
 MODEL_IDS = (0, 1, 2, 3)
 MESH_FRAME = tuple(float(v) for v in axis_angle_quat([1.0, 0.0, 0.0], np.pi / 2))  # ours -> upstream mesh frame
 BASE_QUAT_MESH = (0.0, 0.0, 0.707, 0.707)  # FACTS B.6, upstream mesh frame
@@ -93,7 +92,6 @@ class RotateQrcodeVerifier(GrippersOpenVerifier):
 
 
 class RotateQrcode(CodeActionTask):
-    name = NAME
     verifier_class = RotateQrcodeVerifier
     subgoal_predicates = (("oriented",), ("oriented", "on_table"))
 

@@ -40,7 +40,6 @@ from ..assets_tools import (SCANNER_MASS, SCANNER_VARIANTS, TEABOX_MASS, TEABOX_
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until, vec, yaw_of
 from ..oracle import TOLERANT, BothHands, Hands, top_down_quat, yaw_axis
 
-NAME = "scan_object"
 LATERAL_TOL = 0.025
 MAX_DISTANCE = 0.07
 GRIPPER_CLOSED = 0.2
@@ -133,7 +132,6 @@ def scan_tcp_reference(info: dict, obj_xyz) -> np.ndarray:
 
 
 class ScanObject(CodeActionTask):
-    name = NAME
     verifier_class = ScanObjectVerifier
     # (1) the box on the beam line; (2) on the beam line and 0 < d < 7 cm together
     subgoal_predicates = (("object_on_beam",), ("object_on_beam", "scan_distance"))
@@ -201,7 +199,6 @@ class ScanObject(CodeActionTask):
             },
         }
         return info
-
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Approach the scanner's handle and the box's top (the expert's grasp TCPs, following the

@@ -33,7 +33,6 @@ from ..oracle import Hands, closest_opening, finger_reach, fingers_clear, top_do
 from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, grippers_open, pose_list,
                       rand_pose, sample_until, yaw_of)
 
-NAME = "stack_blocks_three"
 BLOCK_HALF = 0.025
 BLOCK_DENSITY = 600.0  # kg/m^3, a wooden toy block: 0.075 kg
 SPAWN_Z = 0.741 + BLOCK_HALF  # 0.766: 1 mm above the table, settles at reset
@@ -80,7 +79,6 @@ class StackBlocksThreeVerifier(Verifier):
 
 
 class StackBlocksThree(CodeActionTask):
-    name = NAME
     verifier_class = StackBlocksThreeVerifier
     # (1) green aligned above red, (2) blue aligned above green, (3) both together
     subgoal_predicates = (("green_on_red",), ("blue_on_green",), ("green_on_red", "blue_on_green"))
@@ -118,7 +116,6 @@ class StackBlocksThree(CodeActionTask):
             "resting_center_z": round(top + BLOCK_HALF, 6),
         }
         return info
-
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Approach each block (the expert's top-down grasp point), then place green on the

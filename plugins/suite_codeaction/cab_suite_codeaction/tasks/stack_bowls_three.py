@@ -37,7 +37,6 @@ from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, ar
                       sample_until, srgb)
 from ..oracle import Hands, OracleFailed, top_down_quat
 
-NAME = "stack_bowls_three"
 BOWL = Vessel(r_bottom=0.032, r_rim=0.058, height=0.05, wall=0.0045, base=0.005, band=0.015)
 BOWL_MASS = 0.12  # kg, a small melamine/porcelain rice bowl
 BOWL_FRICTION = 0.4  # glazed porcelain (0.45 against the robot's 0.5 finger pads, averaged)
@@ -110,7 +109,6 @@ class StackBowlsThreeVerifier(GrippersOpenVerifier):
 
 
 class StackBowlsThree(CodeActionTask):
-    name = NAME
     verifier_class = StackBowlsThreeVerifier
 
     def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
