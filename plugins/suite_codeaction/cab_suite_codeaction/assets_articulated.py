@@ -244,7 +244,7 @@ def shoe_shapes(style: ShoeStyle, foot: str, stem: str) -> list:
     """Convex collision pieces (each also drawn): the sole, the toe box / vamp (solid), and collar
     wall segments around the heel cavity; plus visual details (insole, laces, heel tab). Generated
     once per process and asset cache folder (the meshes are content-addressed files)."""
-    from cab_core.scene import cache_dir
+    from cab_core.contracts.scene import cache_dir
 
     return list(_shoe_shapes(style, foot, stem, str(cache_dir())))
 
@@ -347,7 +347,7 @@ SHOE_BOX = ShoeBoxStyle((0.30, 0.18), 0.085, 0.008, 0.01, (0.72, 0.52, 0.32), (0
 
 def shoe_box_shapes(style: ShoeBoxStyle = SHOE_BOX) -> list:
     """Floor and four walls (boxes), a printed band round the outside and tissue paper inside."""
-    from cab_core.scene import Box, Shape
+    from cab_core.contracts.scene import Box, Shape
 
     (li, wi), h, t, f = style.inner, style.height, style.wall_t, style.floor_t
     lo, wo = li + 2 * t, wi + 2 * t

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import axis_angle_quat, quat_mul
-from cab_core.scene import Body, Box, Material, Shape, Sphere
+from cab_core.contracts.scene import Body, Box, Material, Shape, Sphere
 
 from .common import IDENTITY_Q, assets_dir, material, mesh_shape, srgb, trimesh_module
 

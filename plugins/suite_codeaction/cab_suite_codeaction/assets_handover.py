@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.scene import Box, Cylinder, Mesh, Shape, Sphere
+from cab_core.contracts.scene import Box, Cylinder, Mesh, Shape, Sphere
 
 from .common import material, mesh_asset
 

@@ -18,9 +18,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_mul
-from cab_core.scene import Box, Capsule, Cylinder, Material, Mesh, Shape
+from cab_core.contracts.scene import Box, Capsule, Cylinder, Material, Mesh, Shape
 
-from cab_core.scene import cache_dir
+from cab_core.contracts.scene import cache_dir
 
 from .common import body_pose, material, mesh_asset, trimesh_module
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.scene import Box, Cylinder, Mesh, Shape
+from cab_core.contracts.scene import Box, Cylinder, Mesh, Shape
 
 from .common import IDENTITY_Q, assets_dir, material, mesh_asset
 

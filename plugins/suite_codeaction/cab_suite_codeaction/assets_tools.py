@@ -17,7 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from cab_core.geometry import axis_angle_quat, quat_to_mat
-from cab_core.scene import Box, Cylinder, Shape
+from cab_core.contracts.scene import Box, Cylinder, Shape
 
 from .common import (body_pose, box_inertia, hinged_urdf, material, mesh_shape, srgb, urdf_asset, urdf_inertial,
                      urdf_part)

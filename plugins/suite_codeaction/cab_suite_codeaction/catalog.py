@@ -3,7 +3,7 @@ figures of the 25 tasks.
 
 The data are the suite's copy of the benchmark's catalog (``cab_suite_codeaction/data/catalog.yaml``,
 transcribed from the seed paper). This module is its only reader: each task of the suite takes its
-:class:`~cab_core.task.TaskInfo` from :func:`task_info`, so instructions and budgets have one source.
+:class:`~cab_core.contracts.task.TaskInfo` from :func:`task_info`, so instructions and budgets have one source.
 The core learns about tasks only through the task-suite hook (``cab_core.plugins.task_info``).
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from importlib import resources
 from typing import Any
 
 from cab_core.errors import ConfigError
-from cab_core.task import TaskInfo
+from cab_core.contracts.task import TaskInfo
 
 SCORING_MODES = ("final", "latch")
 _REQUIRED = ("name", "instruction", "seed", "scoring", "budget_tool_calls", "budget_sim_s")

@@ -15,12 +15,12 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule
+from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.errors import CabError
 from cab_core.geometry import euler_quat, quat_mul, quat_normalize, quat_to_mat
-from cab_core.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
-from cab_core.task import SceneInstance, Task, TaskInfo, ToolCaller, rng_for
-from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all
+from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
+from cab_core.contracts.task import SceneInstance, Task, TaskInfo, ToolCaller, rng_for
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all
 
 from .catalog import task_info
 

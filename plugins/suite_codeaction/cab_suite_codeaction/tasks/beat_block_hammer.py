@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import transform_point
-from cab_core.scene import Body, Box, Capsule, Cylinder, Material, SceneSpec, Shape
-from cab_core.analysis.checkpoints import SpatialRule, box, sphere
-from cab_core.verifier import Evaluation, WorldView, margin_within
+from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Material, SceneSpec, Shape
+from cab_core.contracts.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.verifier import Evaluation, WorldView, margin_within
 
 from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
 from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, LatchVerifier, lowest_point_z, pose_list, rand_pose,

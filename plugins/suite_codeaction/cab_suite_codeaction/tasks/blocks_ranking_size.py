@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import quat_to_mat
-from cab_core.scene import Body, Box, Material, SceneSpec, Shape
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
+from cab_core.contracts.scene import Body, Box, Material, SceneSpec, Shape
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
 
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, grippers_open, pose_list, rand_pose, sample_until,
                       srgb, vec, yaw_of)

@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box
+from cab_core.contracts.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, WorldView, margin_any, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, WorldView, margin_any, margin_below, margin_within
 
 from ..assets_tools import BELL_KNOB_RADIUS, BELL_VARIANTS, bell_geometry, bell_shapes, gripper_bodies, is_gripper
 from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, sample_until, vec

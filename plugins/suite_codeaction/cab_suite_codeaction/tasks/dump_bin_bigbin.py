@@ -35,10 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.scene import SceneSpec
-from cab_core.verifier import Evaluation, Margin, WorldView, margin_above, margin_all, margin_below
+from cab_core.contracts.scene import SceneSpec
+from cab_core.contracts.verifier import Evaluation, Margin, WorldView, margin_above, margin_all, margin_below
 
 from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BINS, TABLE_BIN_IDS, ball_body, big_dustbin,
                            big_dustbin_info, table_bin_body, table_bin_info)

@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.scene import Body, Box, Material, SceneSpec, Shape
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
+from cab_core.contracts.scene import Body, Box, Material, SceneSpec, Shape
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, srgb, vec, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis

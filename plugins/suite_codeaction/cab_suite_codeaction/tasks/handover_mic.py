@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_below
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_handover import microphone
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until

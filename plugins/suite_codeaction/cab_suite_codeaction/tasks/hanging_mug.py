@@ -33,10 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_to_mat, transform_point
-from cab_core.scene import Body, Cylinder, Material, SceneSpec, Shape, Sphere, cache_dir
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
+from cab_core.contracts.scene import Body, Cylinder, Material, SceneSpec, Shape, Sphere, cache_dir
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 
 from ..assets_organise import Vessel, revolved, rod, tilt_correction, vessel_collision, visual, x_to
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, srgb, vec, yaw_of

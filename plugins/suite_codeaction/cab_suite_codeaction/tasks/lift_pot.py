@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_pots import POT_VARIANTS, pot_geometry, pot_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of

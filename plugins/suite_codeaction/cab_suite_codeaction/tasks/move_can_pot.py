@@ -35,10 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Margin, WorldView, margin_above, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_below, margin_within
 
 from ..assets_pots import CAN_VARIANTS, POT_VARIANTS, can_geometry, can_shapes, pot_geometry, pot_shapes
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, draw_variant, pose_list, rand_pose,

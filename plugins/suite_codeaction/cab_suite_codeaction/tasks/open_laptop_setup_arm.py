@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import ArticulatedObject, SceneSpec
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_any, margin_below
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_any, margin_below
 
 from ..assets_articulated import (HINGE_DAMPING, HINGE_FRICTION, LAPTOP_VARIANTS, LID_UPPER, laptop_geometry,
                                   laptop_urdf, lid_rotation)

@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import ArticulatedObject, SceneSpec
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above
 
 from ..oracle import TOLERANT, Hands, tcp_quat
 from ..common import (CodeActionTask, box_inertia, draw_variant, hinged_urdf, pose_list, rand_pose, srgb, urdf_asset,

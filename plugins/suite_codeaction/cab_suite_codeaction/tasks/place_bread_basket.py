@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Margin, WorldView, margin_above, margin_all, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_all, margin_within
 
 from ..assets_placing import BREAD_BASKETS, BREAD_BASKET_MASS, BREAD_MASS, bread_basket_shapes, bread_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose, yaw_of

@@ -38,10 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..assets_placing import BREAD_MASS, SKILLETS, SKILLET_MASS, bread_shapes, skillet_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, rand_pose, sample_until, yaw_of

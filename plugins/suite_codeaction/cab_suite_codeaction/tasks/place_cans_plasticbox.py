@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Margin, WorldView, margin_below
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_below
 
 from ..assets_placing import CAN_MASS, PLASTIC_BOX_MASS, can_shapes, plastic_box_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose

@@ -36,10 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import pose_inv, pose_mul, quat_to_mat, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_all, margin_any, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_all, margin_any, margin_within
 
 from ..assets_articulated import (SHOE_BOX, SHOE_MASS, SHOE_STYLES, shoe_box_shapes, shoe_geometry, shoe_outline,
                                   shoe_shapes)

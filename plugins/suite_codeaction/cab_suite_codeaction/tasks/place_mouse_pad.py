@@ -31,10 +31,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Margin, WorldView, margin_any, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_any, margin_within
 
 from ..assets_handover import MAT_COLOURS, MAT_HALF, computer_mouse, mouse_mat
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, vec,

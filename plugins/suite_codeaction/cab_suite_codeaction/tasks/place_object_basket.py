@@ -33,10 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, cylinder, sphere
+from cab_core.contracts.checkpoints import SpatialRule, box, cylinder, sphere
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CARS, TOY_CAR_MASS,
                               handled_basket_shapes, playing_cards_shapes, toy_car_shapes)

@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box
+from cab_core.contracts.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
-from cab_core.scene import ArticulatedObject, SceneSpec
-from cab_core.verifier import Evaluation, Margin, WorldView, margin_any, margin_within
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Margin, WorldView, margin_any, margin_within
 
 from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER_VARIANTS, gripper_bodies, is_gripper,
                             stapler_asset, stapler_geometry)

@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, cylinder
+from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.scene import SceneSpec
-from cab_core.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
+from cab_core.contracts.scene import SceneSpec
+from cab_core.contracts.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
                                margin_within)
 
 from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info

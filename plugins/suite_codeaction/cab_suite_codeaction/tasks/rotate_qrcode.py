@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.checkpoints import SpatialRule, box, sphere
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_normalize, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Margin, WorldView, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_below, margin_within
 
 from ..assets_handover import QR_BOARD_HALF, qr_board
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, yaw_of

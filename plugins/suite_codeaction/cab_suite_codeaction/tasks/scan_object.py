@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.checkpoints import SpatialRule, box, sphere
 from cab_core.geometry import mat_to_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.scene import Body, SceneSpec
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
 
 from ..assets_tools import (SCANNER_MASS, SCANNER_VARIANTS, TEABOX_MASS, TEABOX_VARIANTS, Z_TO_X, footprint_distance,
                             scanner_geometry, scanner_shapes, teabox_shapes)

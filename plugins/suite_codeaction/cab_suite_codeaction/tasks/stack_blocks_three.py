@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.scene import Body, Box, SceneSpec, Shape
-from cab_core.analysis.checkpoints import SpatialRule, box, sphere
-from cab_core.verifier import Evaluation, Verifier, WorldView, margin_within
+from cab_core.contracts.scene import Body, Box, SceneSpec, Shape
+from cab_core.contracts.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..oracle import Hands, closest_opening, finger_reach, fingers_clear, top_down_quat, yaw_axis
 from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, grippers_open, pose_list,

@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis.checkpoints import SpatialRule, annulus
+from cab_core.contracts.checkpoints import SpatialRule, annulus
 from cab_core.geometry import mat_to_quat, quat_to_mat
-from cab_core.scene import Body, Material, SceneSpec, Shape, cache_dir
-from cab_core.verifier import Margin, WorldView, margin_all, margin_below, margin_within
+from cab_core.contracts.scene import Body, Material, SceneSpec, Shape, cache_dir
+from cab_core.contracts.verifier import Margin, WorldView, margin_all, margin_below, margin_within
 
 from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose,
