@@ -7,12 +7,12 @@ Frames are documented per asset; quaternions are (w, x, y, z); metres and kilogr
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Any
 
 import numpy as np
 
-from .common import box_inertia, hinged_urdf, srgb, urdf_inertial, urdf_part
+from .common import box_inertia, hinged_urdf, material, srgb, trimesh_module, urdf_inertial, urdf_part
 
 
 # =================================================================================================
@@ -167,12 +167,6 @@ _SHOE_TOP_U = (0.0, 0.12, 0.3, 0.48, 0.65, 0.8, 0.92, 1.0)
 _SHOE_TOP = (1.0, 0.97, 0.82, 0.90, 0.80, 0.68, 0.52, 0.34)  # fractions of heel_h
 
 
-def _trimesh():
-    import trimesh
-
-    return trimesh
-
-
 def _d2b(p) -> np.ndarray:
     """Design frame (X toe, Y left, Z up) -> shoe body frame (+z toe, +x left, +y up)."""
     p = np.asarray(p, float)
@@ -197,7 +191,7 @@ def shoe_outline(style: ShoeStyle, foot: str, n: int = 24) -> np.ndarray:
 
 def _prism(poly: np.ndarray, z0: float, z1: float):
     """A closed prism over a star-shaped polygon (fan triangulation from its centroid)."""
-    trimesh = _trimesh()
+    trimesh = trimesh_module()
     n = len(poly)
     c = poly.mean(axis=0)
     verts = [[*c, z0], [*c, z1]] + [[*p, z0] for p in poly] + [[*p, z1] for p in poly]
@@ -214,7 +208,7 @@ def _prism(poly: np.ndarray, z0: float, z1: float):
 
 
 def _hull(points):
-    return _trimesh().convex.convex_hull(np.asarray(points, float))
+    return trimesh_module().convex.convex_hull(np.asarray(points, float))
 
 
 def _to_body(mesh):
@@ -223,13 +217,7 @@ def _to_body(mesh):
     return m
 
 
-def _mat(rgb, roughness=0.6, friction=None) -> "Material":
-    from cab_core.contracts.scene import Material
-
-    kw = {}
-    if friction is not None:
-        kw = {"static_friction": friction, "dynamic_friction": friction}
-    return Material(color=srgb(*rgb), roughness=roughness, **kw)
+_mat = partial(material, roughness=0.6)  # this module's default finish
 
 
 def shoe_geometry(style: ShoeStyle) -> dict[str, Any]:
@@ -323,7 +311,7 @@ def _shoe_shapes(style: ShoeStyle, foot: str, stem: str, _cache: str) -> tuple:
         is_heel = abs(p0[1]) <= SHOE_HEEL_FLAT + 1e-6 and abs(p1[1]) <= SHOE_HEEL_FLAT + 1e-6
         shapes.append(mesh_shape(f"{stem}-wall{k}", _to_body(_hull(seg)), material=accent if is_heel else upper))
 
-    trimesh = _trimesh()
+    trimesh = trimesh_module()
     # visual details: insole, laces, heel tab
     inner = back + 0.0  # the cavity floor: the outline behind the opening, shrunk toward its centre
     insole = (inner - cav_c) * 0.85 + cav_c

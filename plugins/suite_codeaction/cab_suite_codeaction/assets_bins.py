@@ -16,6 +16,7 @@ Frames
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -23,15 +24,7 @@ import numpy as np
 from cab_core.geometry import axis_angle_quat, quat_mul
 from cab_core.contracts.scene import Body, Box, Material, Shape, Sphere
 
-from .common import assets_dir, mesh_shape, srgb
-
-IDENTITY_Q = (1.0, 0.0, 0.0, 0.0)
-
-
-def _trimesh():
-    import trimesh
-
-    return trimesh
+from .common import IDENTITY_Q, assets_dir, material, mesh_shape, srgb, trimesh_module
 
 
 _SHAPES: dict[tuple, tuple[Shape, ...]] = {}
@@ -46,11 +39,7 @@ def _memo(key: tuple, make) -> list[Shape]:
     return list(_SHAPES[k])
 
 
-def _mat(rgb, roughness=0.45, metallic=0.0, friction=None) -> Material:
-    kw = {}
-    if friction is not None:
-        kw = {"static_friction": friction, "dynamic_friction": friction}
-    return Material(color=srgb(*rgb), roughness=roughness, metallic=metallic, **kw)
+_mat = partial(material, roughness=0.45)  # this module's default finish
 
 
 # =================================================================================================
@@ -131,7 +120,7 @@ def bottle_shapes(style: BottleStyle, stem: str, friction: float = 0.8) -> list[
 
 
 def _bottle_shapes(style: BottleStyle, stem: str, friction: float) -> list[Shape]:
-    tm = _trimesh()
+    tm = trimesh_module()
     h = style.height
     shift = np.eye(4)
     shift[2, 3] = -h / 2
@@ -365,7 +354,7 @@ def table_bin_shapes(style: TableBinStyle, stem: str) -> list[Shape]:
 
 
 def _table_bin_shapes(style: TableBinStyle, stem: str) -> list[Shape]:
-    tm = _trimesh()
+    tm = trimesh_module()
     h = style.height
     rb, rt, w = style.radius_bottom, style.radius_top, BIN_WALL
     prof = np.array([(0, 0), (rb, 0), (rt, h), (rt - w, h), (rb - w, BIN_FLOOR), (0, BIN_FLOOR)], float)

@@ -9,22 +9,20 @@ places the body.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
 
-from cab_core.contracts.scene import Box, Cylinder, Material, Mesh, Shape, Sphere
+from cab_core.contracts.scene import Box, Cylinder, Mesh, Shape, Sphere
 
-from .common import mesh_asset, srgb
+from .common import material, mesh_asset
 
 # local x -> z: a SAPIEN cylinder/capsule (axis along local x) standing upright
 X_TO_Z = (float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0)
 
 
-def _mat(rgb: tuple[float, float, float], *, roughness: float = 0.5, metallic: float = 0.0,
-         friction: float = 0.5) -> Material:
-    return Material(color=srgb(*rgb), roughness=roughness, metallic=metallic, static_friction=friction,
-                    dynamic_friction=friction)
+_mat = partial(material, roughness=0.5)  # this module's default finish
 
 
 # ---------------------------------------------------------------------------------------------

@@ -22,9 +22,8 @@ from cab_core.contracts.scene import Box, Capsule, Cylinder, Material, Mesh, Sha
 
 from cab_core.contracts.scene import cache_dir
 
-from .common import mesh_asset, srgb
+from .common import body_pose, material, mesh_asset, trimesh_module
 
-IDENTITY_Q = (1.0, 0.0, 0.0, 0.0)
 _BUILT: dict[tuple, tuple[list[Shape], dict[str, Any]]] = {}
 
 
@@ -42,8 +41,7 @@ def _memo(fn: Callable[[int], tuple[list[Shape], dict[str, Any]]]):
     return wrapper
 
 
-def _pose(xyz: Sequence[float], q: Sequence[float] = IDENTITY_Q) -> tuple[float, ...]:
-    return tuple(float(v) for v in (*xyz, *q))
+_mat = functools.partial(material, roughness=0.6)  # this module's default finish
 
 
 def _rz(theta: float) -> tuple[float, ...]:
@@ -54,22 +52,10 @@ def _ry(theta: float) -> tuple[float, ...]:
     return tuple(float(v) for v in axis_angle_quat([0.0, 1.0, 0.0], theta))
 
 
-def _mat(color: tuple[float, float, float], *, friction: float = 0.5, roughness: float = 0.6,
-         metallic: float = 0.0) -> Material:
-    return Material(color=srgb(*color), static_friction=friction, dynamic_friction=friction, roughness=roughness,
-                    metallic=metallic)
-
-
 # --- mesh helpers -------------------------------------------------------------------------------
-def _trimesh():
-    import trimesh  # deferred: only building a scene needs it
-
-    return trimesh
-
-
 def prism_mesh(outline: np.ndarray, z0: float, z1: float):
     """The convex prism over a convex 2-D outline (N x 2), from z0 to z1."""
-    tm = _trimesh()
+    tm = trimesh_module()
     pts = np.concatenate([np.c_[outline, np.full(len(outline), z0)], np.c_[outline, np.full(len(outline), z1)]])
     return tm.convex.convex_hull(pts)
 
@@ -114,7 +100,7 @@ def offset_outline(outline: np.ndarray, d: float) -> np.ndarray:
 def shell_mesh(outline: np.ndarray, *, z0: float, z1: float, thickness: float, flare: float):
     """Visual mesh of a band (z0..z1) of a flared container wall whose inner bottom edge is
     ``outline`` at z = 0: inner and outer faces plus top and bottom caps."""
-    tm = _trimesh()
+    tm = trimesh_module()
     t = np.tan(flare)
     rings = [offset_outline(outline, z0 * t), offset_outline(outline, z0 * t + thickness),
              offset_outline(outline, z1 * t + thickness), offset_outline(outline, z1 * t)]
@@ -153,7 +139,7 @@ def wall_shapes(outline: np.ndarray, *, z0: float, height: float, thickness: flo
         mid = np.array([(p0[0] + p1[0]) / 2, (p0[1] + p1[1]) / 2, z0 + thickness * np.sin(abs(flare))])
         centre = mid + r @ np.array([0.0, thickness / 2, height / 2])
         half_len = length / 2 + overlap
-        shapes.append(Shape(Box((float(half_len), thickness / 2, height / 2)), pose=_pose(centre, mat_to_quat(r)),
+        shapes.append(Shape(Box((float(half_len), thickness / 2, height / 2)), pose=body_pose(centre, mat_to_quat(r)),
                             material=material, visual=False))
     return shapes
 
@@ -208,7 +194,7 @@ BREAD_FRICTION = 0.8  # dry crust against the rubber finger pads
 
 def loaf_mesh(v: BreadVariant, subdivisions: int = 3):
     """A domed loaf with a flat bottom, centred on its bounding box: x length, y width, z up."""
-    tm = _trimesh()
+    tm = trimesh_module()
     s = tm.creation.icosphere(subdivisions=subdivisions)
     d = s.vertices.copy()
     p = v.squareness
@@ -235,7 +221,7 @@ def bread_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
     shapes = [Shape(Mesh(mesh_asset(f"bread{model_id}", mesh), convex=True), material=crust)]
     verts = np.asarray(mesh.vertices)
     if v.slashes:
-        tm = _trimesh()
+        tm = trimesh_module()
         cut = tm.creation.icosphere(subdivisions=2)
         cut.apply_scale([0.0055, 0.24 * v.width, 0.0035])
         cut_path = mesh_asset("bread_slash", cut)
@@ -244,7 +230,7 @@ def bread_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
         near = verts[np.abs(verts[:, 0] - fx) < 0.006]
         near = near[np.abs(near[:, 1]) < 0.006]
         zz = float(near[:, 2].max()) - 0.0012 if len(near) else v.height / 2 - 0.003
-        shapes.append(Shape(Mesh(cut_path, convex=True), pose=_pose((fx, 0.0, zz), _rz(0.45)),
+        shapes.append(Shape(Mesh(cut_path, convex=True), pose=body_pose((fx, 0.0, zz), _rz(0.45)),
                             material=_mat(v.score, roughness=0.9), collision=False))
     dims = {"model_id": model_id, "kind": v.kind, "size": [v.length, v.width, v.height], "mass_kg": BREAD_MASS}
     return shapes, dims
@@ -355,19 +341,20 @@ def skillet_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
                               flare=flare, wall_mats=[body], floor_mat=inside, bands=1)
     # a visual disc for the inside of the floor
     shapes.append(Shape(Cylinder(v.floor_radius - 0.002, 0.0005),
-                        pose=_pose((0, 0, SKILLET_FLOOR + 0.0004), _ry(np.pi / 2)), material=inside, collision=False))
+                        pose=body_pose((0, 0, SKILLET_FLOOR + 0.0004), _ry(np.pi / 2)), material=inside,
+                        collision=False))
     # handle: centre line from just inside the rim, rising at HANDLE_PITCH
     d = np.array([np.cos(HANDLE_PITCH), 0.0, np.sin(HANDLE_PITCH)])
     p0 = np.array([v.top_radius + SKILLET_WALL - 0.006, 0.0, v.height - 0.010])
     centre = p0 + d * v.handle_length / 2
     qh = _ry(-HANDLE_PITCH)  # local x -> d
     hmat = _mat(v.handle, friction=HANDLE_FRICTION, roughness=0.6)
-    shapes.append(Shape(Box((v.handle_length / 2, *HANDLE_HALF)), pose=_pose(centre, qh), material=hmat))
+    shapes.append(Shape(Box((v.handle_length / 2, *HANDLE_HALF)), pose=body_pose(centre, qh), material=hmat))
     # visual: rivet plate where the handle meets the pan, and a hanging hole at the end
-    shapes.append(Shape(Box((0.012, 0.016, 0.012)), pose=_pose(p0 + d * 0.006, qh), material=body, collision=False))
+    shapes.append(Shape(Box((0.012, 0.016, 0.012)), pose=body_pose(p0 + d * 0.006, qh), material=body, collision=False))
     end = p0 + d * v.handle_length
     shapes.append(Shape(Cylinder(0.0045, HANDLE_HALF[1] + 0.0004),
-                        pose=_pose(end - d * 0.018, quat_mul(qh, _ry(np.pi / 2))),
+                        pose=body_pose(end - d * 0.018, quat_mul(qh, _ry(np.pi / 2))),
                         material=_mat((0.02, 0.02, 0.02)), collision=False))
     grasp_along = v.handle_length - 0.040  # the TCP 4 cm in from the handle's end
     grasp = p0 + d * grasp_along
@@ -419,21 +406,21 @@ def can_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
     h2 = v.height / 2
     label = _mat(v.label, roughness=0.35, metallic=0.3)
     metal = _mat(ALUMINIUM, roughness=0.25, metallic=0.9)
-    shapes = [Shape(Cylinder(v.radius, h2), pose=_pose((0, 0, 0), along_z), material=label, visual=False)]
+    shapes = [Shape(Cylinder(v.radius, h2), pose=body_pose((0, 0, 0), along_z), material=label, visual=False)]
     neck = 0.010
     shapes += [
-        Shape(Cylinder(v.radius, h2 - neck), pose=_pose((0, 0, 0), along_z), material=label, collision=False),
-        Shape(Cylinder(v.radius + 0.0003, 0.010), pose=_pose((0, 0, 0.18 * v.height), along_z),
+        Shape(Cylinder(v.radius, h2 - neck), pose=body_pose((0, 0, 0), along_z), material=label, collision=False),
+        Shape(Cylinder(v.radius + 0.0003, 0.010), pose=body_pose((0, 0, 0.18 * v.height), along_z),
               material=_mat(v.band, roughness=0.35), collision=False),
-        Shape(Cylinder(v.radius - 0.0015, neck / 2), pose=_pose((0, 0, h2 - neck / 2), along_z), material=metal,
+        Shape(Cylinder(v.radius - 0.0015, neck / 2), pose=body_pose((0, 0, h2 - neck / 2), along_z), material=metal,
               collision=False),
-        Shape(Cylinder(v.radius - 0.0015, neck / 2), pose=_pose((0, 0, -h2 + neck / 2), along_z), material=metal,
+        Shape(Cylinder(v.radius - 0.0015, neck / 2), pose=body_pose((0, 0, -h2 + neck / 2), along_z), material=metal,
               collision=False),
-        Shape(Cylinder(v.radius - 0.004, 0.0008), pose=_pose((0, 0, h2 + 0.0002), along_z),
+        Shape(Cylinder(v.radius - 0.004, 0.0008), pose=body_pose((0, 0, h2 + 0.0002), along_z),
               material=_mat((0.62, 0.63, 0.66), roughness=0.3, metallic=0.9), collision=False),
     ]
     if "tin" not in v.kind:
-        shapes.append(Shape(Box((0.009, 0.0055, 0.0008)), pose=_pose((0.009, 0, h2 + 0.0012)), material=metal,
+        shapes.append(Shape(Box((0.009, 0.0055, 0.0008)), pose=body_pose((0.009, 0, h2 + 0.0012)), material=metal,
                             collision=False))
     dims = {"model_id": model_id, "kind": v.kind, "radius": v.radius, "height": v.height, "mass_kg": CAN_MASS}
     return shapes, dims
@@ -535,11 +522,11 @@ def handled_basket_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
     post_h = bar_z - HB_HEIGHT + HB_BAR_HALF[1] + 0.015  # from 1.5 cm down the wall to the bar's top
     for sx in (-1.0, 1.0):
         shapes.append(Shape(Box((0.007, 0.011, post_h / 2)),
-                            pose=_pose((sx * x_post, 0.0, bar_z + HB_BAR_HALF[1] - post_h / 2)), material=hmat))
-    shapes.append(Shape(Box((x_post + 0.007, HB_BAR_HALF[0], HB_BAR_HALF[1])), pose=_pose((0.0, 0.0, bar_z)),
+                            pose=body_pose((sx * x_post, 0.0, bar_z + HB_BAR_HALF[1] - post_h / 2)), material=hmat))
+    shapes.append(Shape(Box((x_post + 0.007, HB_BAR_HALF[0], HB_BAR_HALF[1])), pose=body_pose((0.0, 0.0, bar_z)),
                         material=hmat))
     # visual: a padded grip in the middle of the bar
-    shapes.append(Shape(Capsule(HB_BAR_HALF[0] + 0.0015, 0.045), pose=_pose((0.0, 0.0, bar_z)),
+    shapes.append(Shape(Capsule(HB_BAR_HALF[0] + 0.0015, 0.045), pose=body_pose((0.0, 0.0, bar_z)),
                         material=_mat((0.10, 0.10, 0.10), roughness=0.8), collision=False))
     dims = {
         "model_id": model_id, "kind": v.kind,
@@ -599,27 +586,28 @@ def toy_car_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
     cab_x = -0.08 * L if v.cabin[0] < 0.7 else -0.05 * L
     shapes = [
         # collision: body from the ground up (the wheels are visual), cabin on top
-        Shape(Box((L / 2, W / 2, body_h / 2)), pose=_pose((0, 0, z0 + body_h / 2)), material=paint, visual=False),
-        Shape(Box((cab_l / 2, W / 2 - 0.003, cab_h / 2)), pose=_pose((cab_x, 0, z0 + body_h + cab_h / 2)),
+        Shape(Box((L / 2, W / 2, body_h / 2)), pose=body_pose((0, 0, z0 + body_h / 2)), material=paint, visual=False),
+        Shape(Box((cab_l / 2, W / 2 - 0.003, cab_h / 2)), pose=body_pose((cab_x, 0, z0 + body_h + cab_h / 2)),
               material=paint, visual=False),
         # visual
         Shape(Box((L / 2, W / 2 - 0.001, (body_h - WHEEL_R * 0.9) / 2)),
-              pose=_pose((0, 0, z0 + WHEEL_R * 0.9 + (body_h - WHEEL_R * 0.9) / 2)), material=paint, collision=False),
-        Shape(Box((cab_l / 2, W / 2 - 0.003, cab_h / 2)), pose=_pose((cab_x, 0, z0 + body_h + cab_h / 2)),
+              pose=body_pose((0, 0, z0 + WHEEL_R * 0.9 + (body_h - WHEEL_R * 0.9) / 2)), material=paint,
+              collision=False),
+        Shape(Box((cab_l / 2, W / 2 - 0.003, cab_h / 2)), pose=body_pose((cab_x, 0, z0 + body_h + cab_h / 2)),
               material=paint, collision=False),
         Shape(Box((cab_l / 2 + 0.0008, W / 2 - 0.0055, cab_h / 2 - 0.003)),
-              pose=_pose((cab_x, 0, z0 + body_h + cab_h / 2 - 0.001)), material=glass, collision=False),
+              pose=body_pose((cab_x, 0, z0 + body_h + cab_h / 2 - 0.001)), material=glass, collision=False),
         Shape(Box((cab_l / 2 - 0.006, W / 2 - 0.0022, cab_h / 2 - 0.004)),
-              pose=_pose((cab_x, 0, z0 + body_h + cab_h / 2 - 0.001)), material=glass, collision=False),
+              pose=body_pose((cab_x, 0, z0 + body_h + cab_h / 2 - 0.001)), material=glass, collision=False),
     ]
     for sx in (-1, 1):
         for sy in (-1, 1):
             shapes.append(Shape(Cylinder(WHEEL_R, 0.004),
-                                pose=_pose((sx * 0.32 * L, sy * (W / 2 - 0.003), z0 + WHEEL_R), _rz(np.pi / 2)),
+                                pose=body_pose((sx * 0.32 * L, sy * (W / 2 - 0.003), z0 + WHEEL_R), _rz(np.pi / 2)),
                                 material=dark, collision=False))
     for sy in (-1, 1):
         shapes.append(Shape(Box((0.001, 0.005, 0.003)),
-                            pose=_pose((L / 2 + 0.0005, sy * (W / 2 - 0.008), z0 + body_h - 0.006)),
+                            pose=body_pose((L / 2 + 0.0005, sy * (W / 2 - 0.008), z0 + body_h - 0.006)),
                             material=_mat((0.98, 0.95, 0.70), roughness=0.2), collision=False))
     dims = {"model_id": model_id, "kind": v.kind, "size": [L, W, H], "mass_kg": TOY_CAR_MASS}
     return shapes, dims
@@ -651,13 +639,13 @@ def playing_cards_shapes(model_id: int) -> tuple[list[Shape], dict[str, Any]]:
     ink = _mat(v.color, roughness=0.6)
     shapes = [
         Shape(Box((L / 2, W / 2, H / 2)), material=paper),
-        Shape(Box((L / 2 - 0.005, W / 2 - 0.005, 0.0004)), pose=_pose((0, 0, H / 2 + 0.0002)), material=ink,
+        Shape(Box((L / 2 - 0.005, W / 2 - 0.005, 0.0004)), pose=body_pose((0, 0, H / 2 + 0.0002)), material=ink,
               collision=False),
-        Shape(Box((0.010, 0.010, 0.0004)), pose=_pose((0, 0, H / 2 + 0.0005), _rz(np.pi / 4)), material=paper,
+        Shape(Box((0.010, 0.010, 0.0004)), pose=body_pose((0, 0, H / 2 + 0.0005), _rz(np.pi / 4)), material=paper,
               collision=False),
-        Shape(Box((L / 2 - 0.004, 0.0004, H / 2 - 0.002)), pose=_pose((0, -W / 2 - 0.0002, 0)), material=ink,
+        Shape(Box((L / 2 - 0.004, 0.0004, H / 2 - 0.002)), pose=body_pose((0, -W / 2 - 0.0002, 0)), material=ink,
               collision=False),
-        Shape(Box((L / 2 - 0.004, 0.0004, H / 2 - 0.002)), pose=_pose((0, W / 2 + 0.0002, 0)), material=ink,
+        Shape(Box((L / 2 - 0.004, 0.0004, H / 2 - 0.002)), pose=body_pose((0, W / 2 + 0.0002, 0)), material=ink,
               collision=False),
     ]
     dims = {"model_id": model_id, "kind": v.kind, "size": list(CARDS_SIZE), "mass_kg": CARDS_MASS}

@@ -19,25 +19,22 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 from typing import Any
 
 import numpy as np
 
-from cab_core.contracts.scene import Box, Cylinder, Material, Mesh, Shape
+from cab_core.contracts.scene import Box, Cylinder, Mesh, Shape
 
-from .common import assets_dir, mesh_asset, srgb
+from .common import IDENTITY_Q, assets_dir, material, mesh_asset
 
 # quaternions that turn a primitive's local x axis (SAPIEN's cylinder axis) onto z or y
 X_TO_Z = (float(np.cos(-np.pi / 4)), 0.0, float(np.sin(-np.pi / 4)), 0.0)
 X_TO_Y = (float(np.cos(np.pi / 4)), 0.0, 0.0, float(np.sin(np.pi / 4)))
-IDENTITY_Q = (1.0, 0.0, 0.0, 0.0)
 GRIP_FRICTION = 0.8  # rubber finger pads on handles / a can's steel wall (plausible, firm grasps)
 
 
-def _mat(rgb, *, roughness=0.5, metallic=0.0, friction=0.5) -> Material:
-    return Material(color=srgb(*rgb), roughness=roughness, metallic=metallic, static_friction=friction,
-                    dynamic_friction=friction)
+_mat = partial(material, roughness=0.5)  # this module's default finish
 
 
 # --- the kitchen pot ------------------------------------------------------------------------------

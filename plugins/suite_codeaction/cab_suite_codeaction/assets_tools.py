@@ -11,14 +11,16 @@ not public).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Sequence
 
 import numpy as np
 
 from cab_core.geometry import axis_angle_quat, quat_to_mat
-from cab_core.contracts.scene import Box, Cylinder, Material, Shape
+from cab_core.contracts.scene import Box, Cylinder, Shape
 
-from .common import (box_inertia, hinged_urdf, mesh_shape, srgb, urdf_asset, urdf_inertial, urdf_part)
+from .common import (body_pose, box_inertia, hinged_urdf, material, mesh_shape, srgb, urdf_asset, urdf_inertial,
+                     urdf_part)
 
 # x-axis primitives (SAPIEN cylinders) stood upright: local x -> world z
 X_TO_Z = tuple(float(v) for v in axis_angle_quat([0.0, 1.0, 0.0], -np.pi / 2))
@@ -26,13 +28,7 @@ X_TO_Z = tuple(float(v) for v in axis_angle_quat([0.0, 1.0, 0.0], -np.pi / 2))
 Z_TO_X = tuple(float(v) for v in axis_angle_quat([0.0, 1.0, 0.0], np.pi / 2))
 
 
-def _mat(rgb: Sequence[float], *, roughness: float = 0.5, metallic: float = 0.0, friction: float = 0.5) -> Material:
-    return Material(color=srgb(*rgb), roughness=roughness, metallic=metallic, static_friction=friction,
-                    dynamic_friction=friction)
-
-
-def _pose(xyz: Sequence[float], quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)) -> tuple[float, ...]:
-    return tuple(float(v) for v in (*xyz, *quat))
+_mat = partial(material, roughness=0.5)  # this module's default finish
 
 
 def _revolved(profile: Sequence[Sequence[float]], sections: int = 40) -> Any:
@@ -90,14 +86,14 @@ def bell_shapes(model_id: int) -> list[Shape]:
     foot_h = v.base_height
     rim = 0.004  # a bevelled rim under the dome
     return [
-        Shape(Cylinder(v.base_radius, foot_h / 2), pose=_pose((0, 0, foot_h / 2), X_TO_Z), material=foot),
-        Shape(Cylinder(r + 0.002, rim / 2), pose=_pose((0, 0, foot_h + rim / 2 - 0.001), X_TO_Z), material=dome,
+        Shape(Cylinder(v.base_radius, foot_h / 2), pose=body_pose((0, 0, foot_h / 2), X_TO_Z), material=foot),
+        Shape(Cylinder(r + 0.002, rim / 2), pose=body_pose((0, 0, foot_h + rim / 2 - 0.001), X_TO_Z), material=dome,
               collision=False),
         mesh_shape(f"bell{model_id}_dome", dome_mesh, material=dome),
         Shape(Cylinder(BELL_ROD_RADIUS, BELL_ROD_LENGTH / 2),
-              pose=_pose((0, 0, g["dome_top_z"] + BELL_ROD_LENGTH / 2 - 0.002), X_TO_Z), material=knob),
+              pose=body_pose((0, 0, g["dome_top_z"] + BELL_ROD_LENGTH / 2 - 0.002), X_TO_Z), material=knob),
         Shape(Cylinder(BELL_KNOB_RADIUS, BELL_KNOB_HEIGHT / 2),
-              pose=_pose((0, 0, g["knob_bottom_z"] + BELL_KNOB_HEIGHT / 2), X_TO_Z), material=knob),
+              pose=body_pose((0, 0, g["knob_bottom_z"] + BELL_KNOB_HEIGHT / 2), X_TO_Z), material=knob),
     ]
 
 
@@ -325,14 +321,14 @@ def scanner_shapes(model_id: int) -> list[Shape]:
     w = g["window_point"]
     nh = g["nose_half"]
     return [
-        Shape(Box(g["head_half"]), pose=_pose(g["head_centre"]), material=body),
-        Shape(Box(nh), pose=_pose(g["nose_centre"]), material=body),
+        Shape(Box(g["head_half"]), pose=body_pose(g["head_centre"]), material=body),
+        Shape(Box(nh), pose=body_pose(g["nose_centre"]), material=body),
         # the window (red exit glass) on the nose's front face
-        Shape(Box((0.001, nh[1] - 0.004, nh[2] - 0.006)), pose=_pose((w[0] + 0.0005, w[1], w[2])), material=glass,
+        Shape(Box((0.001, nh[1] - 0.004, nh[2] - 0.006)), pose=body_pose((w[0] + 0.0005, w[1], w[2])), material=glass,
               collision=False),
-        Shape(Box(g["handle_half"]), pose=_pose(g["handle_centre"], qh), material=grip),
+        Shape(Box(g["handle_half"]), pose=body_pose(g["handle_centre"], qh), material=grip),
         # trigger on the handle's front side, next to the head
-        Shape(Box((0.009, 0.006, g["handle_half"][2] - 0.005)), pose=_pose(g["trigger_centre"], qh), material=grip),
+        Shape(Box((0.009, 0.006, g["handle_half"][2] - 0.005)), pose=body_pose(g["trigger_centre"], qh), material=grip),
     ]
 
 
@@ -403,11 +399,11 @@ def teabox_shapes(model_id: int) -> list[Shape]:
     return [
         Shape(Box((sx / 2, sy / 2, sz / 2)), material=card),
         # the lid: a band of another colour round the top (1 mm proud of the box, no z-fighting)
-        Shape(Box((sx / 2 + e, sy / 2 + e, 0.0125)), pose=_pose((0, 0, sz / 2 - 0.012)), material=band,
+        Shape(Box((sx / 2 + e, sy / 2 + e, 0.0125)), pose=body_pose((0, 0, sz / 2 - 0.012)), material=band,
               collision=False),
-        Shape(Box((sx * 0.32, e, sz * 0.18)), pose=_pose((0, sy / 2 + e / 2, -sz * 0.08)), material=label,
+        Shape(Box((sx * 0.32, e, sz * 0.18)), pose=body_pose((0, sy / 2 + e / 2, -sz * 0.08)), material=label,
               collision=False),
-        Shape(Box((sx * 0.32, e, sz * 0.18)), pose=_pose((0, -sy / 2 - e / 2, -sz * 0.08)), material=label,
+        Shape(Box((sx * 0.32, e, sz * 0.18)), pose=body_pose((0, -sy / 2 - e / 2, -sz * 0.08)), material=label,
               collision=False),
     ]
 

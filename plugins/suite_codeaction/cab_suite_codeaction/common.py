@@ -15,11 +15,12 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from cab_core.contracts.checkpoints import SpatialRule
 from cab_core.errors import CabError
 from cab_core.geometry import euler_quat, quat_mul, quat_normalize, quat_to_mat
 from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
-from cab_core.contracts.task import Task, TaskInfo, ToolCaller
-from cab_core.contracts.verifier import WorldView
+from cab_core.contracts.task import SceneInstance, Task, TaskInfo, ToolCaller, rng_for
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all
 
 from .catalog import task_info
 
@@ -44,6 +45,13 @@ def srgb(r: float, g: float, b: float, a: float = 1.0) -> tuple[float, float, fl
         return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
 
     return (round(lin(r), 5), round(lin(g), 5), round(lin(b), 5), a)
+
+
+def material(rgb: Sequence[float], *, roughness: float = 0.6, metallic: float = 0.0, friction: float = 0.5) -> Material:
+    """A material of the display-sRGB colour ``rgb`` whose static and dynamic friction are both
+    ``friction`` (the defaults are :class:`Material`'s)."""
+    return Material(color=srgb(*rgb), roughness=roughness, metallic=metallic, static_friction=friction,
+                    dynamic_friction=friction)
 
 
 WOOD = Material(color=srgb(0.66, 0.47, 0.30), roughness=0.7)
@@ -123,6 +131,14 @@ def rand_pose(rng: np.random.Generator, xlim: Sequence[float], ylim: Sequence[fl
     return np.array([x, y, z, *q], dtype=float)
 
 
+def draw_variant(rng: np.random.Generator, variants: Any, ids: Sequence[int] | None = None) -> tuple[int, Any]:
+    """A model id drawn uniformly from ``ids`` (by default every index of the sequence ``variants``)
+    with one ``rng.integers`` draw, and its entry in ``variants``."""
+    ids = range(len(variants)) if ids is None else ids
+    model_id = int(ids[int(rng.integers(0, len(ids)))])
+    return model_id, variants[model_id]
+
+
 def sample_until(draw: Callable[[], np.ndarray], accept: Callable[[np.ndarray], bool], *,
                  what: str, max_tries: int = 10_000) -> np.ndarray:
     """Redraw until ``accept`` holds (RoboTwin's resample-until loops), failing loudly."""
@@ -176,6 +192,21 @@ def lowest_point_z(shapes: Sequence[Shape], quat: Sequence[float] = (1.0, 0.0, 0
 
 
 # --- generated assets --------------------------------------------------------------------------
+IDENTITY_Q = (1.0, 0.0, 0.0, 0.0)
+
+
+def body_pose(xyz: Sequence[float], quat: Sequence[float] = IDENTITY_Q) -> tuple[float, ...]:
+    """A pose (x, y, z, qw, qx, qy, qz) as a tuple of floats."""
+    return tuple(float(v) for v in (*xyz, *quat))
+
+
+def trimesh_module() -> Any:
+    """``trimesh``, imported on first use: only building a scene's assets needs it."""
+    import trimesh
+
+    return trimesh
+
+
 def assets_dir() -> Path:
     p = cache_dir() / "assets"
     p.mkdir(parents=True, exist_ok=True)
@@ -286,6 +317,52 @@ def box_inertia(mass: float, size: Sequence[float]) -> tuple[float, float, float
     return (mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12)
 
 
+# --- verifiers ---------------------------------------------------------------------------------
+def grippers_open(w: WorldView, arms: Iterable[str], threshold: float) -> tuple[bool, dict[str, float], Margin]:
+    """Whether every one of ``arms`` has its gripper commanded open (above ``threshold``); the
+    commands as values (``gripper_<arm>``); the margin (the least open gripper's, each against the
+    band above the threshold)."""
+    grips = {a: w.gripper_command(a) for a in arms}
+    return (all(g > threshold for g in grips.values()), {f"gripper_{a}": float(g) for a, g in grips.items()},
+            margin_all(*(margin_above(g, threshold, "gripper command", 1 - threshold) for g in grips.values())))
+
+
+class GrippersOpenVerifier(Verifier):
+    """A final-state verifier whose success needs the task's own predicates (``measure``) and,
+    recorded after them, ``grippers_open``: every one of ``arms`` has its gripper commanded above
+    ``open_threshold``."""
+
+    arms: Sequence[str] = ARMS
+    open_threshold: float = 0.8
+
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
+        """The task's own predicates, the values measured and the predicates' margins."""
+        raise NotImplementedError
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        preds, values, margins = self.measure(w)
+        preds["grippers_open"], grips, margins["grippers_open"] = grippers_open(w, self.arms, self.open_threshold)
+        values.update(grips)
+        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
+
+
+class LatchVerifier(Verifier):
+    """A verifier scored by latch: the attempt succeeds once ``holds`` is true, polled at every
+    physics step."""
+
+    scoring = "latch"
+    poll_every = 1
+
+
+# --- spatial checkpoints -------------------------------------------------------------------------
+def lift_rules(info: dict, initial_z: float) -> list[SpatialRule]:
+    """"Lift left" and "Lift right" (after rules 0 and 1, the two arms' approaches): each arm's TCP
+    rises by the lift the task asks for, from ``initial_z`` to ``info["raised_z"]`` (in cm)."""
+    lift = max(0.0, 100.0 * (float(info["raised_z"]) - float(initial_z)))
+    return [SpatialRule("Lift left", "left", None, None, prerequisites=(0,), lift_above_cm=lift),
+            SpatialRule("Lift right", "right", None, None, prerequisites=(1,), lift_above_cm=lift)]
+
+
 # --- task base ---------------------------------------------------------------------------------
 def arm_names(embodiment: Any) -> list[str]:
     """The embodiment's arm names (tasks read declarations, never a robot's name)."""
@@ -295,16 +372,56 @@ def arm_names(embodiment: Any) -> list[str]:
 
 class CodeActionTask(Task):
     """A catalog task of this suite: ``name`` selects the catalog entry (instruction, seed,
-    scoring, budgets). Oracles are written once the robot API exists."""
+    scoring, budgets); unless a subclass sets it, it is the name of the subclass's module (the
+    suite's task modules are named after their catalog entries). A task lays out its objects on
+    the base scene (``lay_out``), names its verifier (``verifier_class``) and its subgoals'
+    predicates (``subgoal_predicates``), and writes its reference solution (``oracle``)."""
 
     name: str = ""
+    #: the task's verifier class, built from a scene's info (``verifier`` and ``evaluate`` use it)
+    verifier_class: type[Verifier]
+    #: the catalog's subgoals, in order: each holds when all of these verifier predicates do
+    subgoal_predicates: tuple[tuple[str, ...], ...] = ()
+    #: the table's placement in the base scene (``base_scene``)
+    table_x: float = 0.0
+    table_z_bias: float = 0.0
     #: held out from the seeds the suite was developed on (the catalog's, 0-9): the oracle succeeds
     #: at each within budgets on every simulator, and under small perturbations (cab-suite-check
     #: --seed-set heldout [--perturb N])
     seed_sets = {"heldout": tuple(range(100, 120))}
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if not cls.__dict__.get("name"):
+            cls.name = cls.__module__.rsplit(".", 1)[-1]
+
     def __init__(self) -> None:
         self.info: TaskInfo = task_info(self.name)
+
+    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
+        """The base scene (table, wall, lighting) with the objects ``lay_out`` adds; the info starts
+        with the task, the seed and the table top's height, followed by what ``lay_out`` returns."""
+        top = table_top_z(self.table_z_bias)
+        scene = base_scene(self.table_x, self.table_z_bias)
+        info = self.lay_out(rng_for(seed, self.name), top, scene, embodiment)
+        return SceneInstance(scene=scene, info={"task": self.name, "seed": int(seed), "table_top_z": top, **info})
+
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        """Add the task's objects to ``scene``, drawing their layout from ``rng`` (the table top is at
+        height ``top``); returns what the scene's info records about them."""
+        raise NotImplementedError(f"{self.name} lays out no scene")
+
+    def verifier(self, instance: SceneInstance) -> Verifier:
+        return self.verifier_class(instance.info)
+
+    def evaluate(self, w: WorldView) -> Evaluation:
+        """The verifier's evaluation of the world as ``w`` sees it now."""
+        return self.verifier_class(w.info).evaluate(w)
+
+    def subgoals(self, w: WorldView) -> list[bool]:
+        """The catalog's subgoals as ``w`` sees the world now (``subgoal_predicates``)."""
+        p = self.evaluate(w).predicates
+        return [all(p[n] for n in names) for names in self.subgoal_predicates]
 
     def oracle(self, call: ToolCaller, world: WorldView) -> None:
         raise NotImplementedError(f"the reference solution of {self.name} is not written yet")

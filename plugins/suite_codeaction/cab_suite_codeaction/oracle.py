@@ -70,6 +70,16 @@ def fingers_clear(centre_xy, line, opening: float, obstacles, margin: float = 0.
                for s in (-1.0, 1.0) for o, r in obstacles)
 
 
+#: every outcome of a motion after which the reference solution goes on: a guarded move that
+#: stops on contact, or one that falls a little short, still leaves the TCP where the next step
+#: starts from
+TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
+
+
+def _floats(v) -> list[float]:
+    return [float(x) for x in v]
+
+
 def expect(result: dict, what: str, ok=("SUCCESS",)) -> dict:
     if "error" in result:
         raise OracleFailed(f"{what}: {result['error']}")
@@ -88,13 +98,31 @@ class Hands:
         self.hover = hover
 
     def reach(self, xyz, quat=None, what="reach", ok=("SUCCESS",)) -> dict:
-        args = {"arm": self.arm, "target_xyz": [float(v) for v in xyz]}
+        args = {"arm": self.arm, "target_xyz": _floats(xyz)}
         if quat is not None:
-            args["target_quat"] = [float(v) for v in quat]
+            args["target_quat"] = _floats(quat)
         return expect(self.call("reach_tcp", **args), what, ok)
 
     def move(self, dx=0.0, dy=0.0, dz=0.0, what="move", ok=("SUCCESS",)) -> dict:
         return expect(self.call("move_delta", arm=self.arm, dx=float(dx), dy=float(dy), dz=float(dz)), what, ok)
+
+    def move_to(self, world, xyz, what="move", ok=("SUCCESS",)) -> dict:
+        """A straight move that brings the TCP to ``xyz``, from where ``world`` sees it now."""
+        return self.move(*(np.asarray(xyz, float) - world.tcp_pose(self.arm)[:3]), what=what, ok=ok)
+
+    def move_to_height(self, world, z: float, what="move", ok=("SUCCESS",)) -> dict:
+        """A straight vertical move that brings the TCP to height ``z``, from where ``world`` sees it
+        now (no tool call to read it, unlike :meth:`descend_to`)."""
+        return self.move(dz=z - world.tcp_pose(self.arm)[2], what=what, ok=ok)
+
+    def turn_in_place(self, world, quat, rise: float = 0.0, what="turn the gripper") -> dict:
+        """A planned reach that only turns the gripper to ``quat`` where it is (``rise`` higher): a
+        reach that turns it on the way to a far target sweeps the fingers low, through what stands
+        near the path."""
+        xyz = world.tcp_pose(self.arm)[:3]
+        if rise:
+            xyz = xyz + [0.0, 0.0, rise]
+        return self.reach(xyz, quat, what)
 
     def descend_to(self, z: float, what: str, ok=("SUCCESS",)) -> dict:
         """A straight vertical move (guarded legs) down to TCP height ``z``."""
@@ -104,13 +132,30 @@ class Hands:
     def grip(self, pos: float) -> dict:
         return expect(self.call("set_gripper", arm=self.arm, pos=float(pos)), "set_gripper")
 
+    def grasp_from(self, world, start, quat, grasp, what: str, lift: float | None = None, ok=("SUCCESS",)) -> None:
+        """A planned reach to ``start`` with orientation ``quat``, a straight move to ``grasp`` (from
+        where ``world`` sees the TCP once there; ``ok``: the outcomes it may have), close; then, with
+        ``lift``, straight up by that much. ``what`` names the target in failure messages."""
+        self.reach(start, quat, f"to {what}")
+        self.move_to(world, grasp, f"onto {what}", ok=ok)
+        self.grip(0.0)
+        if lift is not None:
+            self.move(dz=lift, what="lift", ok=TOLERANT)
+
+    def press(self, above, quat, down: float, up: float, what: str) -> None:
+        """A planned reach to ``above`` (orientation ``quat``; None keeps it), straight down by
+        ``down`` (a guarded move: it stops on what it presses) and straight up by ``up``."""
+        self.reach(above, quat, f"above {what}")
+        self.move(dz=-down, what=f"press {what}", ok=TOLERANT)
+        self.move(dz=up, what="release", ok=TOLERANT)
+
     def pick(self, xyz, quat, lift: float = 0.10) -> None:
         """Open, hover above, descend, close, lift."""
         x, y, z = (float(v) for v in xyz)
         self.reach([x, y, z + self.hover], quat, "hover above pick")
         self.descend_to(z, "descend to grasp")
         self.grip(0.0)
-        self.move(dz=lift, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
+        self.move(dz=lift, what="lift", ok=TOLERANT)
 
     def pick_held(self, world, name: str, aim, lift: float = 0.10, tries: int = 3) -> None:
         """Pick ``name`` and make sure it is held. ``aim(pose) -> (grasp_xyz, quat)`` from the
@@ -126,16 +171,84 @@ class Hands:
                 self.reach([xyz[0], xyz[1], xyz[2] + self.hover], q, "hover above pick again")
             self.descend_to(float(xyz[2]), "descend to grasp")
             self.grip(0.0)
-            self.move(dz=lift, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
+            self.move(dz=lift, what="lift", ok=TOLERANT)
             if world.gripper_holds(self.arm, name):
                 return
             self.grip(1.0)
         raise OracleFailed(f"{name}: not held after {tries} picks")
 
-    def place(self, xyz, quat=None, retreat: float = 0.08) -> None:
-        """Carry above, descend, release, retreat upward."""
+    def pick_top_down(self, world, name: str, dz: float, *, hover: float = 0.20, lift: float = 0.10,
+                      across=(0.0, 1.0, 0.0), quat=None) -> None:
+        """Open fingers across the object's ``across`` axis (or ``quat``), a planned reach to ``hover``
+        above the grasp (the planned path may dip several cm: keep it high), then straight down to
+        the TCP ``dz`` above the object's origin where the object is now (the reach may have nudged
+        it), close, lift straight up."""
+        p = world.pose(name)
+        q = quat if quat is not None else top_down_quat(
+            closest_opening(world.tcp_pose(self.arm)[3:], [yaw_axis(p[3:], across)]))
+        self.reach([p[0], p[1], p[2] + dz + hover], q, "hover above the object")
+        p = world.pose(name)
+        self.move_to(world, [p[0], p[1], p[2] + dz], "down to the grasp")
+        self.grip(0.0)
+        self.move(dz=lift, what="lift", ok=TOLERANT)
+
+    def place_at(self, world, tcp_target, quat, *, refine=None, hover: float = 0.16, retreat: float = 0.08,
+                 open_to: float = 1.0) -> None:
+        """A planned reach to ``hover`` above the TCP target, straight down to it (or to
+        ``refine()``, the target recomputed from the state once above it) stopping on contact, open,
+        straight up by ``retreat``."""
+        self.reach(np.asarray(tcp_target, float) + [0.0, 0.0, hover], quat, "above the place")
+        self.move_to(world, refine() if refine is not None else tcp_target, "down to the place", ok=TOLERANT)
+        self.grip(open_to)
+        self.move(dz=retreat, what="retreat", ok=TOLERANT)
+
+    def place(self, xyz, quat=None, retreat: float = 0.08, open_to: float = 1.0) -> None:
+        """Carry above, descend, release (open to ``open_to``), retreat upward."""
         x, y, z = (float(v) for v in xyz)
         self.reach([x, y, z + self.hover], quat, "carry above place")
-        self.descend_to(z, "descend to place", ok=("SUCCESS", "ABORTED", "FAILED"))
-        self.grip(1.0)
-        self.move(dz=retreat, what="retreat", ok=("SUCCESS", "ABORTED", "FAILED"))
+        self.descend_to(z, "descend to place", ok=TOLERANT)
+        self.grip(open_to)
+        self.move(dz=retreat, what="retreat", ok=TOLERANT)
+
+    def park(self, world, x: float, what: str = "step aside", planned_rise: float = 0.08) -> None:
+        """Withdraw the TCP sideways toward x = ``x`` (a straight move of at most 0.3 m), 5 cm back and
+        5 cm up, so the other arm can reach the middle (a gripper parked near it meets the other arm's
+        wrist); where the straight move fails (e.g. the wrist roll at its limit), a planned reach to
+        ``x`` instead, ``planned_rise`` up."""
+        r = self.move(dx=float(np.clip(x - world.tcp_pose(self.arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05, what=what,
+                      ok=TOLERANT)
+        if r["status"] == "FAILED":
+            now = world.tcp_pose(self.arm)
+            self.reach([x, now[1] - 0.05, now[2] + planned_rise], None, what, ok=TOLERANT)
+
+
+class BothHands:
+    """Moves of both arms at once (one tool call each; targets keyed by ``"left"``, ``"right"``)."""
+
+    ARMS = ("left", "right")
+
+    def __init__(self, call):
+        self.call = call
+
+    def reach(self, xyz: dict, quat: dict, what: str, ok=("SUCCESS",)) -> dict:
+        """Planned reaches of both TCPs to ``xyz[arm]`` with orientation ``quat[arm]``."""
+        return expect(self.call("reach_both_tcp", left_xyz=_floats(xyz["left"]), right_xyz=_floats(xyz["right"]),
+                                left_quat=_floats(quat["left"]), right_quat=_floats(quat["right"])), what, ok)
+
+    def move(self, delta: dict, what: str, ok=("SUCCESS",)) -> dict:
+        """Straight moves of both TCPs by ``delta[arm]``."""
+        return expect(self.call("move_both_delta", left_delta=_floats(delta["left"]),
+                                right_delta=_floats(delta["right"])), what, ok)
+
+    def move_to(self, world, xyz: dict, what: str, ok=("SUCCESS",)) -> dict:
+        """Straight moves that bring both TCPs to ``xyz[arm]``, from where ``world`` sees them now."""
+        return self.move({a: np.asarray(xyz[a], float) - world.tcp_pose(a)[:3] for a in self.ARMS}, what, ok)
+
+    def rise(self, dz: float, what: str, ok=("SUCCESS",)) -> dict:
+        """Both TCPs straight up by ``dz``."""
+        return self.move({a: [0.0, 0.0, dz] for a in self.ARMS}, what, ok)
+
+    def grip(self, pos: float, what: str) -> None:
+        """Both grippers to ``pos``, the left first."""
+        for arm in self.ARMS:
+            expect(self.call("set_gripper", arm=arm, pos=float(pos)), f"{what} {arm}")

@@ -1,7 +1,7 @@
 """The suite's tasks, one module each, registered explicitly (no import-time side effects).
 
-Each module defines ``TASK``, a :class:`~cab_suite_codeaction.common.CodeActionTask` subclass whose
-``name`` is its catalog entry.
+Each module defines ``TASK``, a :class:`~cab_suite_codeaction.common.CodeActionTask` subclass; the
+module is named after the task's catalog entry, which is the task's ``name``.
 """
 from __future__ import annotations
 

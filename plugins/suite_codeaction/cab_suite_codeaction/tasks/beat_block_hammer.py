@@ -29,16 +29,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Material, Shape
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Material, SceneSpec, Shape
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
+from cab_core.contracts.verifier import Evaluation, WorldView, margin_within
 
 from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
-from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, base_scene, lowest_point_z, pose_list,
-                      rand_pose, sample_until, srgb, table_top_z, vec, yaw_of)
+from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, LatchVerifier, lowest_point_z, pose_list, rand_pose,
+                      sample_until, srgb, vec, yaw_of)
 
-NAME = "beat_block_hammer"
 GRASP_TCP_ABOVE_AXIS = 0.026  # the expert's top-down handle grasp: TCP this far above the handle axis
 
 # --- the hammer, in its body frame ---------------------------------------------------------------
@@ -109,10 +107,7 @@ def _distance_to_footprint(p_local: np.ndarray) -> float:
     return d
 
 
-class BeatBlockHammerVerifier(Verifier):
-    scoring = "latch"
-    poll_every = 1
-
+class BeatBlockHammerVerifier(LatchVerifier):
     def __init__(self, info: dict[str, Any]):
         self.hammer = info["hammer"]["name"]
         self.block = info["block"]["name"]
@@ -143,13 +138,11 @@ class BeatBlockHammerVerifier(Verifier):
 
 
 class BeatBlockHammer(CodeActionTask):
-    name = NAME
+    verifier_class = BeatBlockHammerVerifier
+    # (1) the hammer's face aligned with and touching the block (the latch predicate)
+    subgoal_predicates = (("face_over_block", "hammer_touches_block"),)
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
-
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         shapes = hammer_shapes()
         hammer_pose = np.array([HAMMER_XY[0], HAMMER_XY[1], top - lowest_point_z(shapes) + 2e-4, 1.0, 0.0, 0.0, 0.0])
 
@@ -168,9 +161,6 @@ class BeatBlockHammer(CodeActionTask):
                                  kind="static"))
 
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "xy_tolerance": XY_TOLERANCE,
             "hammer": {
                 "name": "hammer",
@@ -203,17 +193,7 @@ class BeatBlockHammer(CodeActionTask):
             # the subgoal the latch event satisfies (checkpoints read it from the record)
             "latch_subgoals": [0],
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return BeatBlockHammerVerifier(instance.info)
-
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) hammer head aligned with and contacting the block (the latch predicate)."""
-        return [self.verifier_for(w.info).evaluate(w).success]
-
-    def verifier_for(self, info: dict) -> "BeatBlockHammerVerifier":
-        return BeatBlockHammerVerifier(info)
+        return info
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """(1) Approach hammer: the expert's top-down grasp over the handle; (2) Strike: where the
@@ -252,9 +232,8 @@ class BeatBlockHammer(CodeActionTask):
         face = world_point(world.pose(h["name"]), h["face_point"])
         offset = face - world.tcp_pose(arm)[:3]
         top = world_point(world.pose(b["name"]), b["top_point"])
-        hands.reach(top + np.array([0.0, 0.0, float(h["face_radius"]) + 0.025]) - offset, None, "over the block")
-        hands.move(dz=-0.05, what="strike", ok=("SUCCESS", "ABORTED", "FAILED"))
-        hands.move(dz=0.05, what="raise", ok=("SUCCESS", "ABORTED", "FAILED"))
+        # the face 2.5 cm over the block's top, then strike it
+        hands.press(top + np.array([0.0, 0.0, float(h["face_radius"]) + 0.025]) - offset, None, 0.05, 0.05, "the block")
         call("done", report="struck the block with the hammer's face", success_claim=True)
 
 

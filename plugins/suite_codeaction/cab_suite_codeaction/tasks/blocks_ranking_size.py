@@ -34,15 +34,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import quat_to_mat
-from cab_core.contracts.scene import Body, Box, Material, Shape
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, Box, Material, SceneSpec, Shape
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
 
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
-                      srgb, table_top_z, vec, yaw_of)
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, grippers_open, pose_list, rand_pose, sample_until,
+                      srgb, vec, yaw_of)
 from ..oracle import Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
 
-NAME = "blocks_ranking_size"
 HALF_RANGES = ((0.030, 0.033), (0.024, 0.027), (0.018, 0.021))  # block1 (largest) .. block3
 BLOCK_NAMES = ("block1", "block2", "block3")
 BLOCK_DENSITY = 600.0  # kg/m^3, painted wood: 0.05 .. 0.29 kg
@@ -100,28 +98,26 @@ class BlocksRankingSizeVerifier(Verifier):
     def evaluate(self, w: WorldView) -> Evaluation:
         p = [np.asarray(w.pose(n)[:3], float) for n in self.names]
         preds = ranked(*p, tol=self.tol)
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
+        preds["grippers_open"], grips, grips_margin = grippers_open(w, self.arms, GRIPPER_OPEN)
         values = {f"large_middle_d{ax}": float(v) for ax, v in zip("xy", p[1][:2] - p[0][:2])}
         values.update({f"middle_small_d{ax}": float(v) for ax, v in zip("xy", p[2][:2] - p[1][:2])})
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        values.update(grips)
         values["row_xy_from_centre"] = float(np.linalg.norm(np.mean(p, axis=0)[:2] - self.centre))
         # size_order: each neighbour's dx > 0, judged against the band 0 < dx < tol_x the row's x lies in
         margins = {"large_middle_aligned": margin_within(p[0][:2] - p[1][:2], self.tol, "m"),
                    "middle_small_aligned": margin_within(p[1][:2] - p[2][:2], self.tol, "m"),
                    "size_order": margin_all(margin_above(p[1][0] - p[0][0], 0.0, "m", self.tol[0]),
                                             margin_above(p[2][0] - p[1][0], 0.0, "m", self.tol[0])),
-                   "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                                 for g in grips.values()))}
+                   "grippers_open": grips_margin}
         return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class BlocksRankingSize(CodeActionTask):
-    name = NAME
+    verifier_class = BlocksRankingSizeVerifier
+    subgoal_predicates = (("large_middle_aligned",), ("middle_small_aligned",),
+                          ("large_middle_aligned", "middle_small_aligned", "size_order"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         halves = [round(float(rng.uniform(lo, hi)), 6) for lo, hi in HALF_RANGES]
         colours = block_colours(rng)
         while True:
@@ -138,7 +134,6 @@ class BlocksRankingSize(CodeActionTask):
                     ok, what=f"block{i + 1}"))
             if not all(ranked(*drawn, tol=PRESOLVED_TOLERANCE).values()):
                 break
-        scene = base_scene()
         blocks = []
         for name, h, rgb, pose in zip(BLOCK_NAMES, halves, colours, drawn):
             mat = Material(color=srgb(*rgb), roughness=0.55)
@@ -151,9 +146,6 @@ class BlocksRankingSize(CodeActionTask):
                            "mass_kg": round(BLOCK_DENSITY * (2 * h) ** 3, 6), "pose": pose_list(pose),
                            "yaw": round(yaw_of(pose[3:]), 6), "grasp_tcp_offset": vec([0.0, 0.0, grasp_dz])})
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "blocks": blocks,  # largest first; frames: cube centre, axes along the faces
             "rank_order": list(BLOCK_NAMES),  # left (-x) -> right
             "tolerance": list(TOLERANCE),
@@ -163,20 +155,9 @@ class BlocksRankingSize(CodeActionTask):
             # the area the layout keeps clear, in front of the table's centre
             "clear_area": {"centre_xy": list(CLEAR_CENTRE), "radius": CLEAR_RADIUS},
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return BlocksRankingSizeVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = self.verifier_predicates(w)
-        return [p["large_middle_aligned"], p["middle_small_aligned"],
-                p["large_middle_aligned"] and p["middle_small_aligned"] and p["size_order"]]
-
-    def verifier_predicates(self, w: WorldView) -> dict[str, bool]:
-        return BlocksRankingSizeVerifier(w.info).evaluate(w).predicates
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Approaches: the TCP at the block's grasp point (its current centre plus the reference
         grasp's TCP offset). Placements, neighbour-relative: while the middle (small) block is set
@@ -224,7 +205,6 @@ class BlocksRankingSize(CodeActionTask):
             return True
 
         row_y = next((y for y in (ROW_Y, ROW_Y - 0.03, ROW_Y + 0.02, ROW_Y - 0.05) if free(y)), ROW_Y - 0.05)
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         turned: set[str] = set()
         for i, b in enumerate(blocks):
             for attempt in range(PLACE_TRIES):  # a block that slipped out on the way is picked up again
@@ -257,7 +237,7 @@ class BlocksRankingSize(CodeActionTask):
                 if arm not in turned:
                     # turn the gripper from its forward-pointing start to top-down where it is, away
                     # from the blocks: a planned path that turns it on the way dips low and sweeps them
-                    hands.reach(world.tcp_pose(arm)[:3] + [0.0, 0.0, 0.04], q, "turn the gripper down")
+                    hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
                     turned.add(arm)
                 hands.pick(grasp, q, lift=0.07)
                 # the held block in the TCP frame, then the TCP pose that puts it square on its spot
@@ -272,12 +252,7 @@ class BlocksRankingSize(CodeActionTask):
                 hands.place(tcp_target, q_place, retreat=0.06)
                 # step aside (and back toward the robot) so the other arm can reach the row
                 # (far: an arm reaching across the midline meets the other arm's parked gripper)
-                park_x = -PARK_X if arm == "left" else PARK_X
-                r = hands.move(dx=float(np.clip(park_x - world.tcp_pose(arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05,
-                               what="clear the row", ok=tolerant)
-                if r["status"] == "FAILED":  # e.g. the wrist roll at its limit: a planned move instead
-                    now = world.tcp_pose(arm)
-                    hands.reach([park_x, now[1] - 0.05, now[2] + 0.08], None, "clear the row", ok=tolerant)
+                hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the row")
                 spot = world.pose(b["name"])[:2]
                 if np.hypot(spot[0] - xs[i], spot[1] - row_y) <= PLACE_TOL_M:
                     break

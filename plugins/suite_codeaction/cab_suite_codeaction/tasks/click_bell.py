@@ -26,24 +26,19 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_any, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, WorldView, margin_any, margin_below, margin_within
 
 from ..assets_tools import BELL_KNOB_RADIUS, BELL_VARIANTS, bell_geometry, bell_shapes, gripper_bodies, is_gripper
-from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z, vec
+from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, sample_until, vec
 from ..oracle import Hands, top_down_quat
 
-NAME = "click_bell"
 TOLERANCE = (0.025, 0.025, 0.03)
 GRIPPER_CLOSED = 0.2
 TIP_AHEAD = 0.0354  # fingertips ahead of the TCP: a top-down press puts the TCP this far above the knob
 
 
-class ClickBellVerifier(Verifier):
-    scoring = "latch"
-    poll_every = 1
-
+class ClickBellVerifier(LatchVerifier):
     def __init__(self, info: dict[str, Any]):
         b = info["bell"]
         self.bell = b["name"]
@@ -93,23 +88,18 @@ class ClickBellVerifier(Verifier):
 
 
 class ClickBell(CodeActionTask):
-    name = NAME
+    verifier_class = ClickBellVerifier
+    # (1) knob contact with the selected gripper closed (the latched event, when it holds)
+    subgoal_predicates = (("side_gripper_closed", "knob_contact"),)
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        model_id = int(rng.integers(0, len(BELL_VARIANTS)))
-        v = BELL_VARIANTS[model_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        model_id, v = draw_variant(rng, BELL_VARIANTS)
         g = bell_geometry(v)
         pose = sample_until(lambda: rand_pose(rng, (-0.25, 0.25), (-0.2, 0.0), (top,)),
                             lambda p: abs(p[0]) >= 0.05, what="the bell")
-        scene = base_scene()
         scene.bodies.append(Body("bell", bell_shapes(model_id), pose=tuple(pose), kind="static"))
         knob_top = (0.0, 0.0, g["knob_top_z"])
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "tolerance": list(TOLERANCE),
             "gripper_closed_threshold": GRIPPER_CLOSED,
             "bell": {
@@ -130,14 +120,7 @@ class ClickBell(CodeActionTask):
             # the subgoal the latched event satisfies (snapshots hold no contact points)
             "latch_subgoals": [0],
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return ClickBellVerifier(instance.info)
-
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) Knob contact with the selected gripper closed (the latched event, when it holds)."""
-        return [ClickBellVerifier(w.info).evaluate(w).success]
+        return info
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Press: the TCP where the expert's closed fingertips rest on the knob (top-down)."""
@@ -158,9 +141,7 @@ class ClickBell(CodeActionTask):
         knob = transform_point(world.pose(info["bell"]["name"]), info["bell"]["contact_points"][0])
         q = top_down_quat([1.0, 0.0, 0.0])
         hands.grip(0.0)
-        hands.reach(knob + [0.0, 0.0, TIP_AHEAD + 0.06], q, "hover above the bell")
-        hands.move(dz=-0.065, what="press the knob", ok=("SUCCESS", "ABORTED", "FAILED"))
-        hands.move(dz=0.06, what="release", ok=("SUCCESS", "ABORTED", "FAILED"))
+        hands.press(knob + [0.0, 0.0, TIP_AHEAD + 0.06], q, 0.065, 0.06, "the knob")
         call("done", report="pressed the bell's knob with the closed gripper", success_claim=True)
 
 

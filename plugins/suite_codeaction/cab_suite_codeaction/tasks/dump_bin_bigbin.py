@@ -37,15 +37,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below
+from cab_core.contracts.scene import SceneSpec
+from cab_core.contracts.verifier import Evaluation, Margin, WorldView, margin_above, margin_all, margin_below
 
-from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BIN_IDS, TABLE_BINS, ball_body, big_dustbin,
+from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BINS, TABLE_BIN_IDS, ball_body, big_dustbin,
                            big_dustbin_info, table_bin_body, table_bin_info)
-from ..common import CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until, table_top_z, yaw_of
-from ..oracle import Hands, OracleFailed, tcp_quat, world_point
+from ..common import CodeActionTask, LatchVerifier, arm_names, draw_variant, pose_list, rand_pose, sample_until, yaw_of
+from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
 
-NAME = "dump_bin_bigbin"
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 N_BALLS = 5
@@ -71,10 +70,7 @@ POUR_BOB = 0.02  # while tipped: the TCP moves up, then back down this much (eac
 POUR_DWELL_MAX = 6  # at most this many bobs while a ball is still in the small bin
 
 
-class DumpBinBigbinVerifier(Verifier):
-    scoring = "latch"
-    poll_every = 1
-
+class DumpBinBigbinVerifier(LatchVerifier):
     def __init__(self, info: dict[str, Any]):
         b = info["small_bin"]
         self.bin = b["name"]
@@ -141,18 +137,16 @@ class DumpBinBigbinVerifier(Verifier):
 
 
 class DumpBinBigbin(CodeActionTask):
-    name = NAME
+    table_x = TABLE_X
+    verifier_class = DumpBinBigbinVerifier
+    subgoal_predicates = (("small_bin_raised",), ("balls_in_band",), ("small_bin_raised", "balls_in_band"))
 
     def settle_steps(self) -> int:
         return 150  # the balls come to rest on the small bin's floor
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene(table_x=TABLE_X)
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         scene.bodies.append(big_dustbin("dustbin", DUSTBIN_POSE))
-        model_id = int(TABLE_BIN_IDS[int(rng.integers(0, len(TABLE_BIN_IDS)))])
-        style = TABLE_BINS[model_id]
+        model_id, style = draw_variant(rng, TABLE_BINS, TABLE_BIN_IDS)
         pose = sample_until(
             lambda: rand_pose(rng, (-0.2, 0.2), (-0.2, -0.05), (top + style.height / 2 + 0.001,), rotate_rand=True,
                               rotate_lim=(0.0, 0.0, np.pi / 8.5)),
@@ -170,7 +164,7 @@ class DumpBinBigbin(CodeActionTask):
         b = table_bin_info(style, model_id)
         b.update(pose=pose_list(pose), yaw=round(yaw_of(pose[3:]), 6))
         info = {
-            "task": self.name, "seed": int(seed), "table_top_z": top, "table_x": TABLE_X,
+            "table_x": TABLE_X,
             "table_x_range": [TABLE_X - 0.6, TABLE_X + 0.6], "table_y_range": [-0.35, 0.35],
             "dustbin": big_dustbin_info(DUSTBIN_POSE),
             "small_bin": b,
@@ -182,16 +176,9 @@ class DumpBinBigbin(CodeActionTask):
             "grasp_short_m": GRASP_SHORT,
             "pour_tcp": list(POUR_TCP),  # the reference solution's TCP while pouring
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return DumpBinBigbinVerifier(instance.info)
+        return info
 
     # -- analysis -------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = DumpBinBigbinVerifier(w.info).evaluate(w).predicates
-        return [p["small_bin_raised"], p["balls_in_band"], p["small_bin_raised"] and p["balls_in_band"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         b = info["small_bin"]
         pour = info["pour_tcp"]
@@ -214,14 +201,13 @@ class DumpBinBigbin(CodeActionTask):
         moves up and aside when the bin stands on its side (10-11 calls)."""
         info = world.info
         b = info["small_bin"]
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         a = np.array([np.sin(APPROACH_YAW), np.cos(APPROACH_YAW), 0.0])
         q_grasp = tcp_quat(a, (-a[1], a[0], 0.0))  # opening horizontal, the gripper's z axis up
         q_fwd = tcp_quat((0.0, 1.0, 0.0), (-1.0, 0.0, 0.0))
         q_pour = [float(v) for v in quat_mul(q_fwd, axis_angle_quat([1.0, 0.0, 0.0], POUR_ROLL))]
         pose = world.pose(b["name"])
         if pose[0] > 0.05:
-            Hands(call, "right").move(dx=0.10, dy=-0.05, dz=0.08, what="right arm aside", ok=tolerant)
+            Hands(call, "right").move(dx=0.10, dy=-0.05, dz=0.08, what="right arm aside", ok=TOLERANT)
         hands = Hands(call, "left")
         for _ in range(GRASP_TRIES):
             g = world_point(world.pose(b["name"]), b["grasp_point"]) - GRASP_SHORT * a
@@ -230,26 +216,26 @@ class DumpBinBigbin(CodeActionTask):
             hands.move(dz=-HOVER, what="down beside the small bin")
             # aim at where the bin is now (the path there may have brushed it)
             g = world_point(world.pose(b["name"]), b["grasp_point"]) - GRASP_SHORT * a
-            hands.move(*(g - world.tcp_pose("left")[:3]), what="around the small bin")
+            hands.move_to(world, g, "around the small bin")
             hands.grip(0.0)
-            hands.move(dz=LIFT, what="lift", ok=tolerant)
+            hands.move(dz=LIFT, what="lift", ok=TOLERANT)
             if world.gripper_holds("left", b["name"]):
                 break
             # not held (it slipped): open, back out and up, and grasp again where it stands
             hands.grip(1.0)
-            hands.move(*(-PRE_GRASP * a + [0.0, 0.0, HOVER]), what="back out", ok=tolerant)
+            hands.move(*(-PRE_GRASP * a + [0.0, 0.0, HOVER]), what="back out", ok=TOLERANT)
         else:
             raise OracleFailed(f"{b['name']}: not held after {GRASP_TRIES} grasps")
         hands.reach(POUR_TCP, q_fwd, "over the dustbin")
-        hands.reach(POUR_TCP, q_pour, "pour", ok=tolerant)
+        hands.reach(POUR_TCP, q_pour, "pour", ok=TOLERANT)
         # the balls roll out only once the opening is past level, near the end of the roll: keep the
         # bin tipped (small bobs up and down, the bin's centre staying above 1 m) until none is left
         # in it, so that a slow roll (a tall, barely tapered bin) still empties it
         for i in range(POUR_DWELL_MAX):
             if not _balls_in_bin(world, info):
                 break
-            hands.move(dz=POUR_BOB if i % 2 == 0 else -POUR_BOB, what="keep pouring", ok=tolerant)
-        hands.reach(POUR_TCP, q_fwd, "turn back", ok=tolerant)
+            hands.move(dz=POUR_BOB if i % 2 == 0 else -POUR_BOB, what="keep pouring", ok=TOLERANT)
+        hands.reach(POUR_TCP, q_fwd, "turn back", ok=TOLERANT)
         hands.reach(HOLD_TCP, q_fwd, "hold over the table")
         call("done", report="poured the balls into the big dustbin; holding the small bin above the table",
              success_claim=True)

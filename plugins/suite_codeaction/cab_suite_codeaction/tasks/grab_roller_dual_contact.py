@@ -30,15 +30,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_pots import ROLLER_VARIANTS, roller_geometry, roller_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of
-from ..oracle import OracleFailed, closest_opening, expect, top_down_quat, yaw_axis
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of
+from ..oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
 
-NAME = "grab_roller_dual_contact"
 MODEL_IDS = (0, 2)
 RAISED_Z = 0.80
 GRIPPER_CLOSED = 0.2
@@ -83,23 +81,18 @@ class GrabRollerVerifier(Verifier):
 
 
 class GrabRollerDualContact(CodeActionTask):
-    name = NAME
+    verifier_class = GrabRollerVerifier
+    subgoal_predicates = (("left_contact",), ("right_contact",), ("roller_raised",),
+                          ("left_closed", "right_closed", "roller_raised", "left_contact", "right_contact"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        model_id = int(MODEL_IDS[int(rng.integers(0, len(MODEL_IDS)))])
-        v = ROLLER_VARIANTS[model_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        model_id, v = draw_variant(rng, ROLLER_VARIANTS, MODEL_IDS)
         pose = rand_pose(rng, (-0.15, 0.15), (-0.25, -0.05), (top + v.barrel_radius + 2e-4,), rotate_rand=True,
                          rotate_lim=(0.0, 0.0, 0.8))
-        scene = base_scene()
         scene.bodies.append(Body("roller", roller_shapes(v), pose=tuple(pose), kind="dynamic", density=v.density,
                                  angular_damping=0.2))
         g = roller_geometry(v)
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "raised_z": RAISED_Z,
             "gripper_closed_threshold": GRIPPER_CLOSED,
             "roller": {
@@ -123,16 +116,9 @@ class GrabRollerDualContact(CodeActionTask):
             "handle_arms": ["left", "right"],  # handle 0 lies on the left (-x) for every drawn yaw
             "grasp_above_axis": GRASP_ABOVE_AXIS,
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return GrabRollerVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = GrabRollerVerifier(w.info).evaluate(w).predicates
-        return [p["left_contact"], p["right_contact"], p["roller_raised"], all(p.values())]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         r = info["roller"]
         name = r["name"]
@@ -142,12 +128,10 @@ class GrabRollerDualContact(CodeActionTask):
             # expert TCP-to-object offset: above the handle's centre
             return lambda w: transform_point(w.pose(name), r["handle_points"][i]) + up
 
-        lift = max(0.0, 100.0 * (float(info["raised_z"]) - float(r["initial_z"])))
         return [
             SpatialRule("Approach left end", "left", end(0), cylinder(4.0, 3.0)),
             SpatialRule("Approach right end", "right", end(1), cylinder(5.0, 3.0)),
-            SpatialRule("Lift left", "left", None, None, prerequisites=(0,), lift_above_cm=lift),
-            SpatialRule("Lift right", "right", None, None, prerequisites=(1,), lift_above_cm=lift),
+            *lift_rules(info, r["initial_z"]),
         ]
 
     # --- reference solution ----------------------------------------------------------------------------
@@ -166,8 +150,8 @@ class GrabRollerDualContact(CodeActionTask):
         r = info["roller"]
         name = r["name"]
         up = np.array([0.0, 0.0, float(info["grasp_above_axis"])])
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
-        arms = ("left", "right")
+        both = BothHands(call)
+        arms = both.ARMS
 
         def aim(pose) -> tuple[list[np.ndarray], dict]:
             g = [transform_point(pose, h) + up for h in r["handle_points"]]
@@ -176,11 +160,10 @@ class GrabRollerDualContact(CodeActionTask):
             return g, q
 
         def hover_over(g, q, what: str) -> None:
-            expect(call("reach_both_tcp", left_xyz=vec(g[0] + [0, 0, HOVER]), right_xyz=vec(g[1] + [0, 0, HOVER]),
-                        left_quat=vec(q["left"]), right_quat=vec(q["right"])), what)
+            both.reach({"left": vec(g[0] + [0, 0, HOVER]), "right": vec(g[1] + [0, 0, HOVER])},
+                       {a: vec(q[a]) for a in arms}, what)
 
-        expect(call("move_both_delta", left_delta=[0.0, 0.0, RISE_M], right_delta=[0.0, 0.0, RISE_M]),
-               "rise before turning the grippers down", tolerant)
+        both.rise(RISE_M, "rise before turning the grippers down", TOLERANT)
         for _ in range(GRASP_TRIES):
             g, q = aim(world.pose(name))
             hover_over(g, q, "hover above the handles")
@@ -190,16 +173,13 @@ class GrabRollerDualContact(CodeActionTask):
                 g, q = g2, q2  # the pin moved on the way: aim again
                 hover_over(g, q, "hover above the handles again")
             now = {arm: world.tcp_pose(arm)[:3] for arm in arms}
-            expect(call("move_both_delta", left_delta=vec(g[0] - now["left"]), right_delta=vec(g[1] - now["right"])),
-                   "down onto the handles", tolerant)
-            for arm in arms:
-                expect(call("set_gripper", arm=arm, pos=0.0), f"close {arm}")
+            both.move({"left": vec(g[0] - now["left"]), "right": vec(g[1] - now["right"])}, "down onto the handles",
+                      TOLERANT)
+            both.grip(0.0, "close")
             if all(world.gripper_holds(arm, name) for arm in arms):
                 break
-            for arm in arms:  # not held by both: let go, rise and grasp again from where it lies
-                expect(call("set_gripper", arm=arm, pos=1.0), f"open {arm}")
-            expect(call("move_both_delta", left_delta=[0.0, 0.0, HOVER], right_delta=[0.0, 0.0, HOVER]),
-                   "rise to grasp again", tolerant)
+            both.grip(1.0, "open")  # not held by both: let go, rise and grasp again from where it lies
+            both.rise(HOVER, "rise to grasp again", TOLERANT)
         else:
             raise OracleFailed(f"{name}: not held by both grippers after {GRASP_TRIES} grasps")
         res = call("move_both_delta", left_delta=[0.0, 0.0, LIFT_M], right_delta=[0.0, 0.0, LIFT_M])

@@ -30,15 +30,12 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body, Box, Material, Shape
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, Box, Material, SceneSpec, Shape
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, srgb, table_top_z, vec,
-                      yaw_of)
-from ..oracle import OracleFailed, closest_opening, expect, tcp_quat, top_down_quat, yaw_axis
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, srgb, vec, yaw_of
+from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis
 
-NAME = "handover_block"
 BLOCK_HALF = (0.03, 0.03, 0.10)
 BLOCK_SPAWN_Z = 0.842  # FACTS B.6: 2 mm above the table top for the 0.10 half-height
 BLOCK_BASE_QUAT = (0.981, 0.0, 0.0, 0.195)
@@ -91,12 +88,10 @@ class HandoverBlockVerifier(Verifier):
 
 
 class HandoverBlock(CodeActionTask):
-    name = NAME
+    verifier_class = HandoverBlockVerifier
+    subgoal_predicates = (("block_on_pad",),)
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         block_pose = rand_pose(rng, (-0.25, -0.05), (0.0, 0.25), (BLOCK_SPAWN_Z,), rotate_rand=True,
                                rotate_lim=(0.0, 0.0, BLOCK_YAW_RAND), qpos=BLOCK_BASE_QUAT)
         pad_pose = rand_pose(rng, (0.1, 0.25), (0.15, 0.20), (top + PAD_HALF[2],))
@@ -105,9 +100,6 @@ class HandoverBlock(CodeActionTask):
         scene.bodies.append(Body("pad", [Shape(Box(PAD_HALF), material=PAD_BLUE)], pose=tuple(pad_pose),
                                  kind="static"))
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "xy_tolerance": XY_TOL,
             "z_tolerance": Z_TOL,
             "gripper_open_threshold": GRIPPER_OPEN,
@@ -133,16 +125,9 @@ class HandoverBlock(CodeActionTask):
             "grasp_arm": "left",
             "place_arm": "right",
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return HandoverBlockVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        ev = HandoverBlockVerifier(w.info).evaluate(w)
-        return [ev.predicates["block_on_pad"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         b, p = info["block"], info["pad"]
         left_g = np.asarray(b["left_grasp_point"], float)
@@ -169,19 +154,7 @@ class HandoverBlock(CodeActionTask):
         info = world.info
         b, p = info["block"], info["pad"]
         name = b["name"]
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
-
-        def move(arm, d, what, ok=("SUCCESS",)):
-            return expect(call("move_delta", arm=arm, dx=float(d[0]), dy=float(d[1]), dz=float(d[2])), what, ok)
-
-        def reach(arm, xyz, quat, what, ok=("SUCCESS",)):
-            args = {"arm": arm, "target_xyz": [float(v) for v in xyz]}
-            if quat is not None:
-                args["target_quat"] = [float(v) for v in quat]
-            return expect(call("reach_tcp", **args), what, ok)
-
-        def grip(arm, pos):
-            return expect(call("set_gripper", arm=arm, pos=float(pos)), "set_gripper")
+        left, right = Hands(call, "left"), Hands(call, "right")
 
         # 1. left arm: top-down onto the block's top, fingers across two faces
         pose = world.pose(name)
@@ -191,17 +164,17 @@ class HandoverBlock(CodeActionTask):
         # turn the gripper down well behind the block (a planned path may sweep through anything
         # near it), then slide over it and go straight down
         hover = g + [0.0, 0.0, 0.16]
-        reach("left", hover + [0.0, -0.15, 0.0], q, "behind and above the block")
-        move("left", hover - world.tcp_pose("left")[:3], "over the block")
-        move("left", g - world.tcp_pose("left")[:3], "down onto the block")
-        grip("left", 0.0)
-        move("left", (0.0, 0.0, 0.10), "lift", ok=tolerant)
+        left.reach(hover + [0.0, -0.15, 0.0], q, "behind and above the block")
+        left.move_to(world, hover, "over the block")
+        left.move_to(world, g, "down onto the block")
+        left.grip(0.0)
+        left.move(dz=0.10, what="lift", ok=TOLERANT)
 
         # 2. to the handover point, the block turned square to the world axes (opening along x)
         hc = np.asarray(info["handover_centre"], float)
         held = world.pose(name)
         up = np.asarray(transform_point(held, b["left_grasp_point"]), float) - held[:3]
-        reach("left", hc + [0.0, 0.0, float(np.linalg.norm(up))], top_down_quat([1.0, 0.0, 0.0]), "to the handover")
+        left.reach(hc + [0.0, 0.0, float(np.linalg.norm(up))], top_down_quat([1.0, 0.0, 0.0]), "to the handover")
 
         # 3. right arm: from the front round the lower part, fingers open along the block's face
         # line nearest to x (the block may have turned a little in the left hand); the left lets go
@@ -214,28 +187,28 @@ class HandoverBlock(CodeActionTask):
             approach = np.array([-opening[1], opening[0], 0.0])  # horizontal, at right angles
             approach = approach if approach[1] > 0 else -approach
             low = transform_point(held, b["right_grasp_point"])
-            reach("right", low - 0.10 * approach, tcp_quat(approach, opening), "in front of the block")
+            right.reach(low - 0.10 * approach, tcp_quat(approach, opening), "in front of the block")
             low = transform_point(world.pose(name), b["right_grasp_point"])  # it may have swung meanwhile
-            move("right", low - world.tcp_pose("right")[:3], "round the block", ok=tolerant)
-            grip("right", 0.0)
+            right.move_to(world, low, "round the block", ok=TOLERANT)
+            right.grip(0.0)
             if world.gripper_holds("right", name):
                 break
-            grip("right", 1.0)
-            move("right", -0.10 * approach, "back off to aim again", ok=tolerant)
+            right.grip(1.0)
+            right.move(*(-0.10 * approach), what="back off to aim again", ok=TOLERANT)
         else:
             raise OracleFailed("the right hand did not get hold of the block in three tries")
-        grip("left", 1.0)
-        move("left", (0.0, 0.0, 0.10), "left hand up", ok=tolerant)
+        left.grip(1.0)
+        left.move(dz=0.10, what="left hand up", ok=TOLERANT)
 
         # 4. right arm: over the pad, down until the block stands on it, let go, back off
         pad_top = transform_point(world.pose(p["name"]), p["top_point"])
         cur = world.pose(name)
         off = world.tcp_pose("right")[:3] - transform_point(cur, b["bottom_point"])
         target = pad_top + off + [0.0, 0.0, 0.004]
-        reach("right", target + [0.0, 0.0, 0.04], None, "over the pad")
-        move("right", target - world.tcp_pose("right")[:3], "set down", ok=tolerant)
-        grip("right", 1.0)
-        move("right", (0.0, -0.10, 0.02), "back off", ok=tolerant)
+        right.reach(target + [0.0, 0.0, 0.04], None, "over the pad")
+        right.move_to(world, target, "set down", ok=TOLERANT)
+        right.grip(1.0)
+        right.move(dy=-0.10, dz=0.02, what="back off", ok=TOLERANT)
         if not world.gripper_command("right") > GRIPPER_OPEN:
             raise OracleFailed("right gripper not open")
         call("done", report="left arm picked the block and handed it to the right arm, which stood it on the "

@@ -31,15 +31,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_handover import microphone
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
-from ..oracle import OracleFailed, expect, tcp_quat, top_down_quat
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until
+from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, top_down_quat
 
-NAME = "handover_mic"
 MODEL_IDS = (0, 4, 5)
 RAISED_Z = 0.92
 GRIPPER_OPEN = 0.8
@@ -96,12 +94,10 @@ class HandoverMicVerifier(Verifier):
 
 
 class HandoverMic(CodeActionTask):
-    name = NAME
+    verifier_class = HandoverMicVerifier
+    subgoal_predicates = (("on_receiver_side",), ("raised", "on_receiver_side", "gripper_contact"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         model_id = int(rng.choice(MODEL_IDS))
         pose = sample_until(lambda: rand_pose(rng, (-0.2, 0.2), (-0.05, 0.0)), lambda p: abs(p[0]) >= 0.15,
                             what="the microphone")
@@ -111,9 +107,6 @@ class HandoverMic(CodeActionTask):
         grasp_arm = "right" if pose[0] > 0 else "left"
         receiver = "left" if grasp_arm == "right" else "right"
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "raised_z": RAISED_Z,
             "gripper_open_threshold": GRIPPER_OPEN,
             "gripper_closed_threshold": GRIPPER_CLOSED,
@@ -129,16 +122,9 @@ class HandoverMic(CodeActionTask):
             },
             "handover_base": list(HANDOVER_BASE),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return HandoverMicVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = HandoverMicVerifier(w.info).evaluate(w).predicates
-        return [p["on_receiver_side"], p["raised"] and p["on_receiver_side"] and p["gripper_contact"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         m = info["microphone"]
         handle = np.asarray(m["handle_point"], float)
@@ -161,40 +147,24 @@ class HandoverMic(CodeActionTask):
         name = m["name"]
         ga, ra = info["grasp_arm"], info["receiver_arm"]
         side = 1.0 if ra == "right" else -1.0
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
-
-        def move(arm, d, what, ok=("SUCCESS",)):
-            return expect(call("move_delta", arm=arm, dx=float(d[0]), dy=float(d[1]), dz=float(d[2])), what, ok)
-
-        def reach(arm, xyz, quat, what, ok=("SUCCESS",)):
-            args = {"arm": arm, "target_xyz": [float(v) for v in xyz]}
-            if quat is not None:
-                args["target_quat"] = [float(v) for v in quat]
-            return expect(call("reach_tcp", **args), what, ok)
-
-        def grip(arm, pos):
-            return expect(call("set_gripper", arm=arm, pos=float(pos)), "set_gripper")
+        grasper, receiver = Hands(call, ga), Hands(call, ra)
 
         # 1. grasping arm: from the front round the handle (fingers open along x), lift it to the
         # handover point
         h = transform_point(world.pose(name), m["handle_point"])
         forward = tcp_quat([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0])
-        reach(ga, h + [0.0, -0.10, 0.0], forward, "in front of the handle")
-        move(ga, h - world.tcp_pose(ga)[:3], "round the handle")
-        grip(ga, 0.0)
+        grasper.grasp_from(world, h + [0.0, -0.10, 0.0], forward, h, "the handle")
         base_now = transform_point(world.pose(name), [0.0, 0.0, 0.0])
-        move(ga, np.asarray(info["handover_base"], float) - base_now, "to the handover point", ok=tolerant)
+        grasper.move(*(np.asarray(info["handover_base"], float) - base_now), what="to the handover point", ok=TOLERANT)
 
         # 2. receiving arm: top-down onto the head (from above, straight down), close
         head = transform_point(world.pose(name), m["head_grasp_point"])
-        reach(ra, head + [0.0, 0.0, 0.10], top_down_quat([1.0, 0.0, 0.0]), "above the head")
-        move(ra, head - world.tcp_pose(ra)[:3], "onto the head")
-        grip(ra, 0.0)
+        receiver.grasp_from(world, head + [0.0, 0.0, 0.10], top_down_quat([1.0, 0.0, 0.0]), head, "the head")
 
         # 3. hand over: the grasping arm lets go and backs off; the receiver carries it to its side
-        grip(ga, 1.0)
-        move(ga, (0.0, -0.10, 0.0), "back off", ok=tolerant)
-        move(ra, (side * 0.15, 0.0, 0.03), "to the receiver's side", ok=tolerant)
+        grasper.grip(1.0)
+        grasper.move(dy=-0.10, what="back off", ok=TOLERANT)
+        receiver.move(dx=side * 0.15, dz=0.03, what="to the receiver's side", ok=TOLERANT)
         if not world.gripper_touches(ra, name):
             raise OracleFailed("the receiver does not hold the microphone")
         call("done", report=f"the {ga} arm picked up the microphone and handed it to the {ra} arm, which holds it "

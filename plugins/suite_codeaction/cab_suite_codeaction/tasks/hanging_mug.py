@@ -35,16 +35,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_to_mat, transform_point
-from cab_core.contracts.scene import Body, Cylinder, Material, Shape, Sphere, cache_dir
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, Cylinder, Material, SceneSpec, Shape, Sphere, cache_dir
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
 
 from ..assets_organise import Vessel, revolved, rod, tilt_correction, vessel_collision, visual, x_to
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, srgb, table_top_z, vec,
-                      yaw_of)
-from ..oracle import Hands, OracleFailed, top_down_quat
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, srgb, vec, yaw_of
+from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat
 
-NAME = "hanging_mug"
 
 # --- the mug, in its frame: origin at the bottom centre, +z up the axis, handle along +x -------------
 MUG = Vessel(r_bottom=0.039, r_rim=0.041, height=0.095, wall=0.004, base=0.006)
@@ -173,18 +170,16 @@ class HangingMugVerifier(Verifier):
 
 
 class HangingMug(CodeActionTask):
-    name = NAME
+    verifier_class = HangingMugVerifier
+    subgoal_predicates = (("mug_at_peg", "mug_high"),)
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        colour_id = int(rng.integers(0, len(MUG_COLOURS)))
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        colour_id, colour = draw_variant(rng, MUG_COLOURS)
         handle_back = tuple(float(c) for c in axis_angle_quat([0, 0, 1], np.pi / 2))  # local +x -> world +y
         mug_pose = rand_pose(rng, (-0.25, -0.1), (-0.05, 0.05), (top + 0.0005,), ylim_prop=True, rotate_rand=True,
                              rotate_lim=(0.0, 0.0, 1.57), qpos=handle_back)
         rack_pose = rand_pose(rng, (0.1, 0.3), (0.13, 0.17), (top,), rotate_rand=True, rotate_lim=(0.0, 0.0, 0.2))
-        scene = base_scene()
-        scene.bodies.append(Body("mug", list(mug_shapes(MUG_COLOURS[colour_id], str(cache_dir()))),
+        scene.bodies.append(Body("mug", list(mug_shapes(colour, str(cache_dir()))),
                                  pose=tuple(mug_pose), kind="dynamic", mass=MUG_MASS,
                                  linear_damping=MUG_LINEAR_DAMPING, angular_damping=MUG_ANGULAR_DAMPING))
         scene.bodies.append(Body("rack", rack_shapes(), pose=tuple(rack_pose), kind="static"))
@@ -196,14 +191,11 @@ class HangingMug(CodeActionTask):
         on_peg = np.asarray(PEG_ROOT) + HANG_ALONG * np.asarray(PEG_DIR) + [0.0, 0.0, PEG_R]  # rack frame
         hang_tcp = on_peg + [0.0, rim_to_point[0], rim_to_point[2]] - 0.5 * np.asarray(PEG_TIP)  # handle along +y
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "mug": {
                 "name": "mug",
                 "frame": "origin at the centre of the mug's bottom, +z up its axis, +x toward the handle",
                 "colour_id": colour_id,
-                "colour_srgb": list(MUG_COLOURS[colour_id]),
+                "colour_srgb": list(colour),
                 "pose": pose_list(mug_pose),
                 "handle_yaw": round(yaw_of(mug_pose[3:]), 6),
                 "outer_radius": MUG.r_rim,
@@ -244,16 +236,9 @@ class HangingMug(CodeActionTask):
             "min_hang_point_z": MIN_Z,
             "gripper_open_threshold": GRIPPER_OPEN,
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return HangingMugVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = HangingMugVerifier(w.info).evaluate(w).predicates
-        return [p["mug_at_peg"] and p["mug_high"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Approach: the TCP at the reference pinch height over the mug, within 5 cm of its axis
         (the rim is 3.9 cm from it). Hanging: the TCP within 3 cm of where the reference's is when
@@ -283,7 +268,6 @@ class HangingMug(CodeActionTask):
         top = float(info["table_top_z"])
         r_g = float(m["rim_mid_radius"])
         grasp_dz = float(m["grasp_tcp_dz"])
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
 
         def handle_angle() -> float:
             return yaw_of(world.pose(m["name"])[3:])
@@ -305,7 +289,7 @@ class HangingMug(CodeActionTask):
         radial = np.array([np.cos(phi), np.sin(phi), 0.0])
         q = top_down_quat(radial)
         left.grip(PINCH_OPEN)
-        left.reach(world.tcp_pose("left")[:3] + [0.0, 0.0, 0.04], q, "turn the gripper down")
+        left.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
         c = np.asarray(world.pose(m["name"])[:3], float)
         left.pick(c + r_g * radial + [0.0, 0.0, grasp_dz], q, lift=0.10)
         tcp = world.tcp_pose("left")
@@ -314,15 +298,8 @@ class HangingMug(CodeActionTask):
         q_place = mat_to_quat(turn @ quat_to_mat(tcp[3:]))
         target = np.array([mid[0], mid[1], top - PRESS])
         tcp_target = target - turn @ (np.asarray(pose[:3], float) - tcp[:3])
-        left.reach(tcp_target + [0.0, 0.0, HOVER], q_place, "turn the mug over the middle")
-        left.descend_to(tcp_target[2], "set the mug down", ok=tolerant)
-        left.grip(1.0)
-        left.move(dz=0.08, what="withdraw", ok=tolerant)
-        r1 = left.move(dx=float(np.clip(-PARK_X - world.tcp_pose("left")[0], -0.3, 0.3)), dy=-0.05, dz=0.05,
-                       what="clear the middle", ok=tolerant)
-        if r1["status"] == "FAILED":
-            now = world.tcp_pose("left")
-            left.reach([-PARK_X, now[1] - 0.05, now[2] + 0.08], None, "clear the middle", ok=tolerant)
+        left.place(tcp_target, q_place, retreat=0.08)  # turned over the middle, set down
+        left.park(world, -PARK_X, "clear the middle")
 
         # 2. right arm: pinch opposite the handle, hang the mug on the peg
         right = Hands(call, "right", hover=HOVER)
@@ -331,7 +308,7 @@ class HangingMug(CodeActionTask):
         radial = np.array([np.cos(phi), np.sin(phi), 0.0])
         q = top_down_quat(radial)
         right.grip(PINCH_OPEN)
-        right.reach(world.tcp_pose("right")[:3] + [0.0, 0.0, 0.04], q, "turn the gripper down")
+        right.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
         right.pick(np.asarray(pose[:3], float) + r_g * radial + [0.0, 0.0, grasp_dz], q, lift=0.10)
         tcp = world.tcp_pose("right")
         hole = transform_point(world.pose(m["name"]), m["handle_opening_centre"])
@@ -340,15 +317,15 @@ class HangingMug(CodeActionTask):
         length = float(r["peg_length"])
         start = root + (length + BEYOND_TIP) * peg_dir
         right.reach(start - offset + [0.0, 0.0, 0.05], None, "above the peg's tip")
-        right.move(dz=-0.05, what="down to the peg's line", ok=tolerant)
+        right.move(dz=-0.05, what="down to the peg's line", ok=TOLERANT)
         now = world.tcp_pose("right")[:3] + offset
         right.move(*(root + float(r["hang_along"]) * peg_dir - now), what="slide the handle onto the peg",
-                   ok=tolerant)
+                   ok=TOLERANT)
         opening_half = 0.5 * float(m["handle_opening_size_xz"][1])
         right.move(dz=-(opening_half - float(r["peg_radius"]) + 0.002), what="rest the handle on the peg",
-                   ok=tolerant)
+                   ok=TOLERANT)
         right.grip(1.0)
-        right.move(dy=-0.03, dz=0.08, what="withdraw", ok=tolerant)
+        right.move(dy=-0.03, dz=0.08, what="withdraw", ok=TOLERANT)
         if not np.isfinite(offset).all():
             raise OracleFailed("lost the mug")
         call("done", report="turned the mug with the left arm and hung it on the rack's peg with the right arm",

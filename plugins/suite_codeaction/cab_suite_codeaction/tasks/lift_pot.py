@@ -31,15 +31,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
 from ..assets_pots import POT_VARIANTS, pot_geometry, pot_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of
-from ..oracle import OracleFailed, closest_opening, expect, top_down_quat, yaw_axis
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of
+from ..oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
 
-NAME = "lift_pot"
 MODEL_IDS = (0, 1)
 RAISED_Z = 0.82  # absolute (table top 0.74)
 HANDLE_TOLERANCE = 0.03
@@ -81,23 +79,18 @@ class LiftPotVerifier(Verifier):
 
 
 class LiftPot(CodeActionTask):
-    name = NAME
+    verifier_class = LiftPotVerifier
+    subgoal_predicates = (("left_at_handle",), ("right_at_handle",), ("pot_raised",),
+                          ("pot_raised", "left_at_handle", "right_at_handle", "pot_upright"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        model_id = int(MODEL_IDS[int(rng.integers(0, len(MODEL_IDS)))])
-        v = POT_VARIANTS[model_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        model_id, v = draw_variant(rng, POT_VARIANTS, MODEL_IDS)
         pose = rand_pose(rng, (-0.05, 0.05), (-0.05, 0.05), (top + 2e-4,), rotate_rand=True,
                          rotate_lim=(0.0, 0.0, np.pi / 8))
-        scene = base_scene()
         scene.bodies.append(Body("pot", pot_shapes(v, model_id), pose=tuple(pose), kind="dynamic", mass=v.mass,
                                  angular_damping=0.1))
         g = pot_geometry(v)
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "raised_z": RAISED_Z,
             "handle_tolerance": HANDLE_TOLERANCE,
             "upright_dot": UPRIGHT_DOT,
@@ -119,16 +112,9 @@ class LiftPot(CodeActionTask):
             },
             "handle_arms": ["left", "right"],  # contact point 0 for the left arm, 1 for the right
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return LiftPotVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = LiftPotVerifier(w.info).evaluate(w).predicates
-        return [p["left_at_handle"], p["right_at_handle"], p["pot_raised"], all(p.values())]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         p = info["pot"]
         name = p["name"]
@@ -137,12 +123,10 @@ class LiftPot(CodeActionTask):
             # the oracle's TCP sits on the handle's centre (TCP-to-object offset 0)
             return lambda w: transform_point(w.pose(name), p["handle_points"][i])
 
-        lift = max(0.0, 100.0 * (float(info["raised_z"]) - float(p["initial_z"])))
         return [
             SpatialRule("Approach left handle", "left", handle(0), cylinder(2.0, 3.0)),
             SpatialRule("Approach right handle", "right", handle(1), cylinder(2.0, 3.0)),
-            SpatialRule("Lift left", "left", None, None, prerequisites=(0,), lift_above_cm=lift),
-            SpatialRule("Lift right", "right", None, None, prerequisites=(1,), lift_above_cm=lift),
+            *lift_rules(info, p["initial_z"]),
         ]
 
     # --- reference solution ----------------------------------------------------------------------------
@@ -155,14 +139,13 @@ class LiftPot(CodeActionTask):
         tangent = yaw_axis(pose[3:], (0.0, 1.0, 0.0))  # the handles' width runs along the pot's y
         q = {arm: top_down_quat(closest_opening(world.tcp_pose(arm)[3:], [tangent])) for arm in ("left", "right")}
         hover = 0.20  # measured: from 0.16 the wrist turning to top-down still grazes the pot
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
-        expect(call("reach_both_tcp", left_xyz=vec(h[0] + [0, 0, hover]), right_xyz=vec(h[1] + [0, 0, hover]),
-                    left_quat=vec(q["left"]), right_quat=vec(q["right"])), "hover above the handles")
-        now = {arm: world.tcp_pose(arm)[:3] for arm in ("left", "right")}
-        expect(call("move_both_delta", left_delta=vec(h[0] - now["left"]), right_delta=vec(h[1] - now["right"])),
-               "down onto the handles", tolerant)
-        for arm in ("left", "right"):
-            expect(call("set_gripper", arm=arm, pos=0.0), f"close {arm}")
+        both = BothHands(call)
+        both.reach({"left": vec(h[0] + [0, 0, hover]), "right": vec(h[1] + [0, 0, hover])},
+                   {a: vec(q[a]) for a in both.ARMS}, "hover above the handles")
+        now = {arm: world.tcp_pose(arm)[:3] for arm in both.ARMS}
+        both.move({"left": vec(h[0] - now["left"]), "right": vec(h[1] - now["right"])}, "down onto the handles",
+                  TOLERANT)
+        both.grip(0.0, "close")
         r = call("move_both_delta", left_delta=[0.0, 0.0, LIFT_M], right_delta=[0.0, 0.0, LIFT_M])
         if r.get("status") is None:
             raise OracleFailed(f"lift: {r}")

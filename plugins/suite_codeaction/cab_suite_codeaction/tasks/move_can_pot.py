@@ -37,16 +37,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_below, margin_within
 
 from ..assets_pots import CAN_VARIANTS, POT_VARIANTS, can_geometry, can_shapes, pot_geometry, pot_shapes
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
-                      vec, yaw_of)
-from ..oracle import Hands, top_down_quat
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, draw_variant, pose_list, rand_pose,
+                      sample_until, vec, yaw_of)
+from ..oracle import TOLERANT, Hands, top_down_quat
 
-NAME = "move_can_pot"
 POT_IDS = tuple(range(len(POT_VARIANTS)))
 CAN_IDS = tuple(sorted(CAN_VARIANTS))
 UPRIGHT_Q = (math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)  # can axis (local +y) -> world +z
@@ -71,8 +69,8 @@ def euler_sxyz(q) -> tuple[float, float, float]:
     return (math.atan2(-m[1, 2], m[1, 1]), math.atan2(-m[2, 0], cy), 0.0)
 
 
-class MoveCanPotVerifier(Verifier):
-    scoring = "final"
+class MoveCanPotVerifier(GrippersOpenVerifier):
+    open_threshold = GRIPPER_OPEN  # both arms'
 
     def __init__(self, info: dict[str, Any]):
         self.pot = info["pot"]["name"]
@@ -82,20 +80,18 @@ class MoveCanPotVerifier(Verifier):
         self.guarded_objects = (self.can, self.pot)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
         pot = w.pose(self.pot)
         can = w.pose(self.can)
         dis = self.sign * float(can[0] - pot[0])
         dy = float(pot[1] - can[1])
         ax, ay, _ = euler_sxyz(can[3:])
-        grips = {a: w.gripper_command(a) for a in ("left", "right")}
         preds = {
             "on_start_side": dis > 0.0,
             "near_pot": dis < MAX_DIS,
             "aligned_with_pot": abs(dy) < ALIGN_TOL,
             "can_upright": abs(ax - math.pi / 2) < ANGLE_TOL and abs(ay) < ANGLE_TOL,
             "set_down": float(can[2]) <= self.pot_z0 + SET_DOWN_TOL,
-            "grippers_open": all(g > GRIPPER_OPEN for g in grips.values()),
         }
         # the band 0 < dis < MAX_DIS is what both side predicates are judged against
         margins = {
@@ -104,25 +100,21 @@ class MoveCanPotVerifier(Verifier):
             "aligned_with_pot": margin_within([dy], ALIGN_TOL, "m"),
             "can_upright": margin_within([ax - math.pi / 2, ay], ANGLE_TOL, "rad"),
             "set_down": margin_below(float(can[2]), self.pot_z0 + SET_DOWN_TOL, "m", SET_DOWN_TOL),
-            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                          for g in grips.values())),
         }
-        return Evaluation(success=all(preds.values()), predicates=preds,
-                          values={"dis": dis, "dy": dy, "can_euler_x_deg": math.degrees(ax),
-                                  "can_euler_y_deg": math.degrees(ay), "can_z": float(can[2]),
-                                  "gripper_left": grips["left"], "gripper_right": grips["right"]},
-                          margins=margins)
+        values = {"dis": dis, "dy": dy, "can_euler_x_deg": math.degrees(ax), "can_euler_y_deg": math.degrees(ay),
+                  "can_z": float(can[2])}
+        return preds, values, margins
 
 
 class MoveCanPot(CodeActionTask):
-    name = NAME
+    verifier_class = MoveCanPotVerifier
+    # (1) beside the pot; (2) beside it, upright and set down
+    subgoal_predicates = (("on_start_side", "near_pot", "aligned_with_pot"),
+                          ("on_start_side", "near_pot", "aligned_with_pot", "can_upright", "set_down"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        pot_id = int(POT_IDS[int(rng.integers(0, len(POT_IDS)))])
-        can_id = int(CAN_IDS[int(rng.integers(0, len(CAN_IDS)))])
-        pv, cv = POT_VARIANTS[pot_id], CAN_VARIANTS[can_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        pot_id, pv = draw_variant(rng, POT_VARIANTS, POT_IDS)
+        can_id, cv = draw_variant(rng, CAN_VARIANTS, CAN_IDS)
         z = top + 2e-4
         pot_pose = rand_pose(rng, (0.0,), (0.0,), (z,), rotate_rand=True, rotate_lim=(0.0, 0.0, np.pi / 8))
         can_pose = sample_until(
@@ -130,7 +122,6 @@ class MoveCanPot(CodeActionTask):
                               rotate_lim=(0.0, np.pi / 4, 0.0), qpos=UPRIGHT_Q),
             lambda p: abs(p[0]) >= 0.2 and math.hypot(p[0] - pot_pose[0], p[1] - pot_pose[1]) >= 0.3,
             what="the can")
-        scene = base_scene()
         scene.bodies.append(Body("pot", pot_shapes(pv, pot_id), pose=tuple(pot_pose), kind="dynamic", mass=pv.mass,
                                  angular_damping=0.1))
         scene.bodies.append(Body("can", can_shapes(cv), pose=tuple(can_pose), kind="dynamic", mass=cv.mass,
@@ -138,9 +129,6 @@ class MoveCanPot(CodeActionTask):
         pg, cg = pot_geometry(pv), can_geometry(cv)
         arm = "left" if can_pose[0] < 0 else "right"
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "arm": arm,  # the can's side; the verifier measures "beside" toward this side
             "max_dis": MAX_DIS,
             "align_tolerance": ALIGN_TOL,
@@ -177,17 +165,9 @@ class MoveCanPot(CodeActionTask):
             "place_dis": PLACE_DIS,
             "place_tcp_above_base": round(cg["height"] - GRASP_BELOW_TOP + RELEASE_DROP, 6),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return MoveCanPotVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = MoveCanPotVerifier(w.info).evaluate(w).predicates
-        beside = p["on_start_side"] and p["near_pot"] and p["aligned_with_pot"]
-        return [beside, beside and p["can_upright"] and p["set_down"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         can, pot = info["can"], info["pot"]
         sign = -1.0 if info["arm"] == "left" else 1.0
@@ -216,21 +196,20 @@ class MoveCanPot(CodeActionTask):
         arm = info["arm"]
         can, pot = info["can"], info["pot"]
         hands = Hands(call, arm)
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         q = top_down_quat([0.0, 1.0, 0.0])
         grasp = transform_point(world.pose(can["name"]), can["grasp_local"])
         # turn the wrist to top-down where the gripper is (a planned reach that turns it on the way
         # can sweep the fingers through the can: measured), then travel straight to the hover
-        hands.reach(world.tcp_pose(arm)[:3], q, "turn the gripper top-down")
+        hands.turn_in_place(world, q, what="turn the gripper top-down")
         hover = grasp + [0.0, 0.0, 0.16]
         for _ in range(3):  # a move covers at most 0.30 m
             d = hover - world.tcp_pose(arm)[:3]
             if np.linalg.norm(d) < 0.005:
                 break
-            hands.move(*d, what="over the can", ok=tolerant)
-        hands.move(dz=grasp[2] - world.tcp_pose(arm)[2], what="descend onto the can", ok=tolerant)
+            hands.move(*d, what="over the can", ok=TOLERANT)
+        hands.move_to_height(world, grasp[2], "descend onto the can", ok=TOLERANT)
         hands.grip(0.0)
-        hands.move(dz=0.15, what="lift the can", ok=tolerant)
+        hands.move(dz=0.15, what="lift the can", ok=TOLERANT)
         p = world.pose(pot["name"])
         sign = -1.0 if arm == "left" else 1.0
         # where the TCP must be for the can's base to end 3 mm above the table: keep the measured
@@ -239,9 +218,9 @@ class MoveCanPot(CodeActionTask):
         base_z = float(pot["initial_z"]) + RELEASE_DROP
         target = np.array([p[0] + sign * PLACE_DIS, p[1], base_z]) - held
         hands.reach(target + [0.0, 0.0, 0.10], None, "carry beside the pot")
-        hands.move(dz=target[2] - world.tcp_pose(arm)[2], what="set the can down", ok=tolerant)
+        hands.move_to_height(world, target[2], "set the can down", ok=TOLERANT)
         hands.grip(1.0)
-        hands.move(dz=0.10, what="rise", ok=tolerant)
+        hands.move(dz=0.10, what="rise", ok=TOLERANT)
         call("done", report=f"set the can down upright {PLACE_DIS:.2f} m {arm} of the pot, level with it",
              success_claim=True)
 

@@ -29,16 +29,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import ArticulatedObject
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_any, margin_below
 
-from ..assets_articulated import (LAPTOP_VARIANTS, LID_UPPER, HINGE_DAMPING, HINGE_FRICTION, laptop_geometry,
+from ..assets_articulated import (HINGE_DAMPING, HINGE_FRICTION, LAPTOP_VARIANTS, LID_UPPER, laptop_geometry,
                                   laptop_urdf, lid_rotation)
-from ..common import CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, urdf_asset, vec, yaw_of
-from ..oracle import Hands, tcp_quat
+from ..common import CodeActionTask, arm_names, draw_variant, pose_list, rand_pose, urdf_asset, vec, yaw_of
+from ..oracle import TOLERANT, Hands, tcp_quat
 
-NAME = "open_laptop_setup_arm"
 START_FRACTION = 0.2
 OPEN_FRACTION = 0.4
 EDGE_TOLERANCE = 0.1  # m, TCP to the lid's front-edge centre
@@ -111,18 +109,15 @@ class OpenLaptopVerifier(Verifier):
 
 
 class OpenLaptopSetupArm(CodeActionTask):
-    name = NAME
+    verifier_class = OpenLaptopVerifier
+    subgoal_predicates = (("lid_open",), ("lid_open", "gripper_at_lid_edge"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        model_id = int(rng.integers(0, len(LAPTOP_VARIANTS)))
-        v = LAPTOP_VARIANTS[model_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        model_id, v = draw_variant(rng, LAPTOP_VARIANTS)
         pose = rand_pose(rng, (-0.05, 0.05), (-0.1, 0.05), (top,), rotate_rand=True,
                          rotate_lim=(0.0, 0.0, np.pi / 3))
         q0 = START_FRACTION * LID_UPPER
         urdf = urdf_asset(f"laptop{model_id}", laptop_urdf(v))
-        scene = base_scene()
         scene.articulations.append(ArticulatedObject(
             "laptop", urdf, pose=tuple(pose), fix_root=True, qpos=(q0,),
             joint_friction=HINGE_FRICTION, joint_damping=HINGE_DAMPING))
@@ -132,9 +127,6 @@ class OpenLaptopSetupArm(CodeActionTask):
         # the expert's approach point in the lid frame (it follows the lid): base -> lid at q0
         approach_lid = lid_rotation(q0).T @ (ex["approach"] - np.asarray(g["hinge_base"]))
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "open_fraction": OPEN_FRACTION,
             "edge_tolerance": EDGE_TOLERANCE,
             "arms": list(arm_names(embodiment)),
@@ -171,16 +163,9 @@ class OpenLaptopSetupArm(CodeActionTask):
             "expert": {"approach_tcp_lid": vec(approach_lid), "open_tcp_base": vec(ex["open"]),
                        "final_angle": FINAL_ANGLE},
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return OpenLaptopVerifier(instance.info)
+        return info
 
     # -- checkpoints --------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = OpenLaptopVerifier(w.info).evaluate(w).predicates
-        return [p["lid_open"], p["lid_open"] and p["gripper_at_lid_edge"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         lap = info["laptop"]
         approach_lid = np.asarray(info["expert"]["approach_tcp_lid"], float)
@@ -212,7 +197,6 @@ class OpenLaptopSetupArm(CodeActionTask):
         q0 = float(np.asarray(world.qpos(lap["name"]))[int(lap["lid_joint_index"])])
         approach = rot @ APPROACH_BASE
         hands = Hands(call, arm)
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
 
         def world_pt(p_base) -> np.ndarray:
             return transform_point(root, p_base)
@@ -222,11 +206,11 @@ class OpenLaptopSetupArm(CodeActionTask):
         quat = tcp_quat(approach, rot @ OPENING_BASE)
         hands.grip(0.0)
         hands.reach(start - STANDOFF * approach, quat, "in front of the lid edge")
-        hands.move(*(start - world.tcp_pose(arm)[:3]), what="under the lid edge")
+        hands.move_to(world, start, "under the lid edge")
         back = -TIP_AHEAD * APPROACH_BASE
         for q in PUSH_ANGLES:
             target = world_pt(_tip_base(depth, hinge, q) + back)
-            r = hands.move(*(target - world.tcp_pose(arm)[:3]), what="push the lid open", ok=tolerant)
+            r = hands.move_to(world, target, "push the lid open", ok=TOLERANT)
             if r["status"] != "SUCCESS":
                 break
         call("done", report=f"opened the laptop lid by pushing its front edge up with the {arm} gripper, "

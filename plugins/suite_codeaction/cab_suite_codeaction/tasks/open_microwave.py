@@ -28,16 +28,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import ArticulatedObject
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above
 
-from ..oracle import Hands, tcp_quat
-from ..common import (CodeActionTask, base_scene, box_inertia, hinged_urdf, pose_list, rand_pose, srgb,
-                      table_top_z, urdf_asset, urdf_inertial, urdf_part, vec)
+from ..oracle import TOLERANT, Hands, tcp_quat
+from ..common import (CodeActionTask, box_inertia, draw_variant, hinged_urdf, pose_list, rand_pose, srgb, urdf_asset,
+                      urdf_inertial, urdf_part, vec)
 
-NAME = "open_microwave"
 OPEN_FRACTION = 0.6
 DOOR_UPPER = 2.0  # rad (about 115 deg)
 JOINT_DAMPING = 0.3  # N m s / rad: the door stops within ~0.15 s of being let go (measured)
@@ -188,24 +186,19 @@ class OpenMicrowaveVerifier(Verifier):
 
 
 class OpenMicrowave(CodeActionTask):
-    name = NAME
+    verifier_class = OpenMicrowaveVerifier
+    # (1) the door at >= 60% of its upper joint limit
+    subgoal_predicates = (("door_open",),)
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        model_id = int(rng.integers(0, len(VARIANTS)))
-        v = VARIANTS[model_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        model_id, v = draw_variant(rng, VARIANTS)
         pose = rand_pose(rng, (-0.12, -0.02), (0.15, 0.20), (top,))
         urdf = urdf_asset(f"microwave{model_id}", microwave_urdf(v))
-        scene = base_scene()
         scene.articulations.append(ArticulatedObject(
             "microwave", urdf, pose=tuple(pose), fix_root=True, qpos=(0.0,),
             joint_friction=JOINT_FRICTION, joint_damping=JOINT_DAMPING))
         g = geometry(v)
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "microwave": {
                 "name": "microwave",
                 "model_id": model_id,
@@ -238,14 +231,7 @@ class OpenMicrowave(CodeActionTask):
                 "suggested_arm": "left",  # the handle sweeps to the left-front as the door opens
             },
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return OpenMicrowaveVerifier(instance.info)
-
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) door at >= 60% of its upper joint limit."""
-        return [OpenMicrowaveVerifier(w.info).evaluate(w).success]
+        return info
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """(1) Approach microwave: the expert's grasp of the handle bar (follows the door);
@@ -292,7 +278,6 @@ class OpenMicrowave(CodeActionTask):
         def door_q() -> float:
             return float(np.asarray(world.qpos(m["name"]))[int(m["door_joint_index"])])
 
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         forward, right, up = rot[:, 1], rot[:, 0], rot[:, 2]
         tip = 0.035  # fingertips ahead of the TCP
 
@@ -302,26 +287,25 @@ class OpenMicrowave(CodeActionTask):
         grasp = bar - 0.010 * forward
         puller.grip(1.0)
         puller.reach(grasp - 0.10 * forward, tcp_quat(forward, right), "in front of the handle")
-        puller.move(*(grasp - world.tcp_pose("left")[:3]), what="onto the handle")
+        puller.move_to(world, grasp, "onto the handle")
         puller.grip(0.0)
 
         # 2. pull along the bar's arc to 0.8 rad (the TCP keeps its offset from the bar axis; the
         # left arm runs out of reach at ~0.9 rad where the oven stands furthest left)
         offset = world.tcp_pose("left")[:3] - door_point(door_q(), handle_d)
         for q in (0.2, 0.4, 0.6, 0.8):
-            r = puller.move(*(door_point(q, handle_d) + offset - world.tcp_pose("left")[:3]),
-                            what="pull the door", ok=tolerant)
+            r = puller.move_to(world, door_point(q, handle_d) + offset, "pull the door", ok=TOLERANT)
             if r["status"] != "SUCCESS":
                 break
 
         # 3. let go and rise straight up: the open fingers pass either side of the bar's upper
         # post, and the gripper ends above the door's top
         puller.grip(1.0)
-        puller.move(*(0.20 * up), what="rise above the door", ok=tolerant)
+        puller.move(*(0.20 * up), what="rise above the door", ok=TOLERANT)
         # and on to the left, beyond the hinge: clear of the right arm's way to the door
         park = door_point(0.0, [-0.12, 0.0, 0.0])
         puller.move(*(right * float(np.dot(park - world.tcp_pose("left")[:3], right))), what="out of the way",
-                    ok=tolerant)
+                    ok=TOLERANT)
 
         # 4. right arm: fingertips pointing left (fingers spread vertically), from well in front
         # of the door to 4 cm right of its free edge, then in behind the door
@@ -331,10 +315,10 @@ class OpenMicrowave(CodeActionTask):
         edge = door_point(qd, [door_w, 0.0, mid])
         col = edge - left * (tip + 0.04)
         stage = col - 0.15 * forward
-        pusher.reach(stage, tcp_quat(left, up), "beside the free edge", ok=tolerant)
+        pusher.reach(stage, tcp_quat(left, up), "beside the free edge", ok=TOLERANT)
         inside = door_point(qd, [0.30, 0.06, mid])  # 6 cm behind the door's inner face
         into = col + forward * float(np.dot(inside - col, forward))
-        pusher.move(*(into - world.tcp_pose("right")[:3]), what="behind the door", ok=tolerant)
+        pusher.move_to(world, into, "behind the door", ok=TOLERANT)
 
         # 5. sweep the inner face open: fingertips along chords at 0.25 m from the hinge, 3 cm
         # inside the face (the door lags the chord's end angle by ~0.12 rad)
@@ -343,7 +327,7 @@ class OpenMicrowave(CodeActionTask):
         for q in (1.2, 1.65):
             for radius in (0.25, 0.17):
                 target = door_point(q, [radius, 0.03, mid]) - left * tip
-                r = pusher.move(*(target - world.tcp_pose("right")[:3]), what="push the door open", ok=tolerant)
+                r = pusher.move_to(world, target, "push the door open", ok=TOLERANT)
                 if r["status"] == "SUCCESS":
                     break
         call("done", report="opened the microwave door wide: pulled it by the handle, then pushed its inner "

@@ -30,14 +30,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import SceneSpec
 from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_within
 
 from ..assets_bins import DIVERSE_BOTTLES, bottle_body, bottle_info
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, yaw_of
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, yaw_of
 from ..oracle import Hands, tcp_quat, world_point
 
-NAME = "pick_diverse_bottles"
 TARGET_XY = {"bottle1": (-0.06, -0.105), "bottle2": (0.06, -0.105)}
 XY_TOLERANCE = 0.1
 MIN_Z = 0.89
@@ -82,18 +81,15 @@ class PickDiverseBottlesVerifier(Verifier):
 
 
 class PickDiverseBottles(CodeActionTask):
-    name = NAME
+    verifier_class = PickDiverseBottlesVerifier
+    subgoal_predicates = (("bottle1_xy", "bottle1_raised"), ("bottle2_xy", "bottle2_raised"),
+                          ("bottle1_xy", "bottle1_raised", "bottle2_xy", "bottle2_raised"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
-        info: dict[str, Any] = {"task": self.name, "seed": int(seed), "table_top_z": top,
-                                "target_xy": {k: list(v) for k, v in TARGET_XY.items()},
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        info: dict[str, Any] = {"target_xy": {k: list(v) for k, v in TARGET_XY.items()},
                                 "xy_tolerance": XY_TOLERANCE, "min_z": MIN_Z, "arm_of": dict(ARM_OF)}
         for key, xlim in (("bottle1", (-0.25, -0.05)), ("bottle2", (0.05, 0.25))):
-            model_id = int(rng.integers(0, len(DIVERSE_BOTTLES)))
-            style = DIVERSE_BOTTLES[model_id]
+            model_id, style = draw_variant(rng, DIVERSE_BOTTLES)
             pose = rand_pose(rng, xlim, (0.03, 0.23), (top + style.height / 2 + 0.001,), rotate_rand=True,
                              rotate_lim=(0.0, 0.0, 1.0))
             scene.bodies.append(bottle_body(key, style, f"bottle001-{model_id}", pose))
@@ -104,18 +100,9 @@ class PickDiverseBottles(CodeActionTask):
         info["hold_point"] = {k: list(v) for k, v in HOLD_POINT.items()}
         info["hold_tcp"] = {ARM_OF[k]: pose_list(_hold_tcp(info, k)) for k in ("bottle1", "bottle2")}
         info["grasp_short_m"] = GRASP_SHORT
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PickDiverseBottlesVerifier(instance.info)
+        return info
 
     # -- analysis -------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = PickDiverseBottlesVerifier(w.info).evaluate(w).predicates
-        first = p["bottle1_xy"] and p["bottle1_raised"]
-        second = p["bottle2_xy"] and p["bottle2_raised"]
-        return [first, second, first and second]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         def grasp_ref(key: str):
             b = info[key]
@@ -142,10 +129,7 @@ class PickDiverseBottles(CodeActionTask):
             arm = ARM_OF[key]
             hands = Hands(call, arm)
             g = _grasp_tcp(world.pose(b["name"]), b)
-            hands.reach(g - PRE_GRASP * fwd, q, "in front of the bottle")
-            hands.move(*(g - world.tcp_pose(arm)[:3]), what="around the bottle")
-            hands.grip(0.0)
-            hands.move(dz=0.08, what="lift", ok=("SUCCESS", "ABORTED", "FAILED"))
+            hands.grasp_from(world, g - PRE_GRASP * fwd, q, g, "the bottle", lift=0.08)
             held = world_point(world.pose(b["name"]), b["functional_point"]) - world.tcp_pose(arm)[:3]
             hands.reach(np.asarray(HOLD_POINT[key]) - held, None, "hold in front")
         call("done", report="holding both bottles up in front of the robot", success_claim=True)

@@ -30,15 +30,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_all, margin_within
 
-from ..assets_placing import BREAD_BASKET_MASS, BREAD_BASKETS, BREAD_MASS, bread_basket_shapes, bread_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
-from ..oracle import Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
+from ..assets_placing import BREAD_BASKETS, BREAD_BASKET_MASS, BREAD_MASS, bread_basket_shapes, bread_shapes
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose, yaw_of
+from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
 
-NAME = "place_bread_basket"
 BASKET_XY = (0.0, -0.2)
 BREAD_IDS = (0, 1, 3, 5, 6)
 N_BREADS = 2
@@ -49,7 +47,6 @@ GRIPPER_OPEN = 0.8
 FOOTPRINT_GAP = 0.01
 SLOT_GAP = 0.004  # between a placed bread's side and the basket's long axis
 TIP_BELOW_TCP = 0.0354  # fingertips ahead of the TCP (aloha_agilex)
-TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
 CORNER_R = 0.035  # a rectangular basket's floor corner radius (assets_placing.rounded_rect)
 SLOT_TURN = np.deg2rad(np.arange(-45.0, 45.1, 3.0))  # slot axes tried, from the basket's long axis
 FOOT_CLEAR = 0.008  # a bread's footprint (bounding box) inside the basket floor's outline
@@ -62,36 +59,6 @@ def grasp_tcp_dz(height: float, table_top: float, centre_z: float) -> float:
     """TCP height above the bread's centre for a top-down grasp: 1 cm above the centre, but the
     fingertips stay >= 3 mm above the table."""
     return float(max(0.010, table_top + TIP_BELOW_TCP + 0.003 - centre_z))
-
-
-def pick_top_down(call, world: WorldView, arm: str, name: str, dz: float, *, hover: float = 0.20,
-                  lift: float = 0.10, across=(0.0, 1.0, 0.0), quat=None) -> None:
-    """Open fingers across the object's ``across`` axis (or ``quat``), a planned reach to ``hover``
-    above the grasp (the planned path may dip several cm: keep it high), then straight down to the
-    TCP ``dz`` above the object's origin where the object is now (the reach may have nudged it),
-    close, lift straight up."""
-    hands = Hands(call, arm)
-    p = world.pose(name)
-    q = quat if quat is not None else top_down_quat(
-        closest_opening(world.tcp_pose(arm)[3:], [yaw_axis(p[3:], across)]))
-    hands.reach([p[0], p[1], p[2] + dz + hover], q, "hover above the object")
-    p = world.pose(name)
-    hands.move(*(np.array([p[0], p[1], p[2] + dz]) - world.tcp_pose(arm)[:3]), what="down to the grasp")
-    hands.grip(0.0)
-    hands.move(dz=lift, what="lift", ok=TOLERANT)
-
-
-def place_at(call, world: WorldView, arm: str, tcp_target, quat, *, refine=None, hover: float = 0.16,
-             retreat: float = 0.08, open_to: float = 1.0) -> None:
-    """A planned reach to ``hover`` above the TCP target, straight down to it (or to
-    ``refine()``, the target recomputed from the state once above it) stopping on contact, open,
-    straight up by ``retreat``."""
-    hands = Hands(call, arm)
-    hands.reach(np.asarray(tcp_target, float) + [0.0, 0.0, hover], quat, "above the place")
-    t = np.asarray(refine() if refine is not None else tcp_target, float)
-    hands.move(*(t - world.tcp_pose(arm)[:3]), what="down to the place", ok=TOLERANT)
-    hands.grip(open_to)
-    hands.move(dz=retreat, what="retreat", ok=TOLERANT)
 
 
 def _rect_corners(c: np.ndarray, half: np.ndarray, yaw: float) -> np.ndarray:
@@ -163,8 +130,8 @@ def slot_turn(bk: dict, basket_yaw: float, breads: list[dict], tol: float) -> fl
     return best
 
 
-class PlaceBreadBasketVerifier(Verifier):
-    scoring = "final"
+class PlaceBreadBasketVerifier(GrippersOpenVerifier):
+    open_threshold = GRIPPER_OPEN
 
     def __init__(self, info: dict[str, Any]):
         self.basket = info["basket"]["name"]
@@ -176,7 +143,7 @@ class PlaceBreadBasketVerifier(Verifier):
         self.guarded_objects = (*self.breads, self.basket)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
         b = np.asarray(w.pose(self.basket)[:3], dtype=float)
         preds: dict[str, bool] = {}
         values: dict[str, float] = {}
@@ -188,22 +155,13 @@ class PlaceBreadBasketVerifier(Verifier):
             values.update({f"bread{i}_dx": float(d[0]), f"bread{i}_dy": float(d[1]), f"bread{i}_z": float(p[2])})
             margins[f"bread{i}_in_basket"] = margin_all(margin_within(d[:2], self.tol, "m"),
                                                         margin_above(p[2], self.z_min, "m", self.z_scale))
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
-        margins["grippers_open"] = margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                                for g in grips.values()))
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
+        return preds, values, margins
 
 
 class PlaceBreadBasket(CodeActionTask):
-    name = NAME
+    verifier_class = PlaceBreadBasketVerifier
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
-
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         basket_id = int(rng.integers(0, len(BREAD_BASKETS)))
         bshapes, bdims = bread_basket_shapes(basket_id)
         bpose = rand_pose(rng, (BASKET_XY[0],), (BASKET_XY[1],), (top + 0.0005,), rotate_rand=True,
@@ -244,9 +202,6 @@ class PlaceBreadBasket(CodeActionTask):
         # expert release: the bread's bottom 4 mm above the basket floor, TCP at its grasp height
         release = [floor + 0.004 + b["size"][2] / 2 + b["grasp_tcp_dz"] for b in breads]
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "xy_tolerance": XY_TOLERANCE,
             "bread_min_z": round(top - Z_BELOW_TABLE, 6),
             "gripper_open_threshold": GRIPPER_OPEN,
@@ -262,16 +217,13 @@ class PlaceBreadBasket(CodeActionTask):
             "bread_frame": "bread body: centre of its bounding box, x along its length, y across (grasp), z up",
             "release_tcp_dz": round(float(np.mean(release)), 6) if release else None,
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PlaceBreadBasketVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------
     def subgoals(self, w: WorldView) -> list[bool]:
         """(1) first bread in the basket region, (2) second bread in the basket region (a missing
         bread counts as in place)."""
-        p = PlaceBreadBasketVerifier(w.info).evaluate(w).predicates
+        p = self.evaluate(w).predicates
         return [bool(p.get("bread0_in_basket", True)), bool(p.get("bread1_in_basket", True))]
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
@@ -326,11 +278,12 @@ class PlaceBreadBasket(CodeActionTask):
             return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1], 0.0])
 
         def pick(b: dict, arm: str, dz: float) -> None:
+            hands = Hands(call, arm)
             for _ in range(PICK_TRIES):
-                pick_top_down(call, world, arm, b["name"], dz)
+                hands.pick_top_down(world, b["name"], dz)
                 if world.gripper_holds(arm, b["name"]):
                     return
-                Hands(call, arm).grip(1.0)
+                hands.grip(1.0)
             raise OracleFailed(f"{b['name']}: not held after {PICK_TRIES} picks")
 
         placed_heights: dict[str, float] = {}
@@ -363,8 +316,8 @@ class PlaceBreadBasket(CodeActionTask):
             # the bread relative to the TCP as held, turned with the wrist (estimate; measured again
             # once the wrist has turned)
             held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(b["name"])[:3] - tcp[:3]))
-            place_at(call, world, arm, target(held0), qr,
-                     refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
+            Hands(call, arm).place_at(world, target(held0), qr,
+                                      refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
             placed_heights[b["name"]] = height
 
         def settled(b: dict) -> bool:

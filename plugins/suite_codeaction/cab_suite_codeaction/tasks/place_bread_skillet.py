@@ -40,17 +40,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
 
-from ..assets_placing import BREAD_MASS, SKILLET_MASS, SKILLETS, bread_shapes, skillet_shapes
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
-                      table_top_z, yaw_of)
-from ..oracle import Hands, closest_opening, tcp_quat, top_down_quat, yaw_axis
-from .place_bread_basket import grasp_tcp_dz, pick_top_down, place_at
+from ..assets_placing import BREAD_MASS, SKILLETS, SKILLET_MASS, bread_shapes, skillet_shapes
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, rand_pose, sample_until, yaw_of
+from ..oracle import TOLERANT, Hands, closest_opening, tcp_quat, top_down_quat, yaw_axis
+from .place_bread_basket import grasp_tcp_dz
 
-NAME = "place_bread_skillet"
 BREAD_IDS = (0, 1, 3, 5, 6)
 XY_TOLERANCE = 0.035
 Z_TOLERANCE = 0.06
@@ -62,7 +59,6 @@ SHOULDER_XY = {"left": (-0.22, -0.70), "right": (0.22, -0.70)}
 WRIST_BEYOND_END = 0.20
 MIN_WRIST_SHOULDER = 0.24
 RELEASE_GAP = 0.005  # bread bottom above the pan floor when the expert lets go
-TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
 
 
 def wrist_to_shoulder(pose, sdims: dict, shoulder_xy) -> float:
@@ -108,13 +104,13 @@ class PlaceBreadSkilletVerifier(Verifier):
 
 
 class PlaceBreadSkillet(CodeActionTask):
-    name = NAME
+    verifier_class = PlaceBreadSkilletVerifier
+    # (1) the bread aligned with the pan point and within 6 cm in height; (2) that, with neither
+    # gripper touching the bread
+    subgoal_predicates = (("bread_over_pan", "bread_at_pan_height"),
+                          ("bread_over_pan", "bread_at_pan_height", "bread_released"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
-
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         bread_id = int(BREAD_IDS[int(rng.integers(0, len(BREAD_IDS)))])
         bshapes, bdims = bread_shapes(bread_id)
         h = bdims["size"][2]
@@ -144,9 +140,6 @@ class PlaceBreadSkillet(CodeActionTask):
         pan_point = np.asarray(sdims["pan_point"])
         gdz = grasp_tcp_dz(h, top, float(bread_pose[2]))
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "xy_tolerance": XY_TOLERANCE,
             "z_tolerance": Z_TOLERANCE,
             "arms": list(arm_names(embodiment)),
@@ -172,19 +165,9 @@ class PlaceBreadSkillet(CodeActionTask):
             # expert release: TCP above the pan point (bread bottom RELEASE_GAP above the floor)
             "release_tcp_dz": round(RELEASE_GAP + h / 2 + gdz, 6),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PlaceBreadSkilletVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) bread aligned with the pan point and within 6 cm in height; (2) that, with neither
-        gripper touching the bread."""
-        p = PlaceBreadSkilletVerifier(w.info).evaluate(w).predicates
-        geometry = p["bread_over_pan"] and p["bread_at_pan_height"]
-        return [geometry, geometry and p["bread_released"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         bread, skillet = info["bread"], info["skillet"]
         pan_point = np.asarray(skillet["pan_point"], float)
@@ -228,14 +211,15 @@ class PlaceBreadSkillet(CodeActionTask):
         # the arm may have nudged the pan on its way: aim at the handle where it is now
         grasp = transform_point(world.pose(sk["name"]), sk["handle_grasp_point"])
         start = grasp - 0.09 * approach
-        hold.move(*(start - world.tcp_pose(s_arm)[:3]), what="down to the handle's axis")
-        hold.move(*(grasp - world.tcp_pose(s_arm)[:3]), what="fingers along the handle")
+        hold.move_to(world, start, "down to the handle's axis")
+        hold.move_to(world, grasp, "fingers along the handle")
         hold.grip(0.0)
         # 2. lift the pan and bring it toward the middle (the bread arm reaches it there)
         hold.move(dx=-side * 0.12, dy=0.04, dz=0.06, what="lift the skillet", ok=TOLERANT)
 
         # 3. bread arm: pick the bread top-down across its width
-        pick_top_down(call, world, b_arm, br["name"], float(br["grasp_tcp_dz"]))
+        hands = Hands(call, b_arm)
+        hands.pick_top_down(world, br["name"], float(br["grasp_tcp_dz"]))
         # 4. over the pan point (fingers across the handle's line, away from the other hand), down
         # onto the floor, let go, rise
         handle_dir = yaw_axis(world.pose(sk["name"])[3:], (1.0, 0.0, 0.0))
@@ -248,8 +232,8 @@ class PlaceBreadSkillet(CodeActionTask):
             return np.array([pan[0] - held[0], pan[1] - held[1], pan[2] + RELEASE_GAP + h / 2 - held[2]])
 
         held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(br["name"])[:3] - tcp[:3]))
-        place_at(call, world, b_arm, target(held0), qr, retreat=0.10,
-                 refine=lambda: target(world.pose(br["name"])[:3] - world.tcp_pose(b_arm)[:3]))
+        hands.place_at(world, target(held0), qr, retreat=0.10,
+                       refine=lambda: target(world.pose(br["name"])[:3] - world.tcp_pose(b_arm)[:3]))
         call("done", report="lifted the skillet by its handle and put the bread into it", success_claim=True)
 
 

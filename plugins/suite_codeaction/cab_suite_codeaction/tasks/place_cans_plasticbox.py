@@ -27,15 +27,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_below
 
 from ..assets_placing import CAN_MASS, PLASTIC_BOX_MASS, can_shapes, plastic_box_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z
-from ..oracle import expect, top_down_quat
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose
+from ..oracle import TOLERANT, BothHands, expect, top_down_quat
 
-NAME = "place_cans_plasticbox"
 CAN_IDS = (0, 1, 2, 3, 5, 6)
 BOX_IDS = (3, 5)
 XY_TOLERANCE = 0.04
@@ -43,11 +41,10 @@ GRIPPER_OPEN = 0.8
 GRASP_BELOW_TOP = 0.005  # the expert's TCP 5 mm below the can's top: pads on its upper 4 cm
 RELEASE_GAP = 0.004  # can bottom above the box floor when let go
 TIP_BELOW_TCP = 0.0354
-TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
 
 
-class PlaceCansPlasticboxVerifier(Verifier):
-    scoring = "final"
+class PlaceCansPlasticboxVerifier(GrippersOpenVerifier):
+    open_threshold = GRIPPER_OPEN
 
     def __init__(self, info: dict[str, Any]):
         self.box = info["box"]["name"]
@@ -57,7 +54,7 @@ class PlaceCansPlasticboxVerifier(Verifier):
         self.guarded_objects = (*self.cans, self.box)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
         bp = w.pose(self.box)
         pts = [transform_point(bp, p)[:2] for p in self.points]
         preds: dict[str, bool] = {}
@@ -69,22 +66,15 @@ class PlaceCansPlasticboxVerifier(Verifier):
             preds[f"{name}_in_box"] = d < XY_TOLERANCE
             values[f"{name}_xy_to_box_point"] = d
             margins[f"{name}_in_box"] = margin_below(d, XY_TOLERANCE, "m")
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
-        margins["grippers_open"] = margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                                for g in grips.values()))
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
+        return preds, values, margins
 
 
 class PlaceCansPlasticbox(CodeActionTask):
-    name = NAME
+    verifier_class = PlaceCansPlasticboxVerifier
+    # (1) the first can within 4 cm in xy of either box point, (2) the second can likewise
+    subgoal_predicates = (("can1_in_box",), ("can2_in_box",))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
-
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         box_id = int(BOX_IDS[int(rng.integers(0, len(BOX_IDS)))])
         bshapes, bdims = plastic_box_shapes(box_id)
         box_pose = rand_pose(rng, (0.0,), (-0.15, -0.10), (top + 0.0005,))
@@ -110,9 +100,6 @@ class PlaceCansPlasticbox(CodeActionTask):
             return max(floor + RELEASE_GAP + c["height"] - GRASP_BELOW_TOP, rim + TIP_BELOW_TCP + 0.006)
 
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "xy_tolerance": XY_TOLERANCE,
             "gripper_open_threshold": GRIPPER_OPEN,
             "arms": list(arm_names(embodiment)),
@@ -126,17 +113,9 @@ class PlaceCansPlasticbox(CodeActionTask):
             "can_frame": "can body: origin at the can's centre, z along its axis (up when standing)",
             "release_tcp_dz": [round(release_dz(c), 6) for c in cans],
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PlaceCansPlasticboxVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) first can within 4 cm in xy of either box point, (2) second can likewise."""
-        p = PlaceCansPlasticboxVerifier(w.info).evaluate(w).predicates
-        return [p["can1_in_box"], p["can2_in_box"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         box = info["box"]["name"]
 
@@ -163,11 +142,8 @@ class PlaceCansPlasticbox(CodeActionTask):
         info = world.info
         box = info["box"]
         cans = {c["arm"]: c for c in info["cans"]}
-        arms = ("left", "right")
-
-        def both_delta(d: dict, what: str, ok=("SUCCESS",)) -> dict:
-            return expect(call("move_both_delta", left_delta=[float(v) for v in d["left"]],
-                               right_delta=[float(v) for v in d["right"]]), what, ok)
+        both = BothHands(call)
+        arms = both.ARMS
 
         # fingers open along y; the sign puts each wrist camera (TCP +z) on the outer side, so the
         # two hands can work 10 cm apart over the box
@@ -176,20 +152,19 @@ class PlaceCansPlasticbox(CodeActionTask):
         hover = 0.16
         # a planned reach from the start pose turns the wrists and dips the hands ~8 cm on the
         # way: rise straight up first, so the fingers stay above the can tops
-        both_delta({a: [0.0, 0.0, 0.12] for a in arms}, "rise", TOLERANT)
+        both.rise(0.12, "rise", TOLERANT)
         above = {a: [float(v) for v in grasp[a] + [0.0, 0.0, hover]] for a in arms}
         expect(call("reach_both_tcp", left_xyz=above["left"], left_quat=quat["left"], right_xyz=above["right"],
                     right_quat=quat["right"]), "hover above the cans")
         # where the cans are now (a reach may nudge them)
         grasp = {a: np.asarray(world.pose(cans[a]["name"])[:3], float) + [0, 0, cans[a]["grasp_tcp_dz"]] for a in arms}
-        both_delta({a: grasp[a] - world.tcp_pose(a)[:3] for a in arms}, "down to the cans")
-        for a in arms:
-            expect(call("set_gripper", arm=a, pos=0.0), "close on the can")
+        both.move_to(world, grasp, "down to the cans")
+        both.grip(0.0, "close on the can")
         # lift: every can bottom 2 cm above the rim
         bp = world.pose(box["name"])
         rim = bp[2] + float(box["height"])
         lift = max(rim + 0.02 - (world.pose(cans[a]["name"])[2] - cans[a]["height"] / 2) for a in arms)
-        both_delta({a: [0.0, 0.0, lift] for a in arms}, "lift the cans", TOLERANT)
+        both.rise(lift, "lift the cans", TOLERANT)
         # carry over the box halves, then down
         points = {"left": transform_point(bp, box["functional_points"][0]),
                   "right": transform_point(bp, box["functional_points"][1])}
@@ -198,11 +173,10 @@ class PlaceCansPlasticbox(CodeActionTask):
             held = world.pose(cans[a]["name"])[:3] - world.tcp_pose(a)[:3]
             xy = points[a][:2] - held[:2]
             target[a] = np.array([xy[0], xy[1], bp[2] + float(info["release_tcp_dz"][k])])
-        both_delta({a: [*(target[a][:2] - world.tcp_pose(a)[:2]), 0.0] for a in arms}, "over the box")
-        both_delta({a: [0.0, 0.0, target[a][2] - world.tcp_pose(a)[2]] for a in arms}, "into the box", TOLERANT)
-        for a in arms:
-            expect(call("set_gripper", arm=a, pos=1.0), "let go")
-        both_delta({a: [0.0, 0.0, 0.08] for a in arms}, "rise", TOLERANT)
+        both.move({a: [*(target[a][:2] - world.tcp_pose(a)[:2]), 0.0] for a in arms}, "over the box")
+        both.move({a: [0.0, 0.0, target[a][2] - world.tcp_pose(a)[2]] for a in arms}, "into the box", TOLERANT)
+        both.grip(1.0, "let go")
+        both.rise(0.08, "rise", TOLERANT)
         call("done", report="put both cans into the plastic box with the two arms", success_claim=True)
 
 

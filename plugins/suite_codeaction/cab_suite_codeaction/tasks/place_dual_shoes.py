@@ -38,17 +38,15 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
 from cab_core.geometry import pose_inv, pose_mul, quat_to_mat, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_any, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_all, margin_any, margin_within
 
 from ..assets_articulated import (SHOE_BOX, SHOE_MASS, SHOE_STYLES, shoe_box_shapes, shoe_geometry, shoe_outline,
                                   shoe_shapes)
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
-                      table_top_z, vec)
-from ..oracle import Hands, OracleFailed, tcp_quat
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, draw_variant, grippers_open, pose_list, rand_pose,
+                      sample_until, vec)
+from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat
 
-NAME = "place_dual_shoes"
 TABLE_Z_BIAS = -0.1
 BOX_XY = (0.0, -0.13)
 SLOT_OFFSET = 0.04  # places at box y -+ 0.04: (0, -0.17) "left shoe", (0, -0.09) "right shoe"
@@ -124,8 +122,7 @@ class PlaceDualShoesVerifier(Verifier):
         dz = [float(p[2] - (box_z + self.floor_offset)) for p in poses]
         oriented = all(bool(np.all(d < self.q_tol)) for d in dq)
         heights = all(abs(d) < self.z_tol for d in dz)
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        grippers_open = all(g > GRIPPER_OPEN for g in grips.values())
+        open_, grips, grips_margin = grippers_open(w, self.arms, GRIPPER_OPEN)
         values: dict[str, float] = {}
         for side, p, q, z in zip(("left", "right"), poses, dq, dz):
             for k, place in zip(("left_place", "right_place"), self.places):
@@ -133,10 +130,10 @@ class PlaceDualShoesVerifier(Verifier):
                 values[f"{side}_shoe_to_{k}_dy"] = float(p[1] - place[1])
             values[f"{side}_shoe_dz"] = z
             values[f"{side}_shoe_quat_err"] = float(np.max(q))
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        values.update(grips)
         values["swapped_assignment"] = float(swapped and not direct)
         preds = {"assignment_xy": bool(direct or swapped), "heights": heights, "orientations": oriented,
-                 "grippers_open": grippers_open}
+                 "grippers_open": open_}
 
         def at_margin(p, place):
             return margin_within(p[:2] - place, self.xy_tol, "m")
@@ -147,21 +144,18 @@ class PlaceDualShoesVerifier(Verifier):
                 margin_all(at_margin(poses[0], self.places[1]), at_margin(poses[1], self.places[0]))),
             "heights": margin_within(dz, self.z_tol, "m"),
             "orientations": margin_within(np.concatenate(dq), self.q_tol, "quaternion component"),
-            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                          for g in grips.values())),
+            "grippers_open": grips_margin,
         }
         return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
 
 
 class PlaceDualShoes(CodeActionTask):
-    name = NAME
+    table_z_bias = TABLE_Z_BIAS
+    verifier_class = PlaceDualShoesVerifier
+    subgoal_predicates = (("assignment_xy",), ("assignment_xy", "heights", "orientations"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z(TABLE_Z_BIAS)
-        scene = base_scene(table_z_bias=TABLE_Z_BIAS)
-        style_id = int(rng.integers(0, len(SHOE_STYLES)))
-        style = SHOE_STYLES[style_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        style_id, style = draw_variant(rng, SHOE_STYLES)
         geo = shoe_geometry(style)
         bx = SHOE_BOX
         box_half = np.array([bx.inner[0] / 2 + bx.wall_t, bx.inner[1] / 2 + bx.wall_t])
@@ -197,9 +191,6 @@ class PlaceDualShoes(CodeActionTask):
         # at release the shoe stands toe-left on the box floor, midway between the places (box frame)
         release_tcp = transform_point([PLACE_X, 0.0, bx.floor_t + RELEASE_DROP, *TARGET_QUAT], grasp_tcp)
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "table_z_bias": TABLE_Z_BIAS,
             "arms": list(arm_names(embodiment)),
             "style_id": style_id,
@@ -233,16 +224,9 @@ class PlaceDualShoes(CodeActionTask):
             # the reference solution's TCP at release, in the box frame (midway between the places)
             "release_tcp_box": vec(release_tcp),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PlaceDualShoesVerifier(instance.info)
+        return info
 
     # -- checkpoints --------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = PlaceDualShoesVerifier(w.info).evaluate(w).predicates
-        return [p["assignment_xy"], p["assignment_xy"] and p["heights"] and p["orientations"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
         release = np.asarray(info["release_tcp_box"], float)
@@ -274,7 +258,6 @@ class PlaceDualShoes(CodeActionTask):
         grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
         target_q = np.asarray(info["target_quat"], float)
         box = np.asarray(world.pose(info["box"]["name"]), float)
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         arms = ("left", "right")
         shoe_of = {a: info["shoes"][a]["name"] for a in arms}
         place_of = {"left": info["places"]["left"], "right": info["places"]["right"]}
@@ -328,7 +311,7 @@ class PlaceDualShoes(CodeActionTask):
         # wrist where the left wrist comes down to place)
         wait_dx = RIGHT_WAIT_X - float(world.tcp_pose("right")[0])
         if wait_dx > 0.01:
-            hands["right"].move(dx=wait_dx, what="wait aside with the right shoe", ok=tolerant)
+            hands["right"].move(dx=wait_dx, what="wait aside with the right shoe", ok=TOLERANT)
 
         # 2. one after the other: carry over the place (turning the toe to -x), set down, let go
         for arm in arms:
@@ -345,19 +328,19 @@ class PlaceDualShoes(CodeActionTask):
                 h.reach(tcp_goal[:3] + up, tcp_goal[3:], f"carry the {arm} shoe over the box")
                 if _quat_error(world.pose(shoe_of[arm])[3:], target_q) < REAIM_QUAT_ERROR:
                     break
-            h.descend_to(float(tcp_goal[2]), f"set the {arm} shoe down", ok=tolerant)
+            h.descend_to(float(tcp_goal[2]), f"set the {arm} shoe down", ok=TOLERANT)
             # let go half open: a fully open inner finger ends under the front of the heel opening
             # and can catch the collar on the way up (the shoe is then lifted with the gripper);
             # the fingers open fully once clear above the shoe
             h.grip(PRE_GRIP)
-            h.move(dz=0.10, what="rise", ok=tolerant)
+            h.move(dz=0.10, what="rise", ok=TOLERANT)
             h.grip(1.0)
             if arm == "left":  # well clear of the right shoe's swing on its way to the box
                 for _ in range(2):  # move_delta goes at most MAX_STEP at a time
                     dx = LEFT_PARK_X - float(world.tcp_pose(arm)[0])
                     if dx > -0.01:
                         break
-                    h.move(dx=max(dx, -MAX_STEP), what="out of the way", ok=tolerant)
+                    h.move(dx=max(dx, -MAX_STEP), what="out of the way", ok=TOLERANT)
         call("done", report="put both shoes into the shoe box side by side, toes pointing left, and let go",
              success_claim=True)
 

@@ -33,16 +33,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_any, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_any, margin_within
 
 from ..assets_handover import MAT_COLOURS, MAT_HALF, computer_mouse, mouse_mat
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
-                      vec, yaw_of)
-from ..oracle import Hands, OracleFailed, top_down_quat, yaw_axis
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, vec,
+                      yaw_of)
+from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
 
-NAME = "place_mouse_pad"
 MODEL_IDS = (0, 1, 2)
 TOL_X, TOL_Y = 0.015, 0.012
 ORIENT_TARGET, ORIENT_TOL = 0.49, 0.015
@@ -58,8 +56,8 @@ def aligned(q_mouse) -> tuple[bool, float, float]:
     return (abs(yz - ORIENT_TARGET) < ORIENT_TOL or abs(wx - ORIENT_TARGET) < ORIENT_TOL), yz, wx
 
 
-class PlaceMousePadVerifier(Verifier):
-    scoring = "final"
+class PlaceMousePadVerifier(GrippersOpenVerifier):
+    open_threshold = GRIPPER_OPEN
 
     def __init__(self, info: dict[str, Any]):
         self.mouse, self.mat = info["mouse"]["name"], info["mat"]["name"]
@@ -67,36 +65,27 @@ class PlaceMousePadVerifier(Verifier):
         self.guarded_objects = (self.mouse,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
         m, p = w.pose(self.mouse), w.pose(self.mat)
         d = np.asarray(m[:3], float) - np.asarray(p[:3], float)
         centred = bool(abs(d[0]) < TOL_X and abs(d[1]) < TOL_Y)
         ok, yz, wx = aligned(m[3:])
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        open_ = all(g > GRIPPER_OPEN for g in grips.values())
         values = {"mouse_dx": float(d[0]), "mouse_dy": float(d[1]), "q_yz": yz, "q_wx": wx,
                   "mouse_yaw": yaw_of(m[3:])}
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
         margins = {
             "centred": margin_within(d[:2], (TOL_X, TOL_Y), "m"),
             # either of upstream's two products within its band (unit: the product |q_i q_j|)
             "aligned": margin_any(margin_within([yz - ORIENT_TARGET], ORIENT_TOL, "quaternion product"),
                                   margin_within([wx - ORIENT_TARGET], ORIENT_TOL, "quaternion product")),
-            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                          for g in grips.values())),
         }
-        return Evaluation(success=centred and ok and open_,
-                          predicates={"centred": centred, "aligned": bool(ok), "grippers_open": open_}, values=values,
-                          margins=margins)
+        return {"centred": centred, "aligned": bool(ok)}, values, margins
 
 
 class PlaceMousePad(CodeActionTask):
-    name = NAME
+    verifier_class = PlaceMousePadVerifier
+    subgoal_predicates = (("centred",), ("centred", "aligned"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         model_id = int(rng.choice(MODEL_IDS))
         first = [True]
 
@@ -115,9 +104,6 @@ class PlaceMousePad(CodeActionTask):
         scene.bodies.append(Body("mouse", shapes, pose=tuple(mouse_pose), kind="dynamic", mass=facts["mass_kg"],
                                  angular_damping=0.1))
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "arms": ["left", "right"],
             "tolerance_xy": [TOL_X, TOL_Y],
             "orientation_test": {"target": ORIENT_TARGET, "tolerance": ORIENT_TOL,
@@ -141,16 +127,9 @@ class PlaceMousePad(CodeActionTask):
             },
             "suggested_arm": "right" if mouse_pose[0] > 0 else "left",
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PlaceMousePadVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = PlaceMousePadVerifier(w.info).evaluate(w).predicates
-        return [p["centred"], p["centred"] and p["aligned"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         m, mat = info["mouse"], info["mat"]
         h = float(m["grasp_tcp_height"])
@@ -171,14 +150,7 @@ class PlaceMousePad(CodeActionTask):
         info = world.info
         m, mat = info["mouse"], info["mat"]
         arm = info["suggested_arm"]
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
-
         hands = Hands(call, arm)
-        reach, grip = hands.reach, hands.grip
-
-        def move(d, what, ok=("SUCCESS",)):
-            return hands.move(*d[:3], what=what, ok=ok)
-
         top = float(info["table_top_z"])
         h = float(m["grasp_tcp_height"])
         pose = world.pose(m["name"])
@@ -189,10 +161,7 @@ class PlaceMousePad(CodeActionTask):
         o_place = np.array([1.0, 0.0, 0.0])
         g = transform_point(pose, m["grasp_point"])
         g[2] = top + h
-        reach(g + [0.0, 0.0, 0.12], top_down_quat(o_grasp), "above the mouse")
-        move(g - world.tcp_pose(arm)[:3], "down to the mouse")
-        grip(0.0)
-        move((0.0, 0.0, 0.06), "lift", ok=tolerant)
+        hands.grasp_from(world, g + [0.0, 0.0, 0.12], top_down_quat(o_grasp), g, "the mouse", lift=0.06)
         # where the mouse hangs relative to the TCP, turned with the wrist to the placing heading
         held = world.pose(m["name"])[:3] - world.tcp_pose(arm)[:3]
         a0, a1 = np.arctan2(o_grasp[1], o_grasp[0]), np.arctan2(o_place[1], o_place[0])
@@ -200,10 +169,10 @@ class PlaceMousePad(CodeActionTask):
         held_xy = np.array([c * held[0] - s * held[1], s * held[0] + c * held[1]])
         target = np.asarray(world.pose(mat["name"])[:3], float)
         t = np.array([target[0] - held_xy[0], target[1] - held_xy[1], top + 2 * float(mat["half_size"][2]) + h + 0.003])
-        reach(t + [0.0, 0.0, 0.06], top_down_quat(o_place), "over the mat")
-        move(t - world.tcp_pose(arm)[:3], "set down", ok=tolerant)
-        grip(1.0)
-        move((0.0, 0.0, 0.08), "rise", ok=tolerant)
+        hands.reach(t + [0.0, 0.0, 0.06], top_down_quat(o_place), "over the mat")
+        hands.move_to(world, t, "set down", ok=TOLERANT)
+        hands.grip(1.0)
+        hands.move(dz=0.08, what="rise", ok=TOLERANT)
         if not all(world.gripper_command(a) > GRIPPER_OPEN for a in info["arms"]):
             raise OracleFailed("a gripper is not open")
         call("done", report="put the mouse on the mat, centred and lined up with its long side", success_claim=True)

@@ -35,23 +35,20 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder, sphere
 from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
 
-from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CAR_MASS, TOY_CARS,
+from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CARS, TOY_CAR_MASS,
                               handled_basket_shapes, playing_cards_shapes, toy_car_shapes)
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, table_top_z, yaw_of
-from ..oracle import Hands, OracleFailed, closest_opening, top_down_quat
-from .place_bread_basket import grasp_tcp_dz, pick_top_down
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, rand_pose, yaw_of
+from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, top_down_quat
+from .place_bread_basket import grasp_tcp_dz
 
-NAME = "place_object_basket"
 RISE = 0.02
 UPRIGHT = 0.5
 NEAR_L1 = 0.15
 SLOT_Y = -0.058  # the object's place in the basket: the front half, under the handle's side
 RELEASE_GAP = 0.004
-TOLERANT = ("SUCCESS", "ABORTED", "FAILED")
 PICK_TRIES = 3  # picks of the object before the oracle gives up
 
 
@@ -91,13 +88,14 @@ class PlaceObjectBasketVerifier(Verifier):
 
 
 class PlaceObjectBasket(CodeActionTask):
-    name = NAME
+    verifier_class = PlaceObjectBasketVerifier
+    # (1) the object near and touching the basket; (2) the basket raised > 2 cm; (3) everything
+    # together (the raised upright basket carrying the raised object off the table)
+    subgoal_predicates = (("object_near_basket", "object_touches_basket"), ("basket_raised",),
+                          ("basket_raised", "object_raised", "basket_upright", "object_near_basket", "object_off_table",
+                           "object_touches_basket"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
-
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         side = -1.0 if rng.random() < 0.5 else 1.0  # the object's side (-1: left)
         basket_id = int(rng.integers(0, len(HANDLED_BASKETS)))
         bshapes, bdims = handled_basket_shapes(basket_id)
@@ -122,9 +120,6 @@ class PlaceObjectBasket(CodeActionTask):
         gdz = grasp_tcp_dz(h, top, float(obj_pose[2]))
         obj_arm = "left" if side < 0 else "right"
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "arms": list(arm_names(embodiment)),
             "rise": RISE,
             "upright_min": UPRIGHT,
@@ -151,18 +146,9 @@ class PlaceObjectBasket(CodeActionTask):
             # expert release: TCP above the basket origin, at the slot
             "release_tcp_dz": round(bdims["floor_top_z"] + RELEASE_GAP + h / 2 + gdz, 6),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PlaceObjectBasketVerifier(instance.info)
+        return info
 
     # --- checkpoints ---------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) object near and touching the basket; (2) basket raised > 2 cm; (3) everything
-        together (raised upright basket carrying the raised object off the table)."""
-        p = PlaceObjectBasketVerifier(w.info).evaluate(w).predicates
-        return [p["object_near_basket"] and p["object_touches_basket"], p["basket_raised"], all(p.values())]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         obj, bk = info["object"], info["basket"]
         slot = np.asarray(info["slot_in_basket"], float)
@@ -203,7 +189,7 @@ class PlaceObjectBasket(CodeActionTask):
 
         for _ in range(PICK_TRIES):
             # 1. pick the object (lifted 20 cm: clear of the handle on the way to the basket)
-            pick_top_down(call, world, o_arm, name, float(obj["grasp_tcp_dz"]), lift=0.20, across=grasp_axis(obj))
+            hands.pick_top_down(world, name, float(obj["grasp_tcp_dz"]), lift=0.20, across=grasp_axis(obj))
             if not world.gripper_holds(o_arm, name):
                 hands.grip(1.0)  # it slipped out on the lift: open, pick it again where it lies
                 continue
@@ -220,7 +206,7 @@ class PlaceObjectBasket(CodeActionTask):
                 continue
             # the place from where the object now sits in the hand
             t = target(world.pose(name)[:3] - world.tcp_pose(o_arm)[:3])
-            hands.move(*(t - world.tcp_pose(o_arm)[:3]), what="down to the place", ok=TOLERANT)
+            hands.move_to(world, t, "down to the place", ok=TOLERANT)
             hands.grip(1.0)
             hands.move(dz=0.10, what="retreat", ok=TOLERANT)
             break
@@ -231,13 +217,13 @@ class PlaceObjectBasket(CodeActionTask):
         # 3. the other arm: the handle bar from above, fingers across it (along y)
         # (the planned reach turns the wrist and dips the hand ~8 cm on the way: rise first and
         # come from 20 cm above the bar, so the fingers pass over the handle)
-        Hands(call, b_arm).move(dz=0.15, what="rise before turning the wrist", ok=TOLERANT)
+        lifter = Hands(call, b_arm)
+        lifter.move(dz=0.15, what="rise before turning the wrist", ok=TOLERANT)
         qb = top_down_quat(closest_opening(world.tcp_pose(b_arm)[3:], [np.array([0.0, 1.0, 0.0])]))
-        pick_top_down(call, world, b_arm, bk["name"], float(bk["handle_bar_point"][2]), hover=0.20, lift=0.10,
-                      quat=qb)
+        lifter.pick_top_down(world, bk["name"], float(bk["handle_bar_point"][2]), hover=0.20, lift=0.10, quat=qb)
         # a basket hanging from its handle still sways after the lift: hold it closed a moment so
         # the object rests in it again before reporting
-        Hands(call, b_arm).grip(0.0)
+        lifter.grip(0.0)
         call("done", report="put the object into the basket and lifted the basket by its handle", success_claim=True)
 
 

@@ -27,16 +27,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box
 from cab_core.geometry import transform_point
-from cab_core.contracts.scene import ArticulatedObject
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_any, margin_within
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
+from cab_core.contracts.verifier import Evaluation, Margin, WorldView, margin_any, margin_within
 
-from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER_VARIANTS, gripper_bodies,
-                            is_gripper, stapler_asset, stapler_geometry)
-from ..common import CodeActionTask, base_scene, pose_list, rand_pose, table_top_z, vec, yaw_of
+from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER_VARIANTS, gripper_bodies, is_gripper,
+                            stapler_asset, stapler_geometry)
+from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, vec, yaw_of
 from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
 
-NAME = "press_stapler"
 TOLERANCE = (0.03, 0.03, 0.03)
 TIP_AHEAD = 0.0354  # fingertips ahead of the TCP: a top-down press puts the TCP this far above the cover
 PRESS_DEPTH = 0.012  # the oracle commands the fingertips this far below the resting cover
@@ -55,10 +53,7 @@ def hinge_q(w: WorldView, info: dict) -> float:
     return float(q[0]) if q.size else 0.0
 
 
-class PressStaplerVerifier(Verifier):
-    scoring = "latch"
-    poll_every = 1
-
+class PressStaplerVerifier(LatchVerifier):
     def __init__(self, info: dict[str, Any]):
         self.info = info
         s = info["stapler"]
@@ -107,22 +102,17 @@ class PressStaplerVerifier(Verifier):
 
 
 class PressStapler(CodeActionTask):
-    name = NAME
+    verifier_class = PressStaplerVerifier
+    # (1) stapler contact at the press point (the latched event, when it holds)
+    subgoal_predicates = (("press_contact",),)
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        model_id = int(rng.integers(0, len(STAPLER_VARIANTS)))
-        v = STAPLER_VARIANTS[model_id]
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
+        model_id, v = draw_variant(rng, STAPLER_VARIANTS)
         g = stapler_geometry(v)
         pose = rand_pose(rng, (-0.2, 0.2), (-0.1, 0.05), (top,), rotate_rand=True, rotate_lim=(0.0, 0.0, np.pi))
-        scene = base_scene()
         scene.articulations.append(ArticulatedObject("stapler", stapler_asset(model_id), pose=tuple(pose),
                                                      fix_root=True, qpos=(0.0,), joint_damping=STAPLER_JOINT_DAMPING))
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "tolerance": list(TOLERANCE),
             "stapler": {
                 "name": "stapler",
@@ -149,14 +139,7 @@ class PressStapler(CodeActionTask):
             # the expert presses with the arm on the stapler's side
             "suggested_arm": "left" if pose[0] < 0 else "right",
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PressStaplerVerifier(instance.info)
-
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) Stapler contact at the press point (the latched event, when it holds)."""
-        return [PressStaplerVerifier(w.info).evaluate(w).success]
+        return info
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Press: the TCP where the expert's fingertips rest on the press point (top-down)."""
@@ -180,9 +163,7 @@ class PressStapler(CodeActionTask):
         across = yaw_axis(root[3:], (0.0, 1.0, 0.0))
         q = top_down_quat(closest_opening(world.tcp_pose(arm)[3:], [across]))
         hands.grip(0.0)
-        hands.reach(press + [0.0, 0.0, TIP_AHEAD + 0.06], q, "hover above the stapler")
-        hands.move(dz=-(0.06 + PRESS_DEPTH), what="press the stapler", ok=("SUCCESS", "ABORTED", "FAILED"))
-        hands.move(dz=0.06, what="release", ok=("SUCCESS", "ABORTED", "FAILED"))
+        hands.press(press + [0.0, 0.0, TIP_AHEAD + 0.06], q, 0.06 + PRESS_DEPTH, 0.06, "the stapler")
         call("done", report="pressed the stapler's top near its front with one arm", success_claim=True)
 
 

@@ -30,15 +30,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.geometry import transform_point
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import SceneSpec
 from cab_core.contracts.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
                                margin_within)
 
 from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info
-from ..common import CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z
-from ..oracle import Hands, OracleFailed, tcp_quat, world_point
+from ..common import CodeActionTask, pose_list, rand_pose, sample_until
+from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
 
-NAME = "put_bottles_dustbin"
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 BOTTLE_IDS = (1, 2, 3)
@@ -125,15 +124,13 @@ class PutBottlesDustbinVerifier(Verifier):
 
 
 class PutBottlesDustbin(CodeActionTask):
-    name = NAME
+    table_x = TABLE_X
+    verifier_class = PutBottlesDustbinVerifier
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene(table_x=TABLE_X)
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         scene.bodies.append(big_dustbin("dustbin", DUSTBIN_POSE))
         info: dict[str, Any] = {
-            "task": self.name, "seed": int(seed), "table_top_z": top, "table_x": TABLE_X,
+            "table_x": TABLE_X,
             "table_x_range": [TABLE_X - 0.6, TABLE_X + 0.6],
             "dustbin": big_dustbin_info(DUSTBIN_POSE),
             "region": {"center_xy": list(REGION_CENTER), "half_xy": list(REGION_HALF), "z_range": list(REGION_Z)},
@@ -154,14 +151,11 @@ class PutBottlesDustbin(CodeActionTask):
             info[key] = b
         info["grasp_short_m"] = GRASP_SHORT
         info["drop_tcp"] = pose_list(_drop_tcp(info, info["bottle1"]))  # the reference solution's release point
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return PutBottlesDustbinVerifier(instance.info)
+        return info
 
     # -- analysis -------------------------------------------------------------------------------
     def subgoals(self, w: WorldView) -> list[bool]:
-        p = PutBottlesDustbinVerifier(w.info).evaluate(w).predicates
+        p = self.evaluate(w).predicates
         each = [p[f"{k}_in_bin"] for k in w.info["bottles"]]
         return each + [all(each)]
 
@@ -194,9 +188,8 @@ class PutBottlesDustbin(CodeActionTask):
         stands on its side (28 calls)."""
         info = world.info
         q = tcp_quat(APPROACH, (-APPROACH[1], APPROACH[0], 0.0))  # the gripper's z axis up
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         if any(world.pose(info[k]["name"])[0] > 0.05 for k in info["bottles"]):
-            Hands(call, "right").move(dx=0.15, dy=-0.05, dz=0.05, what="right arm aside", ok=tolerant)
+            Hands(call, "right").move(dx=0.15, dy=-0.05, dz=0.05, what="right arm aside", ok=TOLERANT)
         hands = Hands(call, "left")
         left = list(info["bottles"])
         for i in range(len(info["bottles"])):
@@ -210,29 +203,29 @@ class PutBottlesDustbin(CodeActionTask):
                 g = _grasp_tcp(world.pose(name), b)
                 pre = g - PRE_GRASP * APPROACH
                 hands.reach([pre[0], pre[1], max(pre[2], hover_z)], q, "above the approach to the bottle")
-                hands.move(dz=pre[2] - world.tcp_pose("left")[2], what="down before the bottle")
+                hands.move_to_height(world, pre[2], "down before the bottle")
                 g = _grasp_tcp(world.pose(name), b)  # where it stands now
-                hands.move(*(g - world.tcp_pose("left")[:3]), what="around the bottle")
+                hands.move_to(world, g, "around the bottle")
                 hands.grip(0.0)
                 base = _base_z(world, b)
-                hands.move(dz=max(LIFT, carry_top - base), what="lift", ok=tolerant)
+                hands.move(dz=max(LIFT, carry_top - base), what="lift", ok=TOLERANT)
                 if world.gripper_holds("left", name):
                     break
                 # not held: open, back out along the approach and up, and take it again
                 hands.grip(1.0)
-                hands.move(*(-PRE_GRASP * APPROACH), what="back out", ok=tolerant)
+                hands.move(*(-PRE_GRASP * APPROACH), what="back out", ok=TOLERANT)
             else:
                 raise OracleFailed(f"{name}: not held after {PICK_TRIES} grasps")
             tcp = world.tcp_pose("left")[:3]
             held = world.pose(name)[:3] - tcp
             drop = _drop_tcp(info, b, held, DROP_Y[i])
             hands.reach([drop[0], drop[1], max(drop[2], float(tcp[2]))], None, "above the dustbin")
-            hands.move(dz=drop[2] - world.tcp_pose("left")[2], what="down over the dustbin", ok=tolerant)
+            hands.move_to_height(world, drop[2], "down over the dustbin", ok=TOLERANT)
             hands.grip(1.0)
             # straight up, over the standing bottles' tops, before the next one (the hand is below the
             # table top here)
             up = _tops(world, info, left) + HAND_CLEAR if left else world.tcp_pose("left")[2] + 0.15
-            hands.move(dz=max(0.15, up - world.tcp_pose("left")[2]), what="rise", ok=tolerant)
+            hands.move(dz=max(0.15, up - world.tcp_pose("left")[2]), what="rise", ok=TOLERANT)
         call("done", report="dropped the three bottles into the dustbin", success_claim=True)
 
 

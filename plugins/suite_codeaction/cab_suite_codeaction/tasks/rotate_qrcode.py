@@ -32,16 +32,13 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_normalize, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
+from cab_core.contracts.scene import Body, SceneSpec
+from cab_core.contracts.verifier import Margin, WorldView, margin_below, margin_within
 
 from ..assets_handover import QR_BOARD_HALF, qr_board
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until, table_top_z,
-                      yaw_of)
-from ..oracle import Hands, OracleFailed, top_down_quat, yaw_axis
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, yaw_of
+from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
 
-NAME = "rotate_qrcode"
 MODEL_IDS = (0, 1, 2, 3)
 MESH_FRAME = tuple(float(v) for v in axis_angle_quat([1.0, 0.0, 0.0], np.pi / 2))  # ours -> upstream mesh frame
 BASE_QUAT_MESH = (0.0, 0.0, 0.707, 0.707)  # FACTS B.6, upstream mesh frame
@@ -66,8 +63,8 @@ def board_base_quat() -> np.ndarray:
     return quat_normalize(q)
 
 
-class RotateQrcodeVerifier(Verifier):
-    scoring = "final"
+class RotateQrcodeVerifier(GrippersOpenVerifier):
+    open_threshold = GRIPPER_OPEN
 
     def __init__(self, info: dict[str, Any]):
         self.board = info["board"]["name"]
@@ -79,35 +76,26 @@ class RotateQrcodeVerifier(Verifier):
         self.guarded_objects = (self.board,)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
         p = w.pose(self.board)
         q = mesh_quat(p[3:])
         err = np.abs(q - self.target)
         oriented = bool(np.all(err < QUAT_TOL))
         on_table = bool(p[2] < self.z_max)
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        open_ = all(g > GRIPPER_OPEN for g in grips.values())
         values = {"quat_err_max": float(err.max()), "board_z": float(p[2]), "board_yaw": yaw_of(p[3:])}
         values.update({f"q_mesh_{k}": float(v) for k, v in zip("wxyz", q)})
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
         margins = {
             "oriented": margin_within(q - self.target, QUAT_TOL, "quaternion component"),
             "on_table": margin_below(p[2], self.z_max, "m", self.z_band),
-            "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                          for g in grips.values())),
         }
-        return Evaluation(success=oriented and on_table and open_,
-                          predicates={"oriented": oriented, "on_table": on_table, "grippers_open": open_},
-                          values=values, margins=margins)
+        return {"oriented": oriented, "on_table": on_table}, values, margins
 
 
 class RotateQrcode(CodeActionTask):
-    name = NAME
+    verifier_class = RotateQrcodeVerifier
+    subgoal_predicates = (("oriented",), ("oriented", "on_table"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         model_id = int(rng.choice(MODEL_IDS))
         z = top + QR_BOARD_HALF[2] + 0.001
         pose = sample_until(
@@ -118,9 +106,6 @@ class RotateQrcode(CodeActionTask):
         scene.bodies.append(Body("qrcode_board", shapes, pose=tuple(pose), kind="dynamic", mass=facts["mass_kg"],
                                  angular_damping=0.1))
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "on_table_z": ON_TABLE_Z + (top - 0.74),
             "arms": ["left", "right"],
             "gripper_open_threshold": GRIPPER_OPEN,
@@ -138,16 +123,9 @@ class RotateQrcode(CodeActionTask):
             },
             "suggested_arm": "right" if pose[0] > 0 else "left",
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return RotateQrcodeVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def subgoals(self, w: WorldView) -> list[bool]:
-        p = RotateQrcodeVerifier(w.info).evaluate(w).predicates
-        return [p["oriented"], p["oriented"] and p["on_table"]]
-
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         b = info["board"]
         top = float(info["table_top_z"])
@@ -170,14 +148,7 @@ class RotateQrcode(CodeActionTask):
         info = world.info
         b = info["board"]
         arm = info["suggested_arm"]
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
-
         hands = Hands(call, arm)
-        reach, grip = hands.reach, hands.grip
-
-        def move(d, what, ok=("SUCCESS",)):
-            return hands.move(*d[:3], what=what, ok=ok)
-
         top = float(info["table_top_z"])
         h = float(b["grasp_tcp_height"])
         pose = world.pose(b["name"])
@@ -192,16 +163,12 @@ class RotateQrcode(CodeActionTask):
         o_grasp, o_place = sign * across, sign * after
         g = transform_point(pose, b["grasp_point"])
         g[2] = top + h
-        reach(g + [0.0, 0.0, 0.12], top_down_quat(o_grasp), "above the board")
-        move(g - world.tcp_pose(arm)[:3], "down to the board")
-        grip(0.0)
-        move((0.0, 0.0, 0.06), "lift", ok=tolerant)
+        hands.grasp_from(world, g + [0.0, 0.0, 0.12], top_down_quat(o_grasp), g, "the board", lift=0.06)
         # turn the wrist in place, then set the board down flat where it was
-        here = world.tcp_pose(arm)[:3]
-        reach(here, top_down_quat(o_place), "turn the board")
-        move((g[0], g[1], top + h + 0.003) - world.tcp_pose(arm)[:3], "set down", ok=tolerant)
-        grip(1.0)
-        move((0.0, 0.0, 0.08), "rise", ok=tolerant)
+        hands.turn_in_place(world, top_down_quat(o_place), what="turn the board")
+        hands.move_to(world, (g[0], g[1], top + h + 0.003), "set down", ok=TOLERANT)
+        hands.grip(1.0)
+        hands.move(dz=0.08, what="rise", ok=TOLERANT)
         if not all(world.gripper_command(a) > GRIPPER_OPEN for a in info["arms"]):
             raise OracleFailed("a gripper is not open")
         call("done", report="turned the QR board round so it reads upright from the robot, flat and face-up on the "

@@ -32,17 +32,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
 from cab_core.geometry import mat_to_quat, quat_mul, quat_to_mat, transform_point
-from cab_core.contracts.scene import Body
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
 
-from ..assets_tools import (SCANNER_MASS, SCANNER_VARIANTS, TEABOX_MASS, TEABOX_VARIANTS, Z_TO_X,
-                            footprint_distance, scanner_geometry, scanner_shapes, teabox_shapes)
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose, sample_until,
-                      table_top_z, vec, yaw_of)
-from ..oracle import Hands, expect, top_down_quat, yaw_axis
+from ..assets_tools import (SCANNER_MASS, SCANNER_VARIANTS, TEABOX_MASS, TEABOX_VARIANTS, Z_TO_X, footprint_distance,
+                            scanner_geometry, scanner_shapes, teabox_shapes)
+from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until, vec, yaw_of
+from ..oracle import TOLERANT, BothHands, Hands, top_down_quat, yaw_axis
 
-NAME = "scan_object"
 LATERAL_TOL = 0.025
 MAX_DISTANCE = 0.07
 GRIPPER_CLOSED = 0.2
@@ -135,11 +132,11 @@ def scan_tcp_reference(info: dict, obj_xyz) -> np.ndarray:
 
 
 class ScanObject(CodeActionTask):
-    name = NAME
+    verifier_class = ScanObjectVerifier
+    # (1) the box on the beam line; (2) on the beam line and 0 < d < 7 cm together
+    subgoal_predicates = (("object_on_beam",), ("object_on_beam", "scan_distance"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         scanner_id = int(rng.integers(0, len(SCANNER_VARIANTS)))
         object_id = int(rng.integers(0, len(TEABOX_VARIANTS)))
         scanner_side = "left" if rng.random() < 0.5 else "right"
@@ -158,15 +155,11 @@ class ScanObject(CodeActionTask):
         both = sample_until(draw, lambda p: footprint_distance(sg["rects"], p[:7], box_rects, p[7:]) >= MIN_CLEARANCE,
                             what="the scanner and the box")
         sp, op = both[:7], both[7:]
-        scene = base_scene()
         scene.bodies.append(Body("scanner", scanner_shapes(scanner_id), pose=tuple(sp), kind="dynamic",
                                  mass=SCANNER_MASS))
         scene.bodies.append(Body("tea_box", teabox_shapes(object_id), pose=tuple(op), kind="dynamic", mass=TEABOX_MASS))
         grasp_tcp = np.array([sg["grasp_point"][0], sg["grasp_point"][1], SCANNER_TCP_Z])
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "arms": ["left", "right"],
             "scanner_side": scanner_side,
             "object_side": "right" if scanner_side == "left" else "left",
@@ -205,15 +198,7 @@ class ScanObject(CodeActionTask):
                 "grasp_tcp_point": vec([0.0, 0.0, sz / 2 - BOX_TCP_BELOW_TOP]),  # top-down, fingers across y
             },
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return ScanObjectVerifier(instance.info)
-
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) The box on the beam line; (2) on the beam line and 0 < d < 7 cm together."""
-        p = ScanObjectVerifier(w.info).evaluate(w).predicates
-        return [p["object_on_beam"], p["object_on_beam"] and p["scan_distance"]]
+        return info
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Approach the scanner's handle and the box's top (the expert's grasp TCPs, following the
@@ -241,7 +226,6 @@ class ScanObject(CodeActionTask):
         info = world.info
         s, o = info["scanner"], info["object"]
         arm_s, arm_o = info["scanner_arm"], info["object_arm"]
-        tol = ("SUCCESS", "ABORTED", "FAILED")
         top = float(info["table_top_z"])
 
         sp, op = world.pose(s["name"]), world.pose(o["name"])
@@ -264,15 +248,10 @@ class ScanObject(CodeActionTask):
         # one arm after the other (both near the centre line, two wrists collide): the scanner,
         # lifted and carried out toward its own side, then the box
         hs, ho = Hands(call, arm_s, HOVER), Hands(call, arm_o, HOVER)
-        hs.reach(g_s + [0.0, 0.0, HOVER], q_s, "hover over the handle")
-        hs.move(*(g_s - world.tcp_pose(arm_s)[:3]), what="down to the handle", ok=tol)
-        hs.grip(0.0)
+        hs.grasp_from(world, g_s + [0.0, 0.0, HOVER], q_s, g_s, "the handle", ok=TOLERANT)
         out = 1.0 if arm_s == "right" else -1.0
-        hs.move(dx=out * CLEAR_SIDE, dz=HOVER, what="lift the scanner aside", ok=tol)
-        ho.reach(g_o + [0.0, 0.0, HOVER], q_o, "hover over the box")
-        ho.move(*(g_o - world.tcp_pose(arm_o)[:3]), what="down to the box", ok=tol)
-        ho.grip(0.0)
-        ho.move(dz=HOVER, what="lift the box", ok=tol)
+        hs.move(dx=out * CLEAR_SIDE, dz=HOVER, what="lift the scanner aside", ok=TOLERANT)
+        ho.grasp_from(world, g_o + [0.0, 0.0, HOVER], q_o, g_o, "the box", lift=HOVER, ok=TOLERANT)
 
         # the box: centre to the scanning spot, its long side (x) along world x
         B = np.array([sb * SCAN_CENTRE[0], SCAN_CENTRE[1], top + SCAN_HEIGHT])
@@ -295,11 +274,8 @@ class ScanObject(CodeActionTask):
         win_goal = B - sb * np.array([float(o["size"][0]) / 2 + SCAN_GAP, 0.0, 0.0])
         tcp_s = win_goal - sb * np.array([PRE_SCAN, 0.0, 0.0]) - r_new_s @ w_in_tcp
 
-        goal = {arm_o: (tcp_o, mat_to_quat(r_new_o)), arm_s: (tcp_s, mat_to_quat(r_new_s))}
-        expect(call("reach_both_tcp", left_xyz=[float(v) for v in goal["left"][0]],
-                    right_xyz=[float(v) for v in goal["right"][0]],
-                    left_quat=[float(v) for v in goal["left"][1]], right_quat=[float(v) for v in goal["right"][1]]),
-               "bring both together", ok=tol)
+        BothHands(call).reach({arm_o: tcp_o, arm_s: tcp_s}, {arm_o: mat_to_quat(r_new_o), arm_s: mat_to_quat(r_new_s)},
+                              "bring both together", ok=TOLERANT)
         # a straight move along x puts the window at its goal (from where the window and the box
         # really are); the box hangs from its top and may still swing after the big move, so the
         # move is repeated from a fresh look until the window is within 3 mm of its goal

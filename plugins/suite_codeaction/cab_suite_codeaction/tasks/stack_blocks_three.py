@@ -25,16 +25,14 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.contracts.scene import Body, Box, Shape
-from cab_core.contracts.task import SceneInstance, rng_for
+from cab_core.contracts.scene import Body, Box, SceneSpec, Shape
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
 
 from ..oracle import Hands, closest_opening, finger_reach, fingers_clear, top_down_quat, yaw_axis
-from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, base_scene, pose_list,
-                      rand_pose, sample_until, table_top_z, yaw_of)
+from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, grippers_open, pose_list,
+                      rand_pose, sample_until, yaw_of)
 
-NAME = "stack_blocks_three"
 BLOCK_HALF = 0.025
 BLOCK_DENSITY = 600.0  # kg/m^3, a wooden toy block: 0.075 kg
 SPAWN_Z = 0.741 + BLOCK_HALF  # 0.766: 1 mm above the table, settles at reset
@@ -66,30 +64,26 @@ class StackBlocksThreeVerifier(Verifier):
         d2 = p[2] - (p[1] + self.step)
         green_on_red = bool(np.all(np.abs(d1) < self.tol))
         blue_on_green = bool(np.all(np.abs(d2) < self.tol))
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        grippers_open = all(g > GRIPPER_OPEN for g in grips.values())
+        open_, grips, grips_margin = grippers_open(w, self.arms, GRIPPER_OPEN)
         values = {f"green_on_red_d{ax}": float(v) for ax, v in zip("xyz", d1)}
         values.update({f"blue_on_green_d{ax}": float(v) for ax, v in zip("xyz", d2)})
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
+        values.update(grips)
         values["stack_xy_from_centre"] = float(np.linalg.norm(p[0][:2] - self.centre))
         return Evaluation(
-            success=green_on_red and blue_on_green and grippers_open,
-            predicates={"green_on_red": green_on_red, "blue_on_green": blue_on_green,
-                        "grippers_open": grippers_open},
+            success=green_on_red and blue_on_green and open_,
+            predicates={"green_on_red": green_on_red, "blue_on_green": blue_on_green, "grippers_open": open_},
             values=values,
             margins={"green_on_red": margin_within(d1, self.tol, "m"), "blue_on_green": margin_within(d2, self.tol, "m"),
-                     "grippers_open": margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                                   for g in grips.values()))},
+                     "grippers_open": grips_margin},
         )
 
 
 class StackBlocksThree(CodeActionTask):
-    name = NAME
+    verifier_class = StackBlocksThreeVerifier
+    # (1) green aligned above red, (2) blue aligned above green, (3) both together
+    subgoal_predicates = (("green_on_red",), ("blue_on_green",), ("green_on_red", "blue_on_green"))
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
-        scene = base_scene()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         drawn: list[np.ndarray] = []
         blocks: dict[str, dict[str, Any]] = {}
         for colour, material in COLOURS:
@@ -109,9 +103,6 @@ class StackBlocksThree(CodeActionTask):
             blocks[colour] = {"name": name, "pose": pose_list(pose), "yaw": round(yaw_of(pose[3:]), 6)}
 
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "block_half_size": BLOCK_HALF,
             "block_size": 2 * BLOCK_HALF,
             "block_mass_kg": round(BLOCK_DENSITY * (2 * BLOCK_HALF) ** 3, 6),
@@ -124,15 +115,7 @@ class StackBlocksThree(CodeActionTask):
             "stack_target_xy": list(CLEAR_CENTRE),
             "resting_center_z": round(top + BLOCK_HALF, 6),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return StackBlocksThreeVerifier(instance.info)
-
-    def subgoals(self, w: WorldView) -> list[bool]:
-        """(1) green aligned above red, (2) blue aligned above green, (3) both together."""
-        p = StackBlocksThreeVerifier(w.info).evaluate(w).predicates
-        return [p["green_on_red"], p["blue_on_green"], p["green_on_red"] and p["blue_on_green"]]
+        return info
 
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]:
         """Approach each block (the expert's top-down grasp point), then place green on the
@@ -192,13 +175,7 @@ class StackBlocksThree(CodeActionTask):
             hands.place(target - held, None)
             # step aside, well out to the arm's side, so the other arm can reach the stack (its wrist
             # meets a parked arm's otherwise); a planned move where the straight one cannot go
-            park_x = -PARK_X if arm == "left" else PARK_X
-            r = hands.move(dx=float(np.clip(park_x - world.tcp_pose(arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05,
-                           what="clear the stack", ok=("SUCCESS", "ABORTED", "FAILED"))
-            if r["status"] == "FAILED":
-                at = world.tcp_pose(arm)
-                hands.reach([park_x, at[1] - 0.05, at[2] + 0.05], None, "clear the stack", ok=("SUCCESS", "ABORTED",
-                                                                                              "FAILED"))
+            hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the stack", planned_rise=0.05)
         call("done", report="stacked blue on green on red", success_claim=True)
 
 

@@ -29,17 +29,14 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, annulus
 from cab_core.geometry import mat_to_quat, quat_to_mat
-from cab_core.contracts.scene import Body, Material, Shape, cache_dir
-from cab_core.contracts.task import SceneInstance, rng_for
-from cab_core.contracts.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
-                               margin_within)
+from cab_core.contracts.scene import Body, Material, SceneSpec, Shape, cache_dir
+from cab_core.contracts.verifier import Margin, WorldView, margin_all, margin_below, margin_within
 
 from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, base_scene, pose_list, rand_pose, sample_until,
-                      srgb, table_top_z)
+from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose,
+                      sample_until, srgb)
 from ..oracle import Hands, OracleFailed, top_down_quat
 
-NAME = "stack_bowls_three"
 BOWL = Vessel(r_bottom=0.032, r_rim=0.058, height=0.05, wall=0.0045, base=0.005, band=0.015)
 BOWL_MASS = 0.12  # kg, a small melamine/porcelain rice bowl
 BOWL_FRICTION = 0.4  # glazed porcelain (0.45 against the robot's 0.5 finger pads, averaged)
@@ -97,8 +94,8 @@ def stack_predicates(ps: list[np.ndarray], z_bias: float = 0.0
     return preds, values, margins
 
 
-class StackBowlsThreeVerifier(Verifier):
-    scoring = "final"
+class StackBowlsThreeVerifier(GrippersOpenVerifier):
+    open_threshold = GRIPPER_OPEN
 
     def __init__(self, info: dict[str, Any]):
         self.names = [b["name"] for b in info["bowls"]]
@@ -107,23 +104,14 @@ class StackBowlsThreeVerifier(Verifier):
         self.guarded_objects = tuple(self.names)
         self.guard_min_z = float(info["table_top_z"]) - DESTRUCTIVE_DROP
 
-    def evaluate(self, w: WorldView) -> Evaluation:
-        ps = [np.asarray(w.pose(n)[:3], float) for n in self.names]
-        preds, values, margins = stack_predicates(ps, self.z_bias)
-        grips = {a: w.gripper_command(a) for a in self.arms}
-        preds["grippers_open"] = all(g > GRIPPER_OPEN for g in grips.values())
-        margins["grippers_open"] = margin_all(*(margin_above(g, GRIPPER_OPEN, "gripper command", 1 - GRIPPER_OPEN)
-                                                for g in grips.values()))
-        values.update({f"gripper_{a}": float(g) for a, g in grips.items()})
-        return Evaluation(success=all(preds.values()), predicates=preds, values=values, margins=margins)
+    def measure(self, w: WorldView) -> tuple[dict[str, bool], dict[str, float], dict[str, Margin]]:
+        return stack_predicates([np.asarray(w.pose(n)[:3], float) for n in self.names], self.z_bias)
 
 
 class StackBowlsThree(CodeActionTask):
-    name = NAME
+    verifier_class = StackBowlsThreeVerifier
 
-    def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
-        rng = rng_for(seed, self.name)
-        top = table_top_z()
+    def lay_out(self, rng: np.random.Generator, top: float, scene: SceneSpec, embodiment: Any) -> dict[str, Any]:
         drawn: list[np.ndarray] = []
         for i in range(3):
             def ok(p: np.ndarray) -> bool:
@@ -134,16 +122,12 @@ class StackBowlsThree(CodeActionTask):
             drawn.append(sample_until(lambda: rand_pose(rng, (-0.3, 0.3), (-0.15, 0.15), (top + 0.0005,),
                                                         ylim_prop=True), ok, what=f"bowl {i + 1}"))
         drawn.sort(key=lambda p: p[1])
-        scene = base_scene()
         bowls = []
         for name, pose in zip(BOWL_NAMES, drawn):
             scene.bodies.append(bowl_body(name, pose))
             bowls.append({"name": name, "pose": pose_list(pose)})
         grasp_dz = BOWL.height + PINCH_ABOVE_RIM
         info = {
-            "task": self.name,
-            "seed": int(seed),
-            "table_top_z": top,
             "bowls": bowls,  # by y, nearest the robot first
             "bowl": {
                 "frame": "origin at the centre of the bowl's bottom (on the table when it stands there), +z up "
@@ -169,14 +153,11 @@ class StackBowlsThree(CodeActionTask):
             # kept clear by the layout: where the reference solution builds the stack
             "stack_target_xy": list(CLEAR_CENTRE),
         }
-        return SceneInstance(scene=scene, info=info)
-
-    def verifier(self, instance: SceneInstance) -> Verifier:
-        return StackBowlsThreeVerifier(instance.info)
+        return info
 
     # -- checkpoints ------------------------------------------------------------------------------
     def subgoals(self, w: WorldView) -> list[bool]:
-        p = StackBowlsThreeVerifier(w.info).evaluate(w).predicates
+        p = self.evaluate(w).predicates
         return [p["pair_aligned_01"] or p["pair_aligned_12"],
                 p["pair_aligned_01"] and p["pair_aligned_12"] and p["heights_ok"]]
 
@@ -219,7 +200,6 @@ class StackBowlsThree(CodeActionTask):
         grasp_dz = float(b["grasp_tcp_dz"])
         rise = float(b["nest_rise"])
         names = [x["name"] for x in info["bowls"]]
-        tolerant = ("SUCCESS", "ABORTED", "FAILED")
         turned: set[str] = set()
         support = None
         for name in names:
@@ -233,7 +213,7 @@ class StackBowlsThree(CodeActionTask):
                 hands.grip(PINCH_OPEN)
             if arm not in turned:
                 # turn the gripper down where it is, away from the bowls
-                hands.reach(world.tcp_pose(arm)[:3] + [0.0, 0.0, 0.04], q, "turn the gripper down")
+                hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
                 turned.add(arm)
             grasp = c + r_g * radial + [0.0, 0.0, grasp_dz]
             hands.pick(grasp, q, lift=0.10)
@@ -251,16 +231,8 @@ class StackBowlsThree(CodeActionTask):
             else:
                 target = np.asarray(world.pose(support)[:3], float) + [0.0, 0.0, rise - RELEASE_PRESS]
             tcp_target = target - fix @ (np.asarray(pose[:3], float) - tcp[:3])
-            hands.reach(tcp_target + [0.0, 0.0, HOVER], q_place, "carry above the stack")
-            hands.descend_to(tcp_target[2], "lower the bowl", ok=tolerant)
-            hands.grip(PINCH_OPEN)
-            hands.move(dz=0.08, what="withdraw", ok=tolerant)
-            park_x = -PARK_X if arm == "left" else PARK_X
-            r = hands.move(dx=float(np.clip(park_x - world.tcp_pose(arm)[0], -0.3, 0.3)), dy=-0.05, dz=0.05,
-                           what="clear the stack", ok=tolerant)
-            if r["status"] == "FAILED":
-                now = world.tcp_pose(arm)
-                hands.reach([park_x, now[1] - 0.05, now[2] + 0.08], None, "clear the stack", ok=tolerant)
+            hands.place(tcp_target, q_place, retreat=0.08, open_to=PINCH_OPEN)
+            hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the stack")
             support = name
         for arm in info["arms"]:
             if world.gripper_command(arm) <= GRIPPER_OPEN:
