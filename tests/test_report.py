@@ -353,3 +353,62 @@ def test_verdict_margins_and_borderline_flags(sweep, tmp_path):
     assert "borderline 4.0% (green_on_red)" in page
     view = (tmp_path / "tight" / "view.html").read_text()
     assert "BORDERLINE: 4.0% of its tolerance (green_on_red" in view and "margins measured at the final" in view
+
+
+def test_pass_k_per_configuration(built, sweep):
+    from scipy.special import comb
+
+    r, out = built
+    for model, rs in by_model(sweep).items():
+        per_task = defaultdict(list)
+        for x in rs:
+            per_task[x["task"]].append(x["verdict"]["success"])
+        n = min(len(v) for v in per_task.values())
+        curve = cfg(r, model)["pass_k"]
+        assert curve["k"] == list(range(1, n + 1))
+        for k in curve["k"]:  # scipy's exact binomial coefficients, averaged over tasks by hand
+            at = [1 - comb(len(v) - sum(v), k, exact=True) / comb(len(v), k, exact=True) for v in per_task.values()]
+            hat = [comb(sum(v), k, exact=True) / comb(len(v), k, exact=True) for v in per_task.values()]
+            assert curve["pass_at_k"][k - 1] == pytest.approx(sum(at) / len(at))
+            assert curve["pass_hat_k"][k - 1] == pytest.approx(sum(hat) / len(hat))
+    md = (out / "report.md").read_text()
+    assert "## pass@k and pass^k" in md and "| oracle (direct, sapien) | 100.0% | 100.0% | 100.0% |" in md
+    assert "pass@k and pass^k" in (out / "report.html").read_text()
+
+
+def test_compare_and_plan_from_the_command_line(sweep, tmp_path, capsys):
+    from scipy.stats import binomtest
+
+    rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--compare", "oracle", "scripted",
+              "--resamples", "500", "--plan-difference", "0.1"])
+    printed = capsys.readouterr().out
+    r = json.loads((tmp_path / "report.json").read_text())
+    c = r["comparison"]
+    assert (c["a"], c["b"]) == (CONFIG.format("oracle"), CONFIG.format("scripted"))
+    # from result.json directly: attempt i of oracle paired with attempt i of scripted on each instance
+    verdict = {(x["model"], x["task"], x["seed"], x["attempt"]): x["verdict"]["success"] for x in results(sweep)}
+    pairs = [(v, verdict[("scripted", t, s, i)]) for (m, t, s, i), v in verdict.items()
+             if m == "oracle" and ("scripted", t, s, i) in verdict]
+    b, cc = sum(x and not y for x, y in pairs), sum(y and not x for x, y in pairs)
+    assert (c["pairs"], c["only_a"], c["only_b"]) == (len(pairs), b, cc) == (2, 2, 0)
+    assert c["mcnemar_p"] == pytest.approx(binomtest(b, b + cc, 0.5).pvalue)
+    assert c["instances"] == {"shared": 2, "only_a": 0, "only_b": 0}
+    assert c["bootstrap"]["difference"] == 1.0 and c["bootstrap"]["ci"] == [1.0, 1.0]
+    assert r["plan"]["tasks"] == 2 and r["plan"]["attempts_per_config"] == 392
+    assert "Exact McNemar p-value (two-sided) | 0.5 |" in printed and "| Attempts per configuration | 392 |" in printed
+    assert "## Paired comparison: A = oracle (direct, sapien), B = scripted (direct, sapien)" in (
+        tmp_path / "report.md").read_text()
+
+
+def test_compare_names_an_unknown_configuration(sweep, tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--compare", "oracle", "nobody"])
+    assert e.value.code == 2 and "no configuration 'nobody'" in capsys.readouterr().err
+    assert not (tmp_path / "report.json").exists()
+
+
+def test_plan_without_a_directory(capsys):
+    rep.main(["--plan-difference", "0.2", "--plan-baseline", "0.3", "--plan-tasks", "25"])
+    printed = capsys.readouterr().out
+    assert "| Success rates | 20.0% vs 40.0% |" in printed
+    assert "| Attempts per configuration | 82 |" in printed and "| Attempts per task over 25 tasks | 4 (100 per" in printed

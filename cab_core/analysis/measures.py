@@ -17,6 +17,8 @@ motion outcomes, termination, checkpoints and failure analysis):
   ``agent``; none for other harnesses);
 * calls (mean), simulated, wall and provider-wait time (medians); cost (total, median, IQR);
   infrastructure retries (tries a sweep redid for simulator or provider faults, not counted as failures);
+* pass@k and pass^k (k = 1..n, unbiased over each task's n attempts, averaged over tasks;
+  :mod:`cab_core.analysis.stats`);
 * subgoal and spatial checkpoint coverage: per attempt the attained fraction, averaged over a
   task's attempts, then over tasks with equal weight; the same for spatial coverage at each
   charged-call count k (matches within the first k calls count; an ended attempt keeps its value).
@@ -29,6 +31,7 @@ from dataclasses import asdict, dataclass, field
 from statistics import median
 
 from cab_core.analysis.records import Attempt
+from cab_core.analysis.stats import pass_k_curve
 
 STOPPING = ("done", "tool", "phys", "other")
 CLAIMS = ("correct", "over", "under", "absent")
@@ -137,6 +140,7 @@ class AttemptMeasures:
     margin: float | None = None  # the deciding predicate's margin, as a fraction of its tolerance
     margin_predicate: str | None = None
     borderline: bool | None = None  # None: a record written before margins were recorded
+    seed: int | None = None  # the task instance's seed: attempts on the same (task, seed) are paired
 
     @classmethod
     def of(cls, a: Attempt) -> "AttemptMeasures":
@@ -174,6 +178,7 @@ class AttemptMeasures:
             margin=None if decided is None or decided.get("fraction") is None else float(decided["fraction"]),
             margin_predicate=None if decided is None else decided.get("predicate"),
             borderline=None if decided is None else bool(decided.get("borderline")),
+            seed=r.get("seed"),
         )
 
     def spatial_at(self, k: int) -> float | None:
@@ -242,6 +247,8 @@ class ConfigSummary:
     clients: list = field(default_factory=list)  # distinct MCP clients ("name/version") over its attempts, sorted
     #: verdicts decided by less than BORDERLINE_FRACTION of a tolerance: could flip on another machine
     borderline: dict = field(default_factory=dict)
+    #: {"k": [1..n], "pass_at_k": [...], "pass_hat_k": [...]}: unbiased per task, averaged over tasks
+    pass_k: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, config: str, ms: list[AttemptMeasures], max_calls: int) -> "ConfigSummary":
@@ -290,6 +297,7 @@ class ConfigSummary:
                       for t in tools},
             clients=sorted({c for m in ms for c in m.clients}),
             borderline=_borderline(ms),
+            pass_k=pass_k_curve({t: (len(v), sum(x.success for x in v)) for t, v in by_task.items()}),
         )
 
     def as_dict(self) -> dict:

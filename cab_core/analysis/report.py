@@ -8,6 +8,11 @@ groups attempts by configuration (model, harness, simulator), and writes
     report.html   one self-contained page: the tables, inline SVG figures, links to attempt pages
 
 Unfinished attempts (records without ``result.json``) and unreadable ones are listed, never fatal.
+
+``--compare A B`` adds the paired comparison of two configurations on their shared task instances
+(exact McNemar on attempt pairs, paired bootstrap over instances); ``--plan-difference D`` adds how
+many attempts detecting a difference D in success rate needs (also without a directory: the plan
+alone). The statistics are :mod:`cab_core.analysis.stats`; their formulas: docs/statistics.md.
 """
 from __future__ import annotations
 
@@ -23,6 +28,7 @@ from cab_core.analysis import svg
 from cab_core.analysis.failure import LABELS, STAGES, Classifier
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
 from cab_core.analysis.records import Scan, read_json, scan
+from cab_core.analysis import stats
 
 REPORT_VERSION = "cab-report/1"
 MALFORMED = (LookupError, TypeError, ValueError, AttributeError)  # a field of the wrong shape in a record
@@ -49,8 +55,12 @@ def measure(s: Scan) -> list[AttemptMeasures]:
     return out
 
 
-def build(root: Path) -> dict:
-    """Everything the report shows, as plain data."""
+def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None = None,
+          bootstrap: dict | None = None) -> dict:
+    """Everything the report shows, as plain data. ``compare``: two configurations (as the report
+    names them, or a unique prefix) to compare on shared instances; ``plan``: the keyword
+    arguments of :func:`stats.plan` (``tasks`` defaults to the tasks the sweep holds);
+    ``bootstrap``: ``resamples``, ``confidence``, ``seed`` of the paired bootstrap."""
     s = scan(Path(root))
     ms = measure(s)
     max_calls = max([int(a.result["budget"].get("tool_calls_limit") or 0) for a in s.attempts] + [0])
@@ -61,11 +71,45 @@ def build(root: Path) -> dict:
     if sweep and isinstance(sweep["jobs"], int):  # planned attempts with no records at all yet
         seen = len(ms) + len(s.in_flight) + len(s.excluded) + len(s.problems)
         sweep["not_started"] = max(0, sweep["jobs"] - seen)
-    return {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
-            "problems": [{"dir": d, "problem": p} for d, p in s.problems],
-            "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep,
-            "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
-            "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))]}
+    r = {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
+         "problems": [{"dir": d, "problem": p} for d, p in s.problems],
+         "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep,
+         "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
+         "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))],
+         "comparison": None, "plan": None}
+    if compare:
+        r["comparison"] = comparison(r, *compare, **(bootstrap or {}))
+    if plan:
+        r["plan"] = stats.plan(**{"tasks": len(r["matrix"]) or 25, **plan})
+    return r
+
+
+def config_named(r: dict, name: str) -> str:
+    """The configuration a name means: its full name as the report writes it, or a prefix of
+    exactly one (``oracle`` for ``oracle (direct, sapien)``); a RecordError naming them otherwise."""
+    names = [c["config"] for c in r["configs"]]
+    if name in names:
+        return name
+    hits = [n for n in names if n.startswith(name)]
+    if len(hits) == 1:
+        return hits[0]
+    raise RecordError(f"{'ambiguous' if hits else 'no'} configuration {name!r}; the report's configurations: "
+                      + "; ".join(hits or names))
+
+
+def comparison(r: dict, a: str, b: str, resamples: int = 10_000, confidence: float = 0.95, seed: int = 0) -> dict:
+    """The paired comparison of configurations ``a`` and ``b`` on the task instances (task, seed)
+    both ran: attempt i of A with attempt i of B (exact McNemar), and the difference in success
+    rate over instances with its bootstrap percentile interval."""
+    a, b = config_named(r, a), config_named(r, b)
+    by = {a: {}, b: {}}
+    for m in r["attempt_rows"]:
+        if m["config"] in by:
+            by[m["config"]].setdefault((m["task"], m["seed"]), {})[m["attempt"]] = m["success"]
+    shared = set(by[a]) & set(by[b])
+    return {"a": a, "b": b, "instances": {"shared": len(shared), "only_a": len(set(by[a]) - shared),
+                                          "only_b": len(set(by[b]) - shared)},
+            **stats.compare(by[a], by[b], resamples, confidence, seed)}
 
 
 def sweep_manifest(root: Path) -> dict | None:
@@ -106,6 +150,7 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
             [[c["config"], *client_col(c), f"{c['successes']}/{c['attempts']}", pct(c["success_rate"]),
               f"{pct(c['wilson95'][0])}–{pct(c['wilson95'][1])}", f"{c['coverage']}/{c['tasks']}",
               *[str(c["consistency"].get(k, 0)) for k in ks]] for c in cs]),
+           *uncertainty_tables(r),
            ("Stopping conditions and completion claims",
             ["Configuration", "Done", "Tool", "Phys.", "Other", "Correct", "Over", "Under", "Absent"],
             [[c["config"], *[str(c["stopping"][s]) for s in STOPPING], *[str(c["claims"][k]) for k in CLAIMS]]
@@ -155,6 +200,46 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
     names = [c["config"] for c in cs]
     out.append(("Task x configuration (successful/attempts)", ["Task", *names],
                 [[t, *["{}/{}".format(*row[n]) if n in row else "–" for n in names]] for t, row in r["matrix"].items()]))
+    return out
+
+
+def uncertainty_tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
+    """pass@k and pass^k per configuration; the paired comparison and the plan when asked for."""
+    cs = r["configs"]
+    ks = sorted({k for c in cs for k in c["pass_k"].get("k", [])})
+
+    def at(c, key, k):
+        curve = c["pass_k"]
+        return pct(curve[key][curve["k"].index(k)]) if k in curve.get("k", []) else "–"
+
+    out = [("pass@k and pass^k (unbiased over each task's attempts, averaged over tasks; pass^1 = pass@1)",
+            ["Configuration", *[f"pass@{k}" for k in ks], *[f"pass^{k}" for k in ks if k > 1]],
+            [[c["config"], *[at(c, "pass_at_k", k) for k in ks], *[at(c, "pass_hat_k", k) for k in ks if k > 1]]
+             for c in cs])]
+    cmp = r.get("comparison")
+    if cmp:
+        boot = cmp["bootstrap"]
+        ci = "–" if boot["ci"] is None else f"{100 * boot['ci'][0]:+.1f} to {100 * boot['ci'][1]:+.1f} points"
+        diff = "–" if boot["difference"] is None else f"{100 * boot['difference']:+.1f} points"
+        ins = cmp["instances"]
+        out.append((f"Paired comparison: A = {cmp['a']}, B = {cmp['b']}", ["Measure", "Value"],
+                    [["Shared task instances (task, seed)", f"{ins['shared']} (only A: {ins['only_a']}, only B: {ins['only_b']})"],
+                     ["Attempt pairs (attempt i of A with attempt i of B)", str(cmp["pairs"])],
+                     ["Both succeeded / only A / only B / neither",
+                      f"{cmp['both']} / {cmp['only_a']} / {cmp['only_b']} / {cmp['neither']}"],
+                     ["Exact McNemar p-value (two-sided)", f"{cmp['mcnemar_p']:.4g}"],
+                     ["Success rate difference A - B (mean over instances)", diff],
+                     [f"Paired bootstrap {boot['confidence']:.0%} interval ({boot['resamples']} resamples of "
+                      f"instances, seed {boot['seed']})", ci]]))
+    pl = r.get("plan")
+    if pl:
+        out.append((f"Attempts needed to detect a difference of {100 * pl['difference']:.1f} points "
+                    f"(power {pl['power']:.0%}, two-sided alpha {pl['alpha']:g})", ["Measure", "Value"],
+                    [["Success rates", f"{pct(pl['rates'][0])} vs {pct(pl['rates'][1])}"],
+                     ["Attempts per configuration", str(pl["attempts_per_config"])],
+                     [f"Attempts per task over {pl['tasks']} tasks",
+                      f"{pl['attempts_per_task']} ({pl['attempts_per_config_rounded']} per configuration)"],
+                     ["Approximation", pl["method"]]]))
     return out
 
 
@@ -275,14 +360,15 @@ def html(r: dict, view_links: dict[str, str]) -> str:
             f"<body>{''.join(parts)}</body></html>\n")
 
 
-def write(root: Path, out: Path | None = None, views: bool = True) -> dict:
+def write(root: Path, out: Path | None = None, views: bool = True, **extra) -> dict:
     """Build the report for ``root`` and write report.json, report.md and report.html into ``out``
-    (default: ``root``); with ``views``, also each attempt's view.html, linked from the page."""
+    (default: ``root``); with ``views``, also each attempt's view.html, linked from the page.
+    ``extra``: what :func:`build` adds (``compare``, ``plan``, ``bootstrap``)."""
     from cab_core.analysis.viewer import write_view
 
     root = Path(root)
     out = Path(out) if out is not None else root
-    r = build(root)
+    r = build(root, **extra)
     if not (r["attempts"] or r["problems"] or r["excluded"] or r["in_flight"]):
         raise RecordError(f"no attempt found under {root} (no result.json or events.jsonl below it); nothing written")
     out.mkdir(parents=True, exist_ok=True)
@@ -303,21 +389,55 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
         prog="cab-report", description="The paper's measures for every attempt below a directory.",
         epilog="Exit status: 0 report written; 1 written, but no finished attempt to measure (only unfinished "
-               "or unreadable ones); 2 nothing written: the directory does not exist or holds no attempt.")
-    ap.add_argument("dir", help="a sweep directory (or any tree of attempt directories)")
+               "or unreadable ones); 2 nothing written: the directory does not exist or holds no attempt, or a "
+               "configuration given to --compare is not in it. The statistics: docs/statistics.md.")
+    ap.add_argument("dir", nargs="?", help="a sweep directory (or any tree of attempt directories); "
+                                           "may be left out with --plan-difference (the plan alone)")
     ap.add_argument("--out", help="where report.md/.html/.json go (default: the directory itself)")
     ap.add_argument("--no-views", action="store_true", help="do not write each attempt's view.html")
+    ap.add_argument("--compare", nargs=2, metavar=("A", "B"),
+                    help="compare two configurations on their shared task instances (names as the report writes "
+                         "them, or a prefix of exactly one: 'oracle')")
+    ap.add_argument("--resamples", type=int, default=10_000, help="paired bootstrap resamples (default 10000)")
+    ap.add_argument("--confidence", type=float, default=0.95, help="bootstrap interval (default 0.95)")
+    ap.add_argument("--bootstrap-seed", type=int, default=0, help="seed of the bootstrap's RNG (default 0)")
+    ap.add_argument("--plan-difference", type=float, metavar="D",
+                    help="attempts needed to detect a difference D in success rate (e.g. 0.1)")
+    ap.add_argument("--plan-baseline", type=float, default=0.5,
+                    help="the success rate the difference is centred on (default 0.5, the most demanding)")
+    ap.add_argument("--plan-tasks", type=int, help="tasks to spread the attempts over (default: the sweep's, else 25)")
+    ap.add_argument("--alpha", type=float, default=0.05, help="two-sided significance level of the plan (default 0.05)")
+    ap.add_argument("--power", type=float, default=0.80, help="power of the plan (default 0.80)")
     a = ap.parse_args(argv)
+    plan = None
+    if a.plan_difference is not None:
+        plan = {"difference": a.plan_difference, "baseline": a.plan_baseline, "alpha": a.alpha, "power": a.power}
+        if a.plan_tasks is not None:
+            plan["tasks"] = a.plan_tasks
+        try:
+            alone = stats.plan(**{"tasks": 25, **plan})
+        except ValueError as e:
+            ap.error(str(e))
+        if a.dir is None:
+            title, header, rows = uncertainty_tables({"configs": [], "plan": alone})[-1]
+            print(f"{title}\n\n{md_table(header, rows)}")
+            return
+    if a.dir is None:
+        ap.error("a directory is needed (only --plan-difference runs without one)")
     if not Path(a.dir).exists():
         print(f"cab-report: {a.dir} does not exist", file=sys.stderr)
         sys.exit(2)
+    extra = {"compare": a.compare, "plan": plan,
+             "bootstrap": {"resamples": a.resamples, "confidence": a.confidence, "seed": a.bootstrap_seed}}
     try:
-        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views)
+        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, **extra)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
         sys.exit(2)
     title, header, rows = tables(r)[0]
     print(md_table(header, rows))
+    for title, header, rows in uncertainty_tables(r)[1:]:  # the comparison and the plan, when asked for
+        print(f"\n{title}\n\n{md_table(header, rows)}")
     for p in r["problems"]:
         print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)
     if r["in_flight"]:
