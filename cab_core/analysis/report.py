@@ -86,7 +86,7 @@ def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None 
 
 def config_named(r: dict, name: str) -> str:
     """The configuration a name means: its full name as the report writes it, or a prefix of
-    exactly one (``oracle`` for ``oracle (direct, sapien)``); a RecordError naming them otherwise."""
+    exactly one (``oracle`` for ``oracle (direct, <simulator>)``); a RecordError naming them otherwise."""
     names = [c["config"] for c in r["configs"]]
     if name in names:
         return name
