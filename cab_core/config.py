@@ -116,7 +116,28 @@ def scene_seed(seed, task: str) -> int:
     return task_info(task).seed if seed is None else seed
 
 
+def run_dir(task: str, model: str, sim: str, fork_from=None, fork_at=None) -> str:
+    """Resolver ``cab.run_dir``: ``<task>/<model>/<sim>`` of a single attempt's output folder; for a
+    fork, the parent's task and simulator (which the fork keeps) and a last part ``fork-at-<K>``."""
+    if fork_from is None:
+        return f"{task}/{model}/{sim}"
+    import json
+    from pathlib import Path
+
+    try:
+        for line in (Path(str(fork_from)).expanduser() / "events.jsonl").read_text().splitlines():
+            e = json.loads(line)
+            if e.get("kind") == "attempt_start":
+                task, sim = e["config"]["task"], e["config"]["sim"]
+                break
+    except (OSError, ValueError, KeyError, TypeError):
+        pass  # the fork itself says what is wrong with its parent (cab_core.attempt.fork)
+    return f"{task}/{model}/{sim}/fork-at-{fork_at}"
+
+
 # Registered when this module is imported: Hydra resolves each job's output directory in the
 # launcher's worker process, and every worker imports the app's module, which imports this one.
 if not OmegaConf.has_resolver("cab.seed"):
     OmegaConf.register_new_resolver("cab.seed", scene_seed)
+if not OmegaConf.has_resolver("cab.run_dir"):
+    OmegaConf.register_new_resolver("cab.run_dir", run_dir)

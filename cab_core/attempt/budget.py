@@ -79,6 +79,13 @@ class BudgetLedger:
     def credit_wall(self, seconds: float) -> None:
         self._wall_credit = min(self.wall_seconds.limit, self._wall_credit + max(0.0, seconds))
 
+    def carry_wall(self, spent: float) -> None:
+        """Start the wall clock over as if ``spent`` seconds had already been used (a fork carries its
+        parent's spend; the time its prefix took to re-execute is not charged)."""
+        self._t0 = time.monotonic() - max(0.0, float(spent))
+        self._wall_credit = 0.0
+        self.update_wall()
+
     def wall_elapsed(self) -> float:
         return time.monotonic() - self._t0
 

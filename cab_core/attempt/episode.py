@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cab_core.attempt.budget import BudgetLedger
+from cab_core.attempt.fork import ForkPoint, play
 from cab_core.attempt.finishing import VerdictTracker, attempt_checkpoints, versions
 from cab_core.attempt.record import RECORD_VERSION, AttemptRecord, MalformedRecord
 from cab_core.attempt.recording import Recorder
@@ -55,7 +56,14 @@ class Episode:
         self.record: AttemptRecord | None = None  # the same, typed
         self.agent: dict | None = None  # who played, when the harness knows (cab_core.attempt.agent_record)
         self._t_start = time.monotonic()
+        self.fork: ForkPoint | None = None  # where a fork started (cab_core.attempt.fork)
+        self._fork_record: dict | None = None
         self._setup()
+        if spec.fork:
+            self.fork = ForkPoint.load(self.out / spec.fork["parent"], spec.fork["at"])
+            made = play(self, self.fork)
+            self._fork_record = {k: made[k] for k in ("parent", "at", "calls_made_again", "exact", "max_tcp_error_m",
+                                                      "max_object_error_m", "lineage")}
 
     @classmethod
     def open(cls, spec: AttemptSpec, observers=None) -> "Episode":
@@ -194,6 +202,7 @@ class Episode:
             instruction=self.task.info.instruction,
             scoring=self.verifier.scoring,
             perturbation=self.perturbation,
+            fork=self._fork_record,
             verdict=verdict,
             termination=self.termination,
             claim=self.claim,

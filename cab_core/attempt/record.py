@@ -278,6 +278,18 @@ class Perturbation(Block):
     objects: dict[str, dict[str, Num]] | None = None
 
 
+class Fork(Block):
+    """A fork (:mod:`cab_core.attempt.fork`): the parent (relative to this attempt's folder), the
+    charged call after which it started, and how closely the re-executed prefix matched."""
+    parent: str
+    at: int = Field(ge=0)
+    calls_made_again: int | None = None
+    exact: bool | None = None
+    max_tcp_error_m: Num | None = None
+    max_object_error_m: Num | None = None
+    lineage: list[dict[str, Any]] = Field(default_factory=list)
+
+
 class InfrastructureFailure(Block):
     """One try that failed for reasons that are not the model's (:mod:`cab_core.sweep.supervisor`)."""
     kind: str
@@ -300,7 +312,7 @@ class AttemptRecord(Block):
     """``result.json``: one attempt's identity, verdict, termination, claim, budgets, timings,
     counts, sandbox, versions, checkpoints, video and, where they apply, who played, what was
     perturbed and the infrastructure failures. Fields in the order they are written."""
-    omit_if_none = ("agent", "perturbation")
+    omit_if_none = ("agent", "perturbation", "fork")
     record_version: str
     task: str
     seed: int
@@ -314,6 +326,7 @@ class AttemptRecord(Block):
     instruction: str | None = None
     scoring: str | None = None
     perturbation: Perturbation | None = None
+    fork: Fork | None = None
     verdict: Verdict
     termination: Termination
     claim: Claim

@@ -64,6 +64,7 @@ class Recorder:
         self._events = open(self.root / "events.jsonl", "a", buffering=1)
         self._snap = open(self.root / "privileged" / "snapshots.jsonl", "a", buffering=1)
         self._seq = 0
+        self.tags: dict[str, Any] = {}  # fields added to every event while set (a fork's prefix: cab_core.attempt.fork)
         self._lock = threading.Lock()
         self._programs = 0
         self.video: VideoWriter | None = None
@@ -75,7 +76,7 @@ class Recorder:
     def event(self, kind: str, **data: Any) -> dict:
         with self._lock:
             self._seq += 1
-            ev = {"seq": self._seq, "kind": kind, "t_wall": round(time.monotonic() - self.t0, 4), **data}
+            ev = {"seq": self._seq, "kind": kind, "t_wall": round(time.monotonic() - self.t0, 4), **data, **self.tags}
             line = dumps(ev)
             self._events.write(line + "\n")
             faults = self.observers.dispatch("on_event", line)  # in order, after the event is written

@@ -37,6 +37,9 @@ class AttemptSpec:
     model_cfg: dict = field(default_factory=dict)
     harness_cfg: dict = field(default_factory=dict)
     perturb: dict | None = None  # cab_core.attempt.perturb.Perturbation fields; None: the instance as sampled
+    #: a fork (:mod:`cab_core.attempt.fork`): ``{"parent": <the parent's folder, relative to
+    #: output_dir>, "at": K}``; None: an attempt from the scene's start
+    fork: dict | None = None
 
     def as_record(self) -> dict:
         """Everything but the output directory: what a replay needs to rebuild the attempt."""
@@ -100,7 +103,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
     wall_s = info.budget_wall_s if b.get("wall_seconds") is None else b["wall_seconds"]
     max_internal = 500 if b.get("run_code_max_internal_calls") is None else b["run_code_max_internal_calls"]
     perturbation = Perturbation.from_cfg(c.get("perturb"))
-    return AttemptSpec(
+    spec = AttemptSpec(
         task=info.name, seed=int(seed), attempt=int(attempt), sim=c["sim"]["name"], embodiment=c["embodiment"]["name"],
         planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
         budget_tool_calls=int(tool_calls), budget_sim_seconds=float(sim_s), budget_wall_seconds=float(wall_s),
@@ -110,3 +113,24 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
         harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},
         perturb=None if perturbation is None else perturbation.as_record(),
     )
+    return forked(spec, c.get("fork") or {})
+
+
+def forked(spec: AttemptSpec, fork: dict) -> AttemptSpec:
+    """``spec`` as a fork of ``fork["from"]`` after its charged call ``fork["at"]``: the parent's
+    world and budgets, this spec's agent, harness, records and output directory."""
+    if fork.get("from") is None:
+        if fork.get("at") is not None:
+            raise ConfigError("fork.at needs fork.from=<the folder of the attempt to fork>")
+        return spec
+    from cab_core.attempt.fork import ForkPoint, fork_config
+    from cab_core.plugins import task_names
+
+    if fork.get("at") is None:
+        raise ConfigError("fork.from needs fork.at=<K>: the charged call of the parent after which the fork starts")
+    point = ForkPoint.load(fork["from"], fork["at"])
+    out = AttemptSpec(**fork_config(asdict(spec), point))
+    if out.task not in task_names():
+        raise ConfigError(f"fork.from: the parent's task {out.task!r} is not installed")
+    out.fork = point.as_record(out.output_dir)
+    return out
