@@ -3,7 +3,9 @@ the cores and print, per task: success, calls and simulated seconds used against
 paper's reference-solution figures beside them, and the checkpoints attained. The idle agent must
 fail every task, with no subgoal satisfied at the start. ``--sim a,b`` runs the same attempts on
 several simulators and adds a cross-simulator table (per task and simulator: success, calls,
-simulated seconds, wall seconds of the oracle)."""
+simulated seconds, wall seconds of the oracle). ``--forks`` then forks every oracle attempt (and
+every attempt under ``--fork-from``) at each of its charged calls and lets the stage-aware
+reference solution finish from there: each fork must succeed or say why it cannot."""
 from __future__ import annotations
 
 import argparse
@@ -118,6 +120,68 @@ def print_cross_sim(table: dict, sims: list[str]) -> None:
         print(line)
 
 
+def fork_parents(dirs: list[Path]) -> list[Path]:
+    """Every attempt folder under ``dirs`` (a folder holding ``result.json`` and ``events.jsonl``),
+    not one nested in another attempt (its replays and forks)."""
+    found: list[Path] = []
+    for d in dirs:
+        for r in sorted(Path(d).rglob("result.json")):
+            p = r.parent
+            if (p / "events.jsonl").is_file() and not any(q in p.parents for q in found):
+                found.append(p)
+    return found
+
+
+def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int) -> dict:
+    """Fork each oracle attempt of ``rows`` and each attempt under ``extra`` at every charged call;
+    the stage-aware oracle finishes each. Prints a table per task and returns the figures."""
+    from cab_core.attempt.fork import charged_calls, read_jsonl
+    from cab_core.sweep.supervisor import fork_configs, run_configs
+
+    own = [Path(r["dir"]) for r in rows if r["agent"] == "oracle" and "dir" in r]
+    parents = own + fork_parents(extra)
+    points, outs, origin = [], [], []
+    for i, p in enumerate(parents):
+        n = charged_calls(read_jsonl(p / "events.jsonl"))
+        for k in range(n + 1):
+            points.append((str(p), k))
+            outs.append(str(out / f"{i:03d}-{p.name}" / f"at-{k}"))
+            origin.append("oracle" if i < len(own) else "recorded")
+    print(f"\nforks: {len(points)} from {len(parents)} attempts", file=sys.stderr, flush=True)
+    fork_rows = run_configs(fork_configs(points), outs, jobs)
+    for r, o in zip(fork_rows, origin):
+        r["origin"] = o
+    fresh_equal = all(r.get("success") for r in fork_rows if r.get("fork_at") == 0 and r["origin"] == "oracle")
+    table: dict[tuple, dict] = {}
+    for r in fork_rows:
+        c = table.setdefault((r["task"], r["origin"]), {"forks": 0, "recovered": 0, "not_recoverable": {},
+                                                        "unexplained": [], "errors": 0})
+        c["forks"] += 1
+        if "error" in r:
+            c["errors"] += 1
+        elif r.get("outcome") == "recovered":
+            c["recovered"] += 1
+        elif r.get("outcome") == "not_recoverable":
+            c["not_recoverable"][r["kind"]] = c["not_recoverable"].get(r["kind"], 0) + 1
+        else:
+            c["unexplained"].append(f"at {r['fork_at']}: {r.get('kind')} {str(r.get('reason'))[:60]}")
+    hdr = f"{'task':<26}{'parent':<10}{'forks':>6}{'recovered':>10}  not recoverable (why)"
+    print("\n" + hdr + "\n" + "-" * (len(hdr) + 20))
+    for (task, origin), c in table.items():
+        why = ", ".join(f"{k} {n}" for k, n in sorted(c["not_recoverable"].items())) or "-"
+        print(f"{task:<26}{origin:<10}{c['forks']:>6}{c['recovered']:>10}  {why}"
+              + (f"; UNEXPLAINED {len(c['unexplained'])}: {'; '.join(c['unexplained'][:3])}" if c["unexplained"] else "")
+              + (f"; ERRORS {c['errors']}" if c["errors"] else ""))
+    total = {"forks": len(fork_rows), "recovered": sum(c["recovered"] for c in table.values()),
+             "not_recoverable": sum(sum(c["not_recoverable"].values()) for c in table.values()),
+             "unexplained": sum(len(c["unexplained"]) for c in table.values()),
+             "errors": sum(c["errors"] for c in table.values()), "fresh_equal": fresh_equal,
+             "per_task": [{"task": t, "parent": o, **c} for (t, o), c in table.items()], "rows": fork_rows}
+    print(f"\nforks: {total['recovered']}/{total['forks']} recovered, {total['not_recoverable']} not recoverable with "
+          f"their reason, {total['unexplained']} unexplained, {total['errors']} errors")
+    return total
+
+
 def main() -> None:
     from cab_core.plugins import all_tasks
     from cab_core.sweep.supervisor import run_batch
@@ -139,6 +203,11 @@ def main() -> None:
                     help="run each oracle N times under small perturbations (perturb.seed 1..N: objects moved "
                          "<= 1 mm and turned <= 0.5 deg, physical parameters +-2 %%); success: every oracle "
                          f"succeeds in at least {PERTURBED_SUCCESS_MIN * 100:.0f} %% of its runs on each simulator")
+    ap.add_argument("--forks", action="store_true",
+                    help="then fork each oracle attempt at every charged call (0..N) and let the oracle finish "
+                         "from there; success: every fork succeeds or reports why the state is not recoverable")
+    ap.add_argument("--fork-from", action="append", default=[], metavar="DIR",
+                    help="with --forks: also fork every attempt found under DIR (e.g. recorded agent attempts)")
     ap.add_argument("--compare", action="store_true",
                     help="run the check twice, --cold then warm, and print both wall times and the speed-up")
     a = ap.parse_args()
@@ -179,7 +248,7 @@ def main() -> None:
     if a.perturb < 0:
         print("cab-suite-check: --perturb must be >= 0", file=sys.stderr)
         sys.exit(2)
-    agents = ("oracle",) if a.no_idle or a.perturb else ("oracle", "idle")
+    agents = ("oracle",) if a.no_idle or a.perturb or a.forks else ("oracle", "idle")
     timings = {}
     if a.compare:
         t0 = time.monotonic()
@@ -217,7 +286,15 @@ def main() -> None:
                                                   "robustness": robust,
                                                   "verdict_by_sim": {s: verdict([r for r in rows if r["sim"] == s])
                                                                      for s in sims}}, indent=2))
+    forks = None
+    if a.forks:
+        forks = fork_check(rows, [Path(d) for d in a.fork_from], out / "forks", max(1, a.jobs))
+        (out / "summary.json").write_text(json.dumps({**json.loads((out / "summary.json").read_text()),
+                                                      "forks": forks}, indent=2))
     print(f"records and summary.json in {out}")
+    if forks is not None:
+        ok = forks["unexplained"] == 0 and forks["errors"] == 0 and forks["fresh_equal"]
+        sys.exit(0 if ok else 1)
     if robust is not None:  # perturbed: a rate per task and simulator, not every run
         ok = all(c["rate"] >= PERTURBED_SUCCESS_MIN for cells in robust.values() for c in cells.values())
     else:

@@ -61,8 +61,15 @@ class OracleAgent:
                 raise AttemptEnded(f"attempt ended during {tool}: {episode.termination}")
             return r.payload
 
+        from cab_core.contracts.task import NotRecoverable
+
         call("capture_head")  # look before acting, as any agent would (and the record holds the view)
-        episode.task.oracle(call, episode.world)
+        try:
+            episode.task.oracle(call, episode.world)
+        except NotRecoverable as e:  # the reason goes to the record; no success is claimed
+            episode.recorder.event("oracle_not_recoverable", reason_kind=e.kind, reason=e.reason, stages=e.stages)
+            if not episode.ended:
+                call("done", report=f"not recoverable ({e.kind}): {e.reason}", success_claim=False)
 
 
 class ScriptedAgent:

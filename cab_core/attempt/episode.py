@@ -88,6 +88,7 @@ class Episode:
         self.obs = ObservationStore(on_add=self.recorder.save_observation)
         self.ctx = RobotContext(self.sim, self.planner, self.emb, self.clock, self.obs)
         self.world = WorldView(self.sim, self.emb, self.ctx.gripper_cmd, self.instance.info)
+        self.world.remember_start()
         self.verifier = self.task.verifier(self.instance)
         self.verdict = VerdictTracker(self.verifier, self.world, self.sim.timestep)
         if self.verifier.scoring == "latch":

@@ -279,3 +279,26 @@ def transcript(events: list[dict]) -> list[dict]:
         if not queue:
             break
     return out
+
+
+BUDGET_ENDINGS = ("tool_budget", "sim_budget", "wall_budget")
+
+
+def recovery(attempt_dir: Path) -> dict:
+    """How an attempt ended, as a recovery (a fork played by a stage-aware reference solution):
+    ``outcome`` "recovered" (the task succeeded), "not_recoverable" (with ``kind`` and ``reason``:
+    what the solution reported, or a budget that ran out) or "unexplained" (it failed and gave no
+    reason: a defect of the reference solution)."""
+    d = Path(attempt_dir)
+    from cab_core.attempt.record import read_json_object
+
+    result = read_json_object(d / "result.json")
+    term = result.get("termination") or {}
+    if (result.get("verdict") or {}).get("success"):
+        return {"outcome": "recovered", "kind": None, "reason": None}
+    said = [e for e in read_jsonl(d / "events.jsonl") if e.get("kind") == "oracle_not_recoverable"]
+    if said:
+        return {"outcome": "not_recoverable", "kind": said[-1].get("reason_kind"), "reason": said[-1].get("reason")}
+    if term.get("reason") in BUDGET_ENDINGS:
+        return {"outcome": "not_recoverable", "kind": "budget", "reason": term.get("detail") or term.get("reason")}
+    return {"outcome": "unexplained", "kind": term.get("reason"), "reason": term.get("detail")}

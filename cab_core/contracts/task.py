@@ -42,6 +42,23 @@ class SceneInstance:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+class NotRecoverable(Exception):
+    """Raised by a reference solution that cannot complete the task from the state it was given
+    (a fork's, :mod:`cab_core.attempt.fork`): ``kind`` one of :data:`NOT_RECOVERABLE_KINDS`,
+    ``reason`` in words, ``stages`` what the solution found already achieved. The oracle agent ends
+    the attempt with ``done`` (no success claimed), the reason in its report and the record."""
+
+    def __init__(self, kind: str, reason: str, stages: dict | None = None):
+        super().__init__(f"{kind}: {reason}")
+        self.kind, self.reason, self.stages = kind, reason, dict(stages or {})
+
+
+#: why a state is not recoverable: an object fell off the table; a budget is too small for what is
+#: left; an object lies where the reference solution cannot take it (tipped over, out of reach);
+#: the reference solution failed from this state; it ran to its end but the task does not hold
+NOT_RECOVERABLE_KINDS = ("off_table", "budget", "unreachable", "plan_failed", "plan_incomplete")
+
+
 class ToolCaller(Protocol):
     """How an oracle acts: exactly the public tools, by name, with JSON arguments."""
 
@@ -78,7 +95,12 @@ class Task(ABC):
     @abstractmethod
     def oracle(self, call: ToolCaller, world: WorldView) -> None:
         """The reference solution: reads privileged state from ``world`` only to compute targets,
-        acts only through ``call`` (public tools), and ends with ``call("done", ...)``."""
+        acts only through ``call`` (public tools), and ends with ``call("done", ...)``.
+
+        It must work from any state an attempt can reach, not only the scene's start (a fork of
+        an attempt, :mod:`cab_core.attempt.fork`, hands it the state after any call): decide which
+        of its stages are already achieved (``world.start`` holds the world at the attempt's
+        start), complete the rest, or raise :class:`NotRecoverable` with the reason."""
 
     def settle_steps(self) -> int:
         """Physics steps run at reset before the agent starts (not charged)."""

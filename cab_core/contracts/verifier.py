@@ -28,6 +28,17 @@ class WorldView:
         self._emb = embodiment
         self._grip = gripper_commands
         self.info = info or {}  # task-specific privileged facts (functional points, table z, ...)
+        #: the world at the attempt's start, once settled: ``{"objects": {name: pose}, "tcp": {arm:
+        #: pose}}`` (numpy poses); None where unknown (a world rebuilt from a snapshot)
+        self.start: dict | None = None
+
+    def remember_start(self) -> None:
+        """Keep the world as it is now as :attr:`start`."""
+        self.start = {"objects": {n: self.pose(n) for n in self.object_names()},
+                      "tcp": {a: self.tcp_pose(a) for a in self._emb.arms}}
+
+    def object_names(self) -> list[str]:
+        return list(self._sim.object_names())
 
     def pose(self, name: str) -> np.ndarray:
         return self._sim.get_object_pose(name)

@@ -363,6 +363,9 @@ def run_one(config: dict, out: str, settings) -> dict:
     identity = {"task": task, "seed": seed, "attempt": 1, "sim": sim, "model": agent}
     t0 = time.monotonic()
     row = {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb}
+    fork = config.get("fork") or {}
+    if fork.get("from") is not None:
+        row.update(parent=str(fork["from"]), fork_at=fork.get("at"))
     try:
         r = AttemptSupervisor(config, Path(out), identity, settings).run()
     except Exception as e:  # report, never stop the whole check
@@ -371,6 +374,10 @@ def run_one(config: dict, out: str, settings) -> dict:
         return {**row, "wall_s": time.monotonic() - t0,
                 "error": f"infrastructure failure: {r['termination'].get('detail')}"}
     ck = r.get("checkpoints") or {}
+    if "fork_at" in row:
+        from cab_core.attempt.fork import recovery
+
+        row.update(recovery(Path(out)))
     return {
         **row, "dir": out,
         "success": bool(r["verdict"].get("success")), "termination": r["termination"]["reason"],
@@ -415,20 +422,45 @@ def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | 
                         where = out / sim / t / f"seed-{s}" / a / (f"perturb-{k}" if k else "")
                         jobs_list.append((t, s, a, str(where), sim, k))
     configs = attempt_configs(jobs_list, cold)
+    return run_configs(configs, [j[3] for j in jobs_list], jobs, cold)
+
+
+def run_configs(configs: list[dict], outs: list[str], jobs: int, cold: bool = False) -> list[dict]:
+    """Composed configurations, each into its folder, ``jobs`` at a time (supervised, warm workers
+    unless ``cold``); the rows of :func:`run_one`, in the order given."""
     settings = SupervisorConfig(warm_workers=not cold, retry_backoff_s=1.0)
-    rows: list[dict] = []
+    rows: list[dict | None] = [None] * len(configs)
     try:
         with cf.ThreadPoolExecutor(max_workers=jobs) as ex:
-            futs = [ex.submit(run_one, c, j[3], settings) for c, j in zip(configs, jobs_list)]
+            futs = {ex.submit(run_one, c, o, settings): i for i, (c, o) in enumerate(zip(configs, outs))}
             for f in cf.as_completed(futs):
                 row = f.result()
-                rows.append(row)
-                print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}"
+                rows[futs[f]] = row
+                fork = f" fork at {row['fork_at']}" if row.get("fork_at") is not None else ""
+                print(f"  done {row['task']} seed={row['seed']} {row['agent']} on {row['sim']}{fork}"
                       + (f" perturb={row['perturb']}" if row.get("perturb") else "") + ": "
                       f"{'error ' + row['error'] if 'error' in row else ('success' if row['success'] else 'fail')}",
                       file=sys.stderr, flush=True)
     finally:
         close_workers()
-    order = {(t, s, a, sim, k): i for i, (t, s, a, _, sim, k) in enumerate(jobs_list)}
-    rows.sort(key=lambda r: order[(r["task"], r["seed"], r["agent"], r["sim"], r.get("perturb"))])
-    return rows
+    return [r for r in rows if r is not None]
+
+
+def fork_configs(points: list[tuple[str, int]], agent: str = "oracle", video: bool = False) -> list[dict]:
+    """The composed configuration of a fork of each ``(parent folder, K)`` played by ``agent``, as
+    ``cab fork.from=<parent> fork.at=K model=<agent>`` composes it (the parent's task and simulator
+    named too, so the supervisor's identity of the attempt is the fork's)."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from cab_core.attempt.fork import ForkPoint
+
+    out = []
+    with initialize_config_module(version_base=None, config_module="cab_core.conf"):
+        for parent, at in points:
+            cfg = ForkPoint.load(parent, at).config
+            overrides = [f"fork.from='{Path(parent).resolve()}'", f"fork.at={int(at)}", f"model={agent}",
+                         f"task={cfg['task']}", f"sim={cfg['sim']}", f"seed={cfg['seed']}",
+                         f"record.video={'true' if video else 'false'}"]
+            out.append(OmegaConf.to_container(compose(config_name="config", overrides=overrides), resolve=True))
+    return out

@@ -424,6 +424,16 @@ class CodeActionTask(Task):
         return [all(p[n] for n in names) for names in self.subgoal_predicates]
 
     def oracle(self, call: ToolCaller, world: WorldView) -> None:
+        """The reference solution from any reachable state (:func:`..oracle.resume`): what is
+        already achieved is not done again, hands an earlier agent left busy are cleared first,
+        and a state it cannot complete from is reported (``NotRecoverable``) with its reason."""
+        from .oracle import resume
+
+        resume(self, call, world)
+
+    def solve(self, call: ToolCaller, world: WorldView) -> None:
+        """The reference solution from the scene's start (or a state like it: objects where they
+        can be taken, hands free), its targets computed from the objects' poses now."""
         raise NotImplementedError(f"the reference solution of {self.name} is not written yet")
 
     def __repr__(self) -> str:

@@ -252,3 +252,118 @@ class BothHands:
         """Both grippers to ``pos``, the left first."""
         for arm in self.ARMS:
             expect(self.call("set_gripper", arm=arm, pos=float(pos)), f"{what} {arm}")
+
+
+# --- continuing from any state (forks) ----------------------------------------------------------
+#: a TCP this far from where it started (m), or a gripper commanded below this opening, means an
+#: earlier agent has acted: the hands are cleared before the reference solution starts
+MOVED_TCP_M = 0.02
+OPEN = 0.99
+FIXTURES = ("table", "wall")  # the base scene's: never held, never guarded
+
+
+def movable(world) -> list[str]:
+    return [n for n in world.object_names() if n not in FIXTURES]
+
+
+def verdict_now(verifier, world) -> tuple[bool, list[str]]:
+    """Whether the task's final state holds now (predicates and guard), and what does not."""
+    ev = verifier.evaluate(world)
+    guard = verifier.guard(world)
+    unmet = [k for k, v in {**ev.predicates, **guard}.items() if not v]
+    return bool(ev.success) and all(guard.values()), unmet
+
+
+def fallen(verifier, world) -> list[str]:
+    return [k.removesuffix("_on_table") for k, ok in verifier.guard(world).items() if not ok]
+
+
+def disturbed(world) -> list[str]:
+    """What shows that the world is not at its start: a closed gripper, a TCP moved, a hand on an
+    object. Empty at an attempt's start."""
+    out = []
+    start = world.start or {}
+    for arm, pose in sorted((start.get("tcp") or {}).items()):
+        if world.gripper_command(arm) < OPEN:
+            out.append(f"{arm} gripper closed")
+        if np.linalg.norm(world.tcp_pose(arm)[:3] - pose[:3]) > MOVED_TCP_M:
+            out.append(f"{arm} hand moved")
+        out += [f"{arm} hand on {n}" for n in movable(world) if world.gripper_touches(arm, n)]
+    return out
+
+
+def clear_hands(call, world) -> None:
+    """Put down what each hand holds (straight down, guarded, to about the height the object
+    started at), open both grippers, lift the hands clear and take them back to where they started."""
+    start = world.start
+    arms = sorted(start["tcp"])
+    for arm in arms:
+        held = [n for n in movable(world) if world.gripper_holds(arm, n) and n in start["objects"]]
+        if held:
+            drop = float(world.pose(held[0])[2] - start["objects"][held[0]][2])
+            if drop > 0.01:
+                call("move_delta", arm=arm, dz=-(drop - 0.005))
+        if world.gripper_command(arm) < OPEN:
+            call("set_gripper", arm=arm, pos=1.0)
+    for arm in arms:
+        if np.linalg.norm(world.tcp_pose(arm)[:3] - start["tcp"][arm][:3]) > MOVED_TCP_M:
+            call("move_delta", arm=arm, dz=0.05)
+    r = call("reach_both_tcp", **{f"{a}_xyz": _floats(start["tcp"][a][:3]) for a in arms},
+             **{f"{a}_quat": _floats(start["tcp"][a][3:]) for a in arms})
+    if r.get("status") != "SUCCESS":
+        for arm in arms:  # one arm at a time where the pair could not be planned together
+            call("reach_tcp", arm=arm, target_xyz=_floats(start["tcp"][arm][:3]),
+                 target_quat=_floats(start["tcp"][arm][3:]))
+
+
+def resume(task, call, world) -> None:
+    """The task's reference solution (``task.solve``) from whatever state the world is in.
+
+    1. An object off the table cannot be brought back: not recoverable.
+    2. A final-state task whose state already holds: ``done`` at once.
+    3. A world an agent has acted in (a closed gripper, a hand away from its start or on an
+       object): put down what is held, open, take the hands back to where they started; what
+       fell on the way is again not recoverable.
+    4. The solution from there (it computes its targets from where the objects are now). If it
+       fails, or ends with the task not holding, the reason is given instead of a claim.
+    At an attempt's start steps 1-3 make no call, so a fresh attempt plays as before."""
+    from cab_core.contracts.task import NotRecoverable
+
+    verifier = task.verifier_class(world.info)
+    stages = {}
+
+    def achieved() -> dict:
+        try:
+            return dict(zip(task.info.subgoals or [f"subgoal {i + 1}" for i in range(len(task.subgoal_predicates))],
+                            task.subgoals(world)))
+        except Exception:  # a predicate that cannot be read in this state
+            return {}
+
+    def check_fallen(when: str) -> None:
+        off = fallen(verifier, world)
+        if off:
+            raise NotRecoverable("off_table", f"{', '.join(off)} fell off the table{when}", achieved())
+
+    check_fallen("")
+    stages = achieved()
+    if verifier.scoring == "final" and world.start is not None:
+        ok, _ = verdict_now(verifier, world)
+        if ok:
+            call("done", report="the task already holds; nothing left to do", success_claim=True)
+            return
+    if world.start is not None and disturbed(world):
+        clear_hands(call, world)
+        check_fallen(" while the hands were cleared")
+
+    def checked(tool: str, **kwargs):
+        if tool == "done" and kwargs.get("success_claim") and verifier.scoring == "final":
+            ok, unmet = verdict_now(verifier, world)
+            if not ok:
+                raise NotRecoverable("plan_incomplete", "the reference solution ran to its end but "
+                                     f"{', '.join(unmet)} do not hold", stages)
+        return call(tool, **kwargs)
+
+    try:
+        task.solve(checked, world)
+    except OracleFailed as e:
+        raise NotRecoverable("plan_failed", f"the reference solution failed from this state: {e}", stages) from None

@@ -214,7 +214,7 @@ class BeatBlockHammer(CodeActionTask):
         return [SpatialRule("Approach hammer", "either", approach, box(dx=2, dy=6, dz=(-3, 4))),
                 SpatialRule("Strike", "either", strike, sphere(5), prerequisites=(0,))]
 
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Grasp the handle top-down with the arm on the block's side, carry the hammer flat so
         its striking face is over the block's top, and lower it until the head strikes."""
         info = world.info

@@ -177,7 +177,7 @@ class BlocksRankingSize(CodeActionTask):
         return rules
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Each block, largest first, is picked top-down by the arm on its side (fingers across the
         two faces nearest the y axis, or the other two where an open finger would land on another
         block), turned square to the table's axes at a safe height, and set down in a row in front

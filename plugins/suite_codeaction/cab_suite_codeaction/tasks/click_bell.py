@@ -132,7 +132,7 @@ class ClickBell(CodeActionTask):
 
         return [SpatialRule("Press", "either", ref, box(dx=6, dy=6, dz=4))]
 
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Close the side arm's gripper, hover 6 cm over the knob pointing down, press straight
         down to 5 mm past the knob's top (the static bell stops the fingertips), and rise."""
         info = world.info

@@ -190,7 +190,7 @@ class DumpBinBigbin(CodeActionTask):
         ]
 
     # -- reference solution ---------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The left hand grasps the small bin across its middle, coming from the left (fingers
         closing front and back), lifts it (and grasps again if it is not held), carries it over the
         dustbin with the hand turned to point forward, rolls the wrist 143 deg so the opening turns

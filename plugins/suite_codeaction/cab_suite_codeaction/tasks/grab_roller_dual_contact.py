@@ -135,7 +135,7 @@ class GrabRollerDualContact(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Top-down grasps on both handles (fingers across each handle), close both, lift together
         with a paired Cartesian move.
 

@@ -146,7 +146,7 @@ class HandoverBlock(CodeActionTask):
         ]
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Left arm: top-down grasp of the block's top, lift, carry it to the handover point in
         front of the robot turning it square to the world axes. Right arm: grasp the lower part
         from the front, the left lets go and rises; the right carries the block over the pad,

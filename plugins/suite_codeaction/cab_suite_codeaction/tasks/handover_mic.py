@@ -137,7 +137,7 @@ class HandoverMic(CodeActionTask):
         ]
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The arm on the microphone's side grasps the handle from the front, lifts the microphone
         to the handover point in front of the robot; the other arm takes the head top-down, the
         first lets go and backs off, and the receiver carries the microphone to its side, raised

@@ -256,7 +256,7 @@ class HangingMug(CodeActionTask):
                 SpatialRule("Final hanging target", "either", hang, sphere(3.0), (0,))]
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Left arm: pinch the rim top-down (fingers along the radius) at the point that, once the
         mug is turned, faces the left shoulder; lift; turn the wrist so the handle points at right
         angles to the peg, toward the wall (and tip it back upright); set the mug down in the middle

@@ -130,7 +130,7 @@ class LiftPot(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Both grippers come down top-down onto the handle tabs (fingers across each tab, closing
         on its sides), close, and lift together with paired Cartesian moves (6 tool calls)."""
         p = world.info["pot"]

@@ -186,7 +186,7 @@ class MoveCanPot(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The arm on the can's side turns its gripper top-down where it is, travels straight to
         above the can, grasps it top-down (fingers opening front-back, i.e. along the pot's side,
         so that no finger comes between the can and the pot or a handle), lifts it above the pot's

@@ -183,7 +183,7 @@ class OpenLaptopSetupArm(CodeActionTask):
         ]
 
     # -- reference solution -------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The arm on the side the laptop's front faces closes its gripper, points it toward the
         hinge pitched down 30 deg (fingers side by side along the hinge, wrist camera up), slides
         the fingertips under the lid's front edge and pushes the lid's inner face up along its arc

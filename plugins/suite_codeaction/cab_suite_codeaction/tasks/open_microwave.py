@@ -255,7 +255,7 @@ class OpenMicrowave(CodeActionTask):
         return [SpatialRule("Approach microwave", "either", approach, cylinder(2, (-6, 2))),
                 SpatialRule("Open door", "either", lambda w: pulled, sphere(5), prerequisites=(0,))]
 
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Pull with the left arm, push with the right. The left gripper grasps the handle bar
         from the front and pulls it along its arc in chords of 0.2 rad to 0.8 rad (holding its
         orientation: the bar turns in the fingers); it lets go, rises above the door and moves

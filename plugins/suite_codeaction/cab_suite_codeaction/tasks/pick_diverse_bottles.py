@@ -117,7 +117,7 @@ class PickDiverseBottles(CodeActionTask):
         ]
 
     # -- reference solution ---------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Each arm in turn (left first): a side grasp of the bottle's body from the front (fingers
         closing across it), lift, and carry the bottle's centre to its hold point in front of the
         robot; the left bottle is held while the right arm fetches the other (11 calls)."""

@@ -248,7 +248,7 @@ class PlaceBreadBasket(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Each bread is picked top-down across its width by the arm on its side (a grasp that does
         not hold it, every finger touching, is tried again), turned so that it lies across the slot
         axis, and laid on the basket floor beside that axis; the second one is let go just above

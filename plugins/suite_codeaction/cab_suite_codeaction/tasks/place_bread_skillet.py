@@ -181,7 +181,7 @@ class PlaceBreadSkillet(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The skillet arm slides its half-open fingers along the handle from beyond its end
         (fingers above and below it, the TCP pointing down the handle toward the pan), closes,
         lifts the pan 6 cm and brings it 12 cm toward the middle. The bread arm picks the bread

@@ -134,7 +134,7 @@ class PlaceCansPlasticbox(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Both arms together: each grasps its can top-down near its top (fingers along y, clear of
         the box), lifts it above the box rim, carries it straight over its half of the box (the
         left can to functional point 0, the right can to point 1), lowers it onto the floor (or

@@ -247,7 +247,7 @@ class PlaceDualShoes(CodeActionTask):
         ]
 
     # -- reference solution -------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Both arms pinch their shoe's heel counter top-down at once (fingers along the shoe, one
         inside the heel cavity, one behind the heel) and lift (a shoe not held is picked again);
         the right arm waits with its shoe at x >= RIGHT_WAIT_X while the left arm turns its shoe

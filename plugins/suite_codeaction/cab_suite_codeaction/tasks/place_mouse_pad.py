@@ -143,7 +143,7 @@ class PlaceMousePad(CodeActionTask):
         ]
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The arm on the mouse's side grasps it top-down across its width, lifts it, turns it so its
         long axis runs along y (the mat's long side; whichever way needs the smaller wrist turn),
         lowers it onto the mat's centre, lets go and rises (8 tool calls)."""

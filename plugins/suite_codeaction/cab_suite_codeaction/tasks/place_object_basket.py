@@ -167,7 +167,7 @@ class PlaceObjectBasket(CodeActionTask):
         ]
 
     # --- reference solution ----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The arm on the object's side picks it top-down (a pack of cards pinched across its
         width, a toy car along its length, pads on its bumpers: see ``grasp_axis``), checks that
         every finger holds it, carries it high over the basket with the fingers open along +x, lays

@@ -150,7 +150,7 @@ class PressStapler(CodeActionTask):
 
         return [SpatialRule("Press", "either", ref, box(dx=5, dy=(-6, 4), dz=(-3, 4)))]
 
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Close the gripper of the arm on the stapler's side, hover over the press point pointing
         down (fingers across the stapler), press straight down 1.2 cm past the resting cover
         (the arm gives way a few millimetres, then the move stalls on the anvil), and rise."""

@@ -173,7 +173,7 @@ class PutBottlesDustbin(CodeActionTask):
         return rules
 
     # -- reference solution ---------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The left arm does all three bottles, the one nearest along the approach first. The
         approach comes from the front-left (0.8 rad right of straight ahead) and the open hand
         sweeps a band 17 cm wide (the finger rail) from 20 cm behind the bottle: taken in this order,

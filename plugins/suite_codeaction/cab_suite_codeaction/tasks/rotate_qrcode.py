@@ -141,7 +141,7 @@ class RotateQrcode(CodeActionTask):
         ]
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """The arm on the board's side grasps it top-down across its width, lifts it 6 cm, turns the
         wrist by the board's heading error (about half a turn, the shorter way), sets it down flat
         where it was, lets go and rises (8 tool calls)."""

@@ -217,7 +217,7 @@ class ScanObject(CodeActionTask):
             SpatialRule("Scan alignment", "either", scan, box(dx=3, dy=6, dz=3), prerequisites=(0, 1)),
         ]
 
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Both arms rise 10 cm. The scanner arm picks the scanner by its handle (top-down, from a
         hover, straight down, close, lift) and carries it aside; the other arm picks the box by its
         top likewise. Then the box arm brings the box to the middle, its long side along x,

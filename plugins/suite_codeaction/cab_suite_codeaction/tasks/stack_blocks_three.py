@@ -134,7 +134,7 @@ class StackBlocksThree(CodeActionTask):
                                  prerequisites=(2,)))
         return rules
 
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """Each cube is picked top-down by the arm on its side (fingers across the two faces needing
         the least wrist roll, or the other two where an open finger would land on another cube;
         aimed again if the arm's way there pushed it, picked again if it is not held) and put on the stack in the

@@ -185,7 +185,7 @@ class StackBowlsThree(CodeActionTask):
         return rules
 
     # -- reference solution -----------------------------------------------------------------------
-    def oracle(self, call, world: WorldView) -> None:
+    def solve(self, call, world: WorldView) -> None:
         """bowl1 to the cleared spot in front of the robot, bowl2 into it, bowl3 into bowl2. Each
         bowl is pinched top-down at its rim (fingers along the radius, one inside and one outside
         the wall) by the arm on its side, at the rim point facing that arm's shoulder unless a
