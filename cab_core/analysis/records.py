@@ -16,31 +16,11 @@ from functools import cached_property
 from pathlib import Path
 
 from cab_core.attempt.agent_record import AgentRecord
-from cab_core.attempt.record import AttemptRecord, parse_record, read_json_object
+from cab_core.attempt.record import AttemptRecord, parse_record, read_json_object, read_jsonl  # noqa: F401  (read_jsonl: read here by the analyses)
 from cab_core.errors import RecordError
 from cab_core.sweep.records import SET_ASIDE
 
 read_json = read_json_object  # one JSON object from a file; a missing or unparsable file is a RecordError
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    """Every line of an append-only log. A torn last line (a process killed mid-write) is
-    dropped; a bad line anywhere else is a RecordError."""
-    try:
-        lines = Path(path).read_text().splitlines()
-    except FileNotFoundError as e:
-        raise RecordError(f"{Path(path).name} is missing") from e
-    out = []
-    for i, line in enumerate(lines):
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError as e:
-            if i == len(lines) - 1:
-                break
-            raise RecordError(f"{Path(path).name} line {i + 1} is not valid JSON: {e}") from e
-    return out
 
 
 class InfrastructureResult(RecordError):

@@ -29,7 +29,7 @@ import os
 from typing import Any
 
 from cab_core.attempt.budget import BUDGET_KEYS, check_budget_value
-from cab_core.errors import ConfigError, closest
+from cab_core.errors import CabError, ConfigError, closest
 
 CHECKED_SECTIONS = ("budget", "sandbox", "record", "perturb", "sweep", "sim", "harness")
 OPTION_SECTIONS = ("sim", "harness")  # their keys are the selected option's
@@ -143,6 +143,7 @@ def check_command_line(argv: list[str]):
             choices[key] = values
         elif not o.is_delete():
             keys.append(o)
+    _check_fork(choices, keys)
     if not keys:
         return args
 
@@ -194,6 +195,37 @@ def check_command_line(argv: list[str]):
 
             select({"observers": o.value()})  # an observer no plugin registers: refused here
     return args
+
+
+#: what a fork keeps from its parent: groups compared by option name, keys by value
+_FORK_KEPT_GROUPS = ("task", "sim", "embodiment", "planner")
+_FORK_KEPT_SECTIONS = ("budget", "perturb", "sandbox")
+
+
+def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
+    """A fork (``fork.from``) keeps its parent's task, seed, simulator, robot, planner, budgets,
+    perturbation and sandbox: a command line that asks for other ones is refused, naming the
+    parent's (the same ones are accepted)."""
+    fork_from = next((o for o in keys if o.key_or_group == "fork.from"), None)
+    if fork_from is None or fork_from.is_sweep_override() or fork_from.value() is None:
+        return
+    from cab_core.attempt.fork import ForkPoint
+
+    at = next((o.value() for o in keys if o.key_or_group == "fork.at" and not o.is_sweep_override()), 0)
+    try:
+        parent = ForkPoint.load(fork_from.value(), at if isinstance(at, int) and at >= 0 else 0).config
+    except CabError:
+        return  # the fork itself says what is wrong with its parent, in one line
+    for g in _FORK_KEPT_GROUPS:
+        for v in choices.get(g, []):
+            if v != parent.get(g):
+                raise ConfigError(f"a fork keeps its parent's {g} ({parent.get(g)}); drop {g}={v}")
+    for o in keys:
+        top = o.key_or_group.split(".")[0]
+        if o.key_or_group == "seed" and not o.is_sweep_override() and o.value() not in (None, parent.get("seed")):
+            raise ConfigError(f"a fork keeps its parent's seed ({parent.get('seed')}); drop seed={o.value()}")
+        if top in _FORK_KEPT_SECTIONS:
+            raise ConfigError(f"a fork keeps its parent's {top} settings; drop {o.key_or_group}=...")
 
 
 def _check_path(node: Any, parts: list[str], option: str | None) -> None:

@@ -84,6 +84,8 @@ def _spec(attempt: Attempt, out: Path):
     if not isinstance(config, dict):
         raise RecordError(f"{attempt.dir}: the records lack the resolved configuration (attempt_start.config); "
                           "attempts recorded before cab stored it cannot be replayed")
+    # a fork's records hold its prefix's calls: replaying them all rebuilds its world from the start
+    config = {k: v for k, v in config.items() if k != "fork"}
     try:
         spec = AttemptSpec(**config, output_dir=out)
     except TypeError as e:

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cab_core.attempt.record import read_json_object, read_jsonl
 from cab_core.errors import AttemptEnded, CabError, ConfigError, RecordError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -46,19 +47,6 @@ FORKS_FILE = "forks.jsonl"  # in the parent: one line per fork made of it (best 
 class ForkDiverged(CabError):
     """The re-executed prefix did not reproduce the parent's world (another machine, another
     version of a simulator or a program whose behaviour is not reproducible)."""
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    """The JSON objects of a JSON-lines file; a torn last line (a crash mid-write) is skipped."""
-    out = []
-    for line in Path(path).read_text().splitlines():
-        try:
-            obj = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(obj, dict):
-            out.append(obj)
-    return out
 
 
 def is_charged(e: dict) -> bool:
@@ -242,7 +230,7 @@ def forks_of(attempt_dir: Path) -> list[dict]:
     """The forks made of an attempt (its ``forks.jsonl``): ``{"child": relative path, "at": K}``,
     those whose records still exist."""
     p = Path(attempt_dir) / FORKS_FILE
-    if not p.is_file():
+    if not p.is_file():  # none, or not a file the viewer can read
         return []
     return [f for f in read_jsonl(p) if isinstance(f.get("child"), str) and (Path(attempt_dir) / f["child"]).is_dir()]
 
@@ -290,8 +278,6 @@ def recovery(attempt_dir: Path) -> dict:
     what the solution reported, or a budget that ran out) or "unexplained" (it failed and gave no
     reason: a defect of the reference solution)."""
     d = Path(attempt_dir)
-    from cab_core.attempt.record import read_json_object
-
     result = read_json_object(d / "result.json")
     term = result.get("termination") or {}
     if (result.get("verdict") or {}).get("success"):

@@ -442,6 +442,26 @@ def read_json_object(path: Path) -> dict:
     return obj
 
 
+def read_jsonl(path: Path) -> list[dict]:
+    """Every line of an append-only log. A torn last line (a process killed mid-write) is
+    dropped; a bad line anywhere else is a RecordError."""
+    try:
+        lines = Path(path).read_text().splitlines()
+    except FileNotFoundError as e:
+        raise RecordError(f"{Path(path).name} is missing") from e
+    out = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            if i == len(lines) - 1:
+                break
+            raise RecordError(f"{Path(path).name} line {i + 1} is not valid JSON: {e}") from e
+    return out
+
+
 def read_record(path: Path) -> AttemptRecord:
     """The record in ``path`` (a ``result.json``); RecordError when it is missing, not JSON or
     malformed."""
