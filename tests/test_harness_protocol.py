@@ -28,7 +28,7 @@ def parameters(fn) -> list[tuple[str, object]]:
 def test_the_protocol_names_what_the_harnesses_use():
     assert set(members(AttemptSession)) == {
         "spec", "out", "ended", "termination", "result", "agent", "ledger", "recorder", "task", "world",
-        "instruction", "tool_specs", "call", "image", "end", "finish"}
+        "fork", "instruction", "tool_specs", "call", "image", "end", "finish"}
     assert set(members(SessionLedger)) == {"tool_calls", "remaining", "exhausted_reason", "credit_wall"}
     assert set(members(EventLog)) == {"event"} and set(members(CallLimit)) == {"limit"}
     assert set(members(Harness)) == {"run"} and set(members(HarnessHooks)) == {"preflight", "before_build", "close"}
@@ -93,6 +93,7 @@ def test_a_real_episode_is_an_attempt_session(tmp_path):
         for name in members(AttemptSession):
             assert hasattr(ep, name), name
         assert isinstance(ep.out, Path) and ep.ended is False and ep.result is None and ep.termination is None
+        assert ep.fork is None  # no fork.from
         assert isinstance(ep.instruction, str) and ep.tool_specs()
         r = ep.call("capture_head")
         assert ep.image(r.obs_ids[0]).ndim == 3

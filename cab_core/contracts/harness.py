@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     import numpy as np
 
+    from cab_core.attempt.fork import ForkPoint
     from cab_core.attempt.serving import ToolResponse
     from cab_core.attempt.spec import AttemptSpec
     from cab_core.contracts.task import Task
@@ -95,6 +96,12 @@ class AttemptSession(Protocol):
     task: Task
     #: the privileged view of the world (only the oracle agent uses it, to compute its targets)
     world: WorldView
+    #: where a fork started (``fork.from``/``fork.at``), None for an attempt that is no fork. The
+    #: parent's first ``fork.at`` charged calls have been made again when :meth:`Harness.run` is
+    #: called (the world is the parent's then, its observations re-taken under the same ids, so
+    #: :meth:`image` shows them); a harness may rebuild its agent's context from ``fork.events``,
+    #: the parent's records up to there (:func:`cab_core.attempt.fork.transcript`)
+    fork: ForkPoint | None
 
     @property
     def instruction(self) -> str:

@@ -3,7 +3,8 @@
 One sequential model/message/tool loop: request → record the turn → run the response's tool
 calls in order → append neutral tool results → repeat until the attempt ends. Retries live in
 the provider (``retry.py``): a retried request never repeats an executed action. Provider
-waiting time is credited back to the wall budget."""
+waiting time is credited back to the wall budget. A fork (``episode.fork``) starts with the
+conversation its parent had up to the fork point, rebuilt from the parent's records."""
 from __future__ import annotations
 
 import json
@@ -11,8 +12,10 @@ import time
 from typing import TYPE_CHECKING
 
 from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
-from cab_core.errors import AttemptEnded, CabError, ConfigError
+from cab_core.attempt.fork import REBUILT, transcript
 from cab_core.attempt.pricing import cost, usage_dict
+from cab_core.attempt.serving import ToolResponse
+from cab_core.errors import AttemptEnded, CabError, ConfigError
 
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
@@ -107,6 +110,7 @@ class ReferenceHarness:
         system = system_prompt(episode.ledger.remaining(), run_code=rc)
         fixed = int((len(system) + len(json.dumps([t.__dict__ for t in tools]))) / 4)
         history: list[Message] = [Message("user", [Text(first_user_message(episode.instruction))])]
+        self._rebuild(episode, history, caps, max_images)
         no_tool_turns = 0
         forced_limit: int | None = None
         turn = 0
@@ -191,12 +195,53 @@ class ReferenceHarness:
         episode.recorder.event("model_usage_total", **{k: round(v, 6) if isinstance(v, float) else v
                                                        for k, v in totals.items()}, turns=turn)
 
+    def _rebuild(self, episode: AttemptSession, history: list[Message], caps: Capabilities, max_images: int) -> None:
+        """A fork goes on from the conversation its parent's model had up to the fork point, not
+        from the instruction alone: what the model asked for and was told must match the world the
+        fork starts in, or it would act on a history it never saw. The turns come from the parent's
+        records (:func:`cab_core.attempt.fork.transcript`); their results are built by the same code
+        as live ones (:meth:`_run_calls`) from the recorded payloads and the observations the fork
+        took again under the same ids, so the model sees them as it saw them then. Reasoning is not
+        replayed: providers accept it only with the opaque token of the response it came from,
+        which the records do not keep. Recorded as ``conversation_rebuilt``, with the turns as the
+        model made them (``model_turns``), so a fork of this fork rebuilds them in turn."""
+        fork = getattr(episode, "fork", None)  # a session written before forks has none
+        if fork is None or episode.ended:
+            return
+        start = len(history)
+        turns = transcript(fork.events)
+        for t in turns:
+            calls = [ToolCall(c["call_id"], c["name"], c["arguments"], c["raw_arguments"]) for c in t["calls"]]
+            history.append(Message("assistant", ([Text(t["text"])] if t["text"] else []) + calls))
+            if not calls:  # the parent's model went on after it: it was nudged
+                history.append(Message("user", [Text(NUDGE)]))
+                continue
+            recorded = [ToolResponse(c["name"], dict(c["result"]), c["obs_ids"], status=c["status"]) if c["made"]
+                        else None for c in t["calls"]]
+            self._run_calls(episode, calls, history, caps, max_images, recorded)
+        made = [c for t in turns for c in t["calls"] if c["made"]]
+        images = sum(len(p.images) if isinstance(p, ToolResult) else isinstance(p, Image)
+                     for m in history[start:] for p in m.parts)
+        episode.recorder.event(
+            REBUILT, at=fork.at, turns=len(turns), calls=len(made),
+            cancelled=sum(not c["made"] for t in turns for c in t["calls"]), images=images,
+            messages=len(history) - start,
+            model_turns=[{"text": t["text"], "tool_calls": [
+                {"call_id": c["call_id"], "name": c["name"], "arguments": c["arguments"],
+                 **({"raw_arguments": c["raw_arguments"]} if c["raw_arguments"] else {})} for c in t["calls"]]}
+                for t in turns])
+
     def _run_calls(self, episode: AttemptSession, calls: list[ToolCall], history: list[Message], caps: Capabilities,
-                   max_images: int) -> None:
+                   max_images: int, recorded: list[ToolResponse | None] | None = None) -> None:
+        """Make one response's calls in order and append their results to ``history``: one tool
+        message per call, then (for a provider without images in tool results) one user message
+        with the images. ``recorded``: the responses the calls got when the parent made them (a
+        fork's rebuilt conversation, :meth:`_rebuild`), None for a call that was cancelled; the
+        calls are then not made again, and their results are built exactly as live ones."""
         aborted = False
         results: list[ToolResult] = []
         followup: list = []
-        for call in calls:
+        for i, call in enumerate(calls):
             if episode.ended:
                 results.append(ToolResult(call.call_id, call.name, json.dumps(
                     {"error": "not executed: the attempt has ended", "attempt_ended": True}), is_error=True))
@@ -210,7 +255,7 @@ class ReferenceHarness:
             if malformed:  # charged like any invalid call (FACTS A.9)
                 args = {MALFORMED_KEY: (call.raw_arguments or "")[:2000]}
             try:
-                r = episode.call(call.name, args)
+                r = episode.call(call.name, args) if recorded is None else recorded[i]
             except AttemptEnded as e:
                 results.append(ToolResult(call.call_id, call.name, json.dumps({"error": str(e), "attempt_ended": True}),
                                           is_error=True))
