@@ -431,6 +431,18 @@ class CodeActionTask(Task):
 
         resume(self, call, world)
 
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether ``solve`` goes on from the hands as they are now (holding, closed, away from
+        their start); False: :func:`..oracle.resume` puts down what is held and takes the hands back
+        to their start first."""
+        return False
+
+    def not_recoverable(self, world: WorldView) -> tuple[str, str] | None:
+        """``(kind, reason)`` when ``solve`` cannot start from this state (kinds:
+        ``cab_core.contracts.task.NOT_RECOVERABLE_KINDS``), e.g. an object it takes standing lies
+        on its side; None: it can."""
+        return None
+
     def solve(self, call: ToolCaller, world: WorldView) -> None:
         """The reference solution from the scene's start (or a state like it: objects where they
         can be taken, hands free), its targets computed from the objects' poses now."""

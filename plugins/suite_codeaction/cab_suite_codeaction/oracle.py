@@ -323,8 +323,11 @@ def resume(task, call, world) -> None:
     2. A final-state task whose state already holds: ``done`` at once.
     3. A world an agent has acted in (a closed gripper, a hand away from its start or on an
        object): put down what is held, open, take the hands back to where they started; what
-       fell on the way is again not recoverable.
-    4. The solution from there (it computes its targets from where the objects are now). If it
+       fell on the way is again not recoverable. A task whose solution goes on from busy hands
+       says so (``task.keeps_hands(world)`` true): then the hands are left as they are.
+    4. A state the task's solution cannot start from (``task.not_recoverable(world)``: an object
+       tipped over, out of both arms' reach...): not recoverable, with the task's reason.
+    5. The solution from there (it computes its targets from where the objects are now). If it
        fails, or ends with the task not holding, the reason is given instead of a claim.
     At an attempt's start steps 1-3 make no call, so a fresh attempt plays as before."""
     from cab_core.contracts.task import NotRecoverable
@@ -351,9 +354,12 @@ def resume(task, call, world) -> None:
         if ok:
             call("done", report="the task already holds; nothing left to do", success_claim=True)
             return
-    if world.start is not None and disturbed(world):
+    if world.start is not None and task.keeps_hands(world) is False and disturbed(world):
         clear_hands(call, world)
         check_fallen(" while the hands were cleared")
+    why = task.not_recoverable(world)
+    if why is not None:
+        raise NotRecoverable(why[0], why[1], achieved())
 
     def checked(tool: str, **kwargs):
         if tool == "done" and kwargs.get("success_claim") and verifier.scoring == "final":
