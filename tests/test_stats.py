@@ -183,3 +183,47 @@ def test_plan_spreads_attempts_over_tasks():
     assert st.plan(0.3, baseline=0.95)["rates"] == pytest.approx((0.7, 1.0))
     with pytest.raises(ValueError):
         st.plan(0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the paired planner (McNemar)
+# ---------------------------------------------------------------------------------------------
+def test_pairs_needed_by_hand():
+    # Connor (1987): delta = 0.1, pd = 0.2: (1.959964 sqrt(.2) + 0.841621 sqrt(.2 - .01))^2 / .01
+    z_a, z_b = 1.959963985, 0.841621234
+    n = (z_a * math.sqrt(0.2) + z_b * math.sqrt(0.19)) ** 2 / 0.01
+    assert st.pairs_needed(0.1, 0.2) == math.ceil(n) == 155
+    assert st.pairs_needed(-0.1, 0.2) == 155  # the sign of the difference does not matter
+    # with every pair discordant the paired test is no better than... the sign test on all pairs
+    assert st.pairs_needed(0.2, 1.0) == math.ceil((z_a + z_b * math.sqrt(0.96)) ** 2 / 0.04)
+    for bad in ((0.3, 0.2), (0.0, 0.2), (0.1, 1.2)):
+        with pytest.raises(ValueError):
+            st.pairs_needed(*bad)
+
+
+@pytest.mark.parametrize("n,p10,p01", [(12, 0.4, 0.05), (30, 0.3, 0.1), (25, 0.25, 0.05), (40, 0.2, 0.15)])
+def test_exact_mcnemar_power_equals_enumerating_outcomes_with_scipy(n, p10, p01):
+    from scipy.stats import binomtest, multinomial
+
+    want = sum(multinomial.pmf([b, c, n - b - c], n, [p10, p01, 1 - p10 - p01])
+               for b in range(n + 1) for c in range(n + 1 - b)
+               if b + c and binomtest(b, b + c, 0.5).pvalue <= 0.05)
+    assert st.mcnemar_exact_power(n, p10, p01) == pytest.approx(want, abs=1e-12)
+
+
+@pytest.mark.parametrize("d,pd", [(0.1, 0.2), (0.2, 0.4), (0.15, 0.25)])
+def test_exact_pairs_reach_the_power_the_approximation_misses(d, pd):
+    p10, p01 = (pd + d) / 2, (pd - d) / 2
+    approx, exact = st.pairs_needed(d, pd), st.pairs_needed_exact(d, pd)
+    assert exact > approx  # the exact test is conservative
+    assert st.mcnemar_exact_power(exact, p10, p01) >= 0.8
+    assert all(st.mcnemar_exact_power(n, p10, p01) < 0.8 for n in range(approx, exact))
+    # and the paired design needs far fewer attempts than the unpaired one at the same rates
+    assert exact < st.attempts_needed(0.5 - d / 2, 0.5 + d / 2)
+
+
+def test_plan_adds_the_paired_design_when_the_discordant_share_is_given():
+    p = st.plan(0.1, tasks=25, discordant=0.2)
+    assert p["paired"]["pairs"] == 168 and p["paired"]["pairs_approximation"] == 155
+    assert p["paired"]["pairs_per_task"] == 7
+    assert st.plan(0.1)["paired"] is None

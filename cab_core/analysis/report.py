@@ -239,7 +239,11 @@ def uncertainty_tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
                      ["Attempts per configuration", str(pl["attempts_per_config"])],
                      [f"Attempts per task over {pl['tasks']} tasks",
                       f"{pl['attempts_per_task']} ({pl['attempts_per_config_rounded']} per configuration)"],
-                     ["Approximation", pl["method"]]]))
+                     ["Approximation", pl["method"]],
+                     *([["Attempt pairs for a paired comparison (McNemar), discordant share "
+                         f"{pct(pl['paired']['discordant'])}",
+                         f"{pl['paired']['pairs']} ({pl['paired']['pairs_per_task']} per task; the normal "
+                         f"approximation says {pl['paired']['pairs_approximation']})"]] if pl.get("paired") else [])]))
     return out
 
 
@@ -406,12 +410,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--plan-baseline", type=float, default=0.5,
                     help="the success rate the difference is centred on (default 0.5, the most demanding)")
     ap.add_argument("--plan-tasks", type=int, help="tasks to spread the attempts over (default: the sweep's, else 25)")
+    ap.add_argument("--plan-discordant", type=float, metavar="P",
+                    help="with --plan-difference: also the attempt pairs a paired comparison (exact McNemar) "
+                         "needs when a share P of the pairs are discordant (one success, one failure; from "
+                         "a pilot's --compare: (only A + only B) / pairs)")
     ap.add_argument("--alpha", type=float, default=0.05, help="two-sided significance level of the plan (default 0.05)")
     ap.add_argument("--power", type=float, default=0.80, help="power of the plan (default 0.80)")
     a = ap.parse_args(argv)
     plan = None
+    if a.plan_discordant is not None and a.plan_difference is None:
+        ap.error("--plan-discordant goes with --plan-difference D")
     if a.plan_difference is not None:
-        plan = {"difference": a.plan_difference, "baseline": a.plan_baseline, "alpha": a.alpha, "power": a.power}
+        plan = {"difference": a.plan_difference, "baseline": a.plan_baseline, "alpha": a.alpha, "power": a.power,
+                "discordant": a.plan_discordant}
         if a.plan_tasks is not None:
             plan["tasks"] = a.plan_tasks
         try:

@@ -12,7 +12,10 @@ outcomes (no records, no simulator); the formulas and a worked example are in do
   percentile interval, resampling instances with replacement (seeded).
 * :func:`attempts_needed`: attempts per configuration to detect a difference between two success
   rates (normal approximation for two independent proportions, pooled variance under H0, no
-  continuity correction), and :func:`plan` spreading them over tasks.
+  continuity correction), and :func:`plan` spreading them over tasks; :func:`pairs_needed`, the
+  attempt pairs a paired comparison (McNemar) needs given the share of discordant pairs (Connor
+  1987), :func:`mcnemar_exact_power`, the exact power of :func:`mcnemar_exact` at n pairs, and
+  :func:`pairs_needed_exact`, the pairs the exact test needs.
 
 The exact test and the normal quantiles use only the standard library (``math.comb``,
 ``statistics.NormalDist``); the bootstrap uses numpy.
@@ -165,7 +168,76 @@ def attempts_needed(p1: float, p2: float, alpha: float = 0.05, power: float = 0.
     return math.ceil(num ** 2 / (p1 - p2) ** 2 - 1e-9)
 
 
-def plan(difference: float, baseline: float = 0.5, tasks: int = 25, alpha: float = 0.05, power: float = 0.80) -> dict:
+def pairs_needed(difference: float, discordant: float, alpha: float = 0.05, power: float = 0.80) -> int:
+    """Attempt pairs for the paired (McNemar) test at two-sided ``alpha`` to detect a difference
+    ``difference`` = p10 - p01 in success rate with probability ``power``, when a share
+    ``discordant`` = p10 + p01 of the pairs have one success and one failure (Connor, "Sample size
+    for testing differences in proportions for the paired-sample design", Biometrics 43, 1987)::
+
+        n = (z_{1-alpha/2} sqrt(pd) + z_{power} sqrt(pd - delta^2))^2 / delta^2
+
+    The fewer discordant pairs (configurations that succeed on the same tasks), the fewer pairs."""
+    d, pd = abs(float(difference)), float(discordant)
+    if not 0 < d <= pd <= 1:
+        raise ValueError(f"need 0 < |difference| <= discordant share <= 1 (got {difference}, {discordant})")
+    if not (0 < alpha < 1 and 0 < power < 1):
+        raise ValueError(f"need 0 < alpha < 1 and 0 < power < 1 (got {alpha}, {power})")
+    z = NormalDist().inv_cdf
+    num = z(1 - alpha / 2) * math.sqrt(pd) + z(power) * math.sqrt(max(pd - d * d, 0.0))
+    return math.ceil(num ** 2 / d ** 2 - 1e-9)
+
+
+def _binom_pmf(m: int, p: float) -> np.ndarray:
+    """Binomial(m, p) probabilities of 0..m (log-space, exact to float rounding)."""
+    k = np.arange(m + 1)
+    if p <= 0 or p >= 1:
+        return (k == (0 if p <= 0 else m)).astype(float)
+    lg = np.array([math.lgamma(i + 1) for i in range(m + 1)])
+    return np.exp(lg[m] - lg - lg[::-1] + k * math.log(p) + (m - k) * math.log1p(-p))
+
+
+def mcnemar_exact_power(n: int, p10: float, p01: float, alpha: float = 0.05) -> float:
+    """The probability that :func:`mcnemar_exact` rejects at ``alpha`` with ``n`` pairs, of which
+    each is (A only) with probability ``p10`` and (B only) with ``p01``, computed exactly: the
+    discordant count m is Binomial(n, p10 + p01) and, given m, A's count b is Binomial(m,
+    p10 / (p10 + p01)); the test rejects when min(b, m - b) <= k*(m), the largest k with
+    2 P(Binomial(m, 1/2) <= k) <= alpha."""
+    pd = p10 + p01
+    if n < 1 or pd <= 0:
+        return 0.0
+    q = p10 / pd
+    pm = _binom_pmf(n, pd)
+    total = 0.0
+    for m in range(1, n + 1):
+        if pm[m] < 1e-15:
+            continue
+        tail = np.cumsum(_binom_pmf(m, 0.5))
+        ks = np.nonzero(2 * tail[: (m + 1) // 2] <= alpha + 1e-12)[0]
+        if not len(ks):
+            continue
+        k = int(ks[-1])
+        f = _binom_pmf(m, q)
+        total += pm[m] * (f[: k + 1].sum() + f[m - k:].sum())
+    return float(total)
+
+
+def pairs_needed_exact(difference: float, discordant: float, alpha: float = 0.05, power: float = 0.80) -> int:
+    """The smallest number of pairs, from :func:`pairs_needed` up, at which the exact McNemar test
+    (:func:`mcnemar_exact`, the one ``--compare`` runs) reaches ``power``
+    (:func:`mcnemar_exact_power`). The exact test is conservative, so this is a few per cent above
+    the approximation; its power is not monotone in n (the test is discrete), so a larger n may
+    fall back just below ``power``."""
+    n0 = pairs_needed(difference, discordant, alpha, power)
+    d = abs(float(difference))
+    p10, p01 = (discordant + d) / 2, (discordant - d) / 2
+    for n in range(n0, 4 * n0 + 50):
+        if mcnemar_exact_power(n, p10, p01, alpha) >= power:
+            return n
+    raise ValueError(f"no n up to {4 * n0 + 50} reaches power {power}")  # pragma: no cover
+
+
+def plan(difference: float, baseline: float = 0.5, tasks: int = 25, alpha: float = 0.05, power: float = 0.80,
+         discordant: float | None = None) -> dict:
     """Attempts per configuration to detect ``difference`` in success rate around ``baseline``
     (the rates ``baseline - difference/2`` and ``baseline + difference/2``, clipped into [0, 1]),
     and the attempts per task when they are spread over ``tasks`` tasks. It treats attempts as
@@ -179,8 +251,16 @@ def plan(difference: float, baseline: float = 0.5, tasks: int = 25, alpha: float
     p1, p2 = lo, lo + difference
     n = attempts_needed(p1, p2, alpha, power)
     per_task = math.ceil(n / tasks)
-    return {"difference": difference, "rates": (p1, p2), "alpha": alpha, "power": power,
-            "method": "normal approximation, two independent proportions, pooled variance under H0, "
-                      "no continuity correction",
-            "attempts_per_config": n, "tasks": tasks, "attempts_per_task": per_task,
-            "attempts_per_config_rounded": per_task * tasks}
+    out = {"difference": difference, "rates": (p1, p2), "alpha": alpha, "power": power,
+           "method": "normal approximation, two independent proportions, pooled variance under H0, "
+                     "no continuity correction",
+           "attempts_per_config": n, "tasks": tasks, "attempts_per_task": per_task,
+           "attempts_per_config_rounded": per_task * tasks, "paired": None}
+    if discordant is not None:
+        approx = pairs_needed(difference, discordant, alpha, power)
+        pairs = pairs_needed_exact(difference, discordant, alpha, power)
+        out["paired"] = {"discordant": discordant, "pairs": pairs, "pairs_per_task": math.ceil(pairs / tasks),
+                         "pairs_approximation": approx,
+                         "method": "exact McNemar test, smallest n from Connor's (1987) approximation up "
+                                   "that reaches the power"}
+    return out
