@@ -386,3 +386,23 @@ def test_mcp_inspector_cli_lists_tools_and_calls_them_on_a_real_attempt(tmp_path
     calls = [e for e in events(out) if e["kind"] == "call"]
     assert [e["tool"] for e in calls] == ["capture_head", "done"]
     assert calls[1]["arguments"] == {"report": "checked with the MCP Inspector", "success_claim": False}
+
+
+def test_a_fork_served_over_mcp_continues_where_its_parent_stood(oracle_run, tmp_path):
+    """``cab +harness=mcp fork.from=<oracle attempt> fork.at=3``: the client is told the attempt
+    continues an earlier one, its first three calls are already spent, and the parent's remaining
+    calls finish the task."""
+    parent, calls = oracle_run
+    out = tmp_path / "fork"
+
+    async def go():
+        async with connect([*CAB, "+harness=mcp", f"fork.from={parent}", "fork.at=3", f"hydra.run.dir={out}",
+                            "record.video=false"]) as session:
+            return await run_script(session, calls[3:])
+
+    run = anyio.run(go)
+    assert "continues an earlier one from the state after its tool call 3" in run.instructions
+    assert run.outcomes[0].payload["budget"]["tool_calls_remaining"] == 42 - 4  # the prefix's 3, and this call
+    r = result(out)
+    assert r["verdict"]["success"] is True and r["fork"]["at"] == 3 and r["fork"]["exact"] is True
+    assert r["budget"]["tool_calls_used"] == len([c for c in calls if c["tool"] != "done"])

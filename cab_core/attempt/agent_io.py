@@ -96,6 +96,18 @@ def first_user_message(instruction: str) -> str:
     return instruction.strip()
 
 
+def continuation_note(fork: dict | None) -> str:
+    """What an agent that did not see the earlier calls is told when an attempt is a fork
+    (``spec.fork``): where the world stands and that the calls made so far count. Empty otherwise.
+    A harness that rebuilds its agent's conversation (the reference harness) needs no note."""
+    if not fork:
+        return ""
+    k = int(fork["at"])
+    return (f"\n\nThis attempt continues an earlier one from the state after its tool call {k}: the robot and "
+            f"the objects are where that attempt left them, its {k} tool call(s) and the simulated time they "
+            "took count against the budgets, and the observations it took can be used by their ids.")
+
+
 def png_bytes(image: np.ndarray) -> bytes:
     from PIL import Image as PILImage
 

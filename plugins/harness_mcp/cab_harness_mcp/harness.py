@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cab_core.apps import stdio
-from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.attempt.agent_io import continuation_note, first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.attempt.agent_record import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
 
@@ -190,7 +190,8 @@ class McpHarness:
 
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
         self.task_prompt = instructions_text(system_prompt(budget, run_code=run_code_limits(spec)),
-                                             first_user_message(task_info(spec.task).instruction))
+                                             first_user_message(task_info(spec.task).instruction)
+                                             + continuation_note(getattr(spec, "fork", None)))
         self.tools = tool_list()
         self.bridge = CallBridge()
         server = build_server(self.tools, self.bridge, self.task_prompt, _version())
