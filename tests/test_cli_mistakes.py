@@ -259,3 +259,22 @@ def test_an_unknown_record_observer_is_refused_with_the_command_line(tmp_path):
     assert r.returncode == 2, r.stderr
     assert r.stderr.startswith("cab: unknown record observer 'no_such_observer'")
     assert not out.exists()
+
+
+# --- seed sets: a sweep of each task's named seeds -------------------------------------------
+
+def test_a_seed_set_becomes_the_sweeps_seeds():
+    from cab_core.apps.cmdline import expand_seed_set
+
+    argv = ["-m", "task=click_bell,lift_pot", "model=idle", "seed_set=heldout"]
+    assert expand_seed_set(argv) == argv + ["seed=" + ",".join(str(s) for s in range(100, 120))]
+    assert expand_seed_set(["-m", "task=lift_pot"]) == ["-m", "task=lift_pot"]  # no seed set: unchanged
+
+
+@pytest.mark.parametrize("overrides, sweep, line", [
+    (["seed_set=heldout"], False, "cab: seed_set=NAME sweeps a task's named seed set: add -m (or give one seed=S)"),
+    (["seed_set=heldout", "seed=3"], True, "cab: give seed_set=NAME or seed=..., not both"),
+    (["task=click_bell", "seed_set=nope"], True, "cab: task click_bell has no seed set 'nope'; its sets: catalog, heldout"),
+])
+def test_seed_set_mistakes(tmp_path, overrides, sweep, line):
+    cab_refuses(tmp_path, overrides, line, sweep=sweep)

@@ -63,11 +63,12 @@ def main() -> None:
     global _HYDRA_FULL_ERROR_BY_CAB, _HYDRA_FULL_ERROR_BEFORE
     import os
 
-    from cab_core.apps.cmdline import check_command_line
+    from cab_core.apps.cmdline import check_command_line, expand_seed_set
     from cab_core.errors import ConfigError, PluginError
 
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
     try:
+        sys.argv = [sys.argv[0]] + expand_seed_set(sys.argv[1:])
         args = check_command_line(sys.argv[1:])
     except (ConfigError, PluginError) as e:  # PluginError: a plugin's config dirs or tasks (cab_core.config)
         _refuse(str(e))

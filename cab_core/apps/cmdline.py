@@ -56,6 +56,49 @@ def _values(o) -> list:
     return list(v) if isinstance(v, list) else [v]
 
 
+def expand_seed_set(argv: list[str]) -> list[str]:
+    """``seed_set=NAME`` in a sweep (``-m``): each selected task's named seed set
+    (``Task.seeds(NAME)``, e.g. ``heldout``) becomes the sweep's ``seed=`` values, and
+    ``seed_set=NAME`` stays in the configuration (the report tells catalog from other seeds by the
+    seed itself). Refused in one line when not a sweep, with ``seed=`` too, or when the tasks' sets
+    differ (sweep those tasks separately)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import ValueType
+    from hydra.errors import HydraException
+
+    keys = [a.split("=", 1)[0].lstrip("+") for a in argv if "=" in a and not a.startswith("-")]
+    if "seed_set" not in keys:
+        return argv
+    if not ({"-m", "--multirun"} & set(argv)):
+        raise ConfigError("seed_set=NAME sweeps a task's named seed set: add -m (or give one seed=S)")
+    if "seed" in keys:
+        raise ConfigError("give seed_set=NAME or seed=..., not both")
+    overrides = [a for a in argv if "=" in a and not a.startswith("-")]
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except HydraException as e:
+        raise ConfigError(one_line(e)) from None
+    from cab_core.plugins import all_tasks
+
+    installed = all_tasks()
+    name = next(str(o.value()) for o in parsed if o.key_or_group.lstrip("+") == "seed_set")
+    task = next((o for o in parsed if o.key_or_group == "task"), None)
+    if task is None:
+        from cab_core.config import default_selection
+
+        tasks = [default_selection(("task",))["task"]]
+    elif task.value_type == ValueType.GLOB_CHOICE_SWEEP:
+        tasks = list(task.value().filter(sorted(installed)))
+    else:
+        tasks = [str(v) for v in _values(task)]
+    sets = {t: installed[t].seeds(name) for t in tasks if t in installed}  # an unknown task: refused later
+    if len(set(sets.values())) > 1:
+        raise ConfigError(f"the tasks' {name!r} seed sets differ ({', '.join(f'{t}: {len(s)} seeds' for t, s in sets.items())});"
+                          " sweep them separately")
+    seeds = next(iter(sets.values()), ())
+    return argv + [f"seed={','.join(str(s) for s in seeds)}"] if seeds else argv
+
+
 def _interpolated(v) -> bool:
     return isinstance(v, str) and "${" in v
 
