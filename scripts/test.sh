@@ -4,6 +4,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install.sh
 bash scripts/install-node-tools.sh   # MCP Inspector, Claude Code, Codex CLI: the MCP harness tests drive them
+bash scripts/install-browser.sh      # Debian's chromium and chromedriver: the report's page in a headless browser
 . .venv/bin/activate
 set +e
 # --cab-conformance: the conformance suites of cab_core.testing (its pytest plugin) over every installed

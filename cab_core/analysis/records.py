@@ -21,6 +21,9 @@ from cab_core.errors import RecordError
 from cab_core.sweep.records import SET_ASIDE
 
 read_json = read_json_object  # one JSON object from a file; a missing or unparsable file is a RecordError
+#: where ``cab-report --recoverability`` keeps the forks it makes (cab_core.analysis.recoverability):
+#: a folder of that name is not part of the sweep it sits in (the forks are no attempts of the sweep)
+FORKS_FOLDER = "recoverability"
 
 
 class InfrastructureResult(RecordError):
@@ -103,9 +106,10 @@ def attempt_dirs(root: Path):
     """``(directory, path relative to root, whether it holds result.json)`` for every attempt
     directory below ``root`` (``root`` itself included), in sorted order: a directory holding
     ``result.json`` or ``events.jsonl``, not searched further (a replay kept inside it is not a sweep
-    attempt); hidden directories (``.hydra``) and the records a sweep set aside are skipped."""
+    attempt); hidden directories (``.hydra``), the records a sweep set aside and the forks of
+    ``cab-report --recoverability`` (a folder ``recoverability``) are skipped."""
     for d, dirs, files in os.walk(root):
-        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x != SET_ASIDE)
+        dirs[:] = sorted(x for x in dirs if not x.startswith(".") and x not in (SET_ASIDE, FORKS_FOLDER))
         if "result.json" in files or "events.jsonl" in files:
             dirs[:] = []
             yield Path(d), os.path.relpath(d, root).replace(os.sep, "/"), "result.json" in files
@@ -114,8 +118,8 @@ def attempt_dirs(root: Path):
 def scan(root: Path) -> Scan:
     """Every attempt directory below ``root`` (``root`` itself included), in sorted order. An
     attempt directory is not searched further (a replay kept inside it is not a sweep attempt);
-    hidden directories (``.hydra``) and the records a sweep set aside (interrupted tries) are
-    skipped. An attempt the sweep gave up on for infrastructure failures (no verdict) is listed
+    hidden directories (``.hydra``), the records a sweep set aside (interrupted tries) and the
+    forks of ``cab-report --recoverability`` are skipped. An attempt the sweep gave up on for infrastructure failures (no verdict) is listed
     apart: it is no failure of the model."""
     root = Path(root)
     if not root.is_dir():

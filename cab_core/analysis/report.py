@@ -13,6 +13,16 @@ Unfinished attempts (records without ``result.json``) and unreadable ones are li
 (exact McNemar on attempt pairs, paired bootstrap over instances); ``--plan-difference D`` adds how
 many attempts detecting a difference D in success rate needs (also without a directory: the plan
 alone). The statistics are :mod:`cab_core.analysis.stats`; their formulas: docs/statistics.md.
+
+``--recoverability`` forks every failed attempt at its failure point (the charged call after which
+its first never-attained subgoal should have followed: the call at which every subgoal before it had
+been attained, 0 when none was) and at its last call, lets the stage-aware reference solution finish
+each fork, and adds per configuration the share of failures it recovers from each point (Wilson 95 %
+interval), where its recovery fails (stage, reasons by kind), a figure, and the forks of each failed
+attempt (linked pages). ``--recoverability-model-repeats N`` also lets the attempt's own model (as its
+records hold it) retry N times from each point. The forks go to ``recoverability/`` in the output
+folder (``--recoverability-dir``); those already finished are not run again. Definitions:
+:mod:`cab_core.analysis.recoverability`.
 """
 from __future__ import annotations
 
@@ -27,8 +37,8 @@ from cab_core.contracts.verifier import BORDERLINE_FRACTION
 from cab_core.analysis import svg
 from cab_core.analysis.failure import LABELS, STAGES, Classifier
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
-from cab_core.analysis.records import Scan, read_json, scan
-from cab_core.analysis import stats
+from cab_core.analysis.records import FORKS_FOLDER, Scan, read_json, scan
+from cab_core.analysis import recoverability, stats
 
 REPORT_VERSION = "cab-report/1"
 MALFORMED = (LookupError, TypeError, ValueError, AttributeError)  # a field of the wrong shape in a record
@@ -76,7 +86,7 @@ def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None 
          "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep,
          "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
          "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))],
-         "comparison": None, "plan": None}
+         "comparison": None, "plan": None, "recoverability": None}
     if compare:
         r["comparison"] = comparison(r, *compare, **(bootstrap or {}))
     if plan:
@@ -200,6 +210,8 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
     names = [c["config"] for c in cs]
     out.append(("Task x configuration (successful/attempts)", ["Task", *names],
                 [[t, *["{}/{}".format(*row[n]) if n in row else "–" for n in names]] for t, row in r["matrix"].items()]))
+    if r.get("recoverability"):
+        out += recoverability.tables(r["recoverability"])
     return out
 
 
@@ -266,6 +278,8 @@ def notes(r: dict) -> list[str]:
         out.append(f"Excluded as infrastructure failures (not the model's): {len(r['excluded'])}: "
                    + "; ".join(f"{e['dir']} {e['why']}" for e in r["excluded"]))
     out += [f"Skipped record {p['dir']}: {p['problem']}" for p in r["problems"]]
+    if r.get("recoverability"):
+        out += recoverability.notes(r["recoverability"])
     flagged = [(c["config"], a) for c in r["configs"] for a in c["borderline"]["attempts"]]
     if flagged:
         out.append(f"Borderline verdicts (deciding margin under {BORDERLINE_FRACTION:.0%} of its tolerance): "
@@ -309,6 +323,8 @@ def figures(r: dict) -> list[str]:
     with_wall = [(c["config"], c["wall_seconds_median"], c["success_rate"]) for c in cs if c["wall_seconds_median"] is not None]
     if with_wall:
         figs.append(svg.scatter("Success rate against median wall time", with_wall, "median wall time (s)", "success rate"))
+    if r.get("recoverability"):
+        figs.append(recoverability.figure(r["recoverability"]))
     return figs
 
 
@@ -360,14 +376,18 @@ def html(r: dict, view_links: dict[str, str]) -> str:
     parts.append("<h2>Attempts</h2><table><tr><th>Attempt</th><th>Configuration</th><th>Success</th><th>Termination</th>"
                  "<th>Claim</th><th>Calls</th><th>Failure stage</th><th>Why</th><th>Verdict margin</th></tr>"
                  + "".join(rows) + "</table>")
+    if r.get("recoverability"):
+        parts.append(recoverability.html_cases(r["recoverability"], view_links))
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>cab report</title><style>{CSS}</style></head>"
             f"<body>{''.join(parts)}</body></html>\n")
 
 
-def write(root: Path, out: Path | None = None, views: bool = True, **extra) -> dict:
+def write(root: Path, out: Path | None = None, views: bool = True, recover: dict | None = None, **extra) -> dict:
     """Build the report for ``root`` and write report.json, report.md and report.html into ``out``
     (default: ``root``); with ``views``, also each attempt's view.html, linked from the page.
-    ``extra``: what :func:`build` adds (``compare``, ``plan``, ``bootstrap``)."""
+    ``recover``: fork the failed attempts (:func:`recoverability.run`'s ``repeats``, ``jobs`` and
+    ``folder``, default ``<out>/recoverability``). ``extra``: what :func:`build` adds (``compare``,
+    ``plan``, ``bootstrap``)."""
     from cab_core.analysis.viewer import write_view
 
     root = Path(root)
@@ -376,8 +396,14 @@ def write(root: Path, out: Path | None = None, views: bool = True, **extra) -> d
     if not (r["attempts"] or r["problems"] or r["excluded"] or r["in_flight"]):
         raise RecordError(f"no attempt found under {root} (no result.json or events.jsonl below it); nothing written")
     out.mkdir(parents=True, exist_ok=True)
+    if recover is not None:
+        folder = recover.get("folder") or out / FORKS_FOLDER
+        r["recoverability"] = recoverability.run(root, r, Path(folder), out, recover.get("repeats", 0),
+                                                 recover.get("jobs", 1))
     links = {}
     if views:
+        for d in recoverability.fork_folders(r["recoverability"], out):  # the forks' pages, linked from the page
+            write_view(d)
         for rel in [m["rel"] for m in r["attempt_rows"]] + r["in_flight"]:
             page = write_view(root / rel)
             links[rel] = os.path.relpath(page, out).replace(os.sep, "/")
@@ -416,7 +442,27 @@ def main(argv: list[str] | None = None) -> None:
                          "a pilot's --compare: (only A + only B) / pairs)")
     ap.add_argument("--alpha", type=float, default=0.05, help="two-sided significance level of the plan (default 0.05)")
     ap.add_argument("--power", type=float, default=0.80, help="power of the plan (default 0.80)")
+    ap.add_argument("--recoverability", action="store_true",
+                    help="fork every failed attempt at its failure point (the charged call at which every subgoal "
+                         "before its first never-attained one had been attained; 0 when none was) and at its last "
+                         "call, let the stage-aware reference solution finish each fork, and add the share of "
+                         "failures it recovers (Wilson 95%% interval), where recovery fails and why, per "
+                         "configuration (table, figure, the forks of each failure); forks already finished are "
+                         "not run again")
+    ap.add_argument("--recoverability-model-repeats", type=int, default=0, metavar="N",
+                    help="with --recoverability: also let each failed attempt's own model (its recorded model and "
+                         "harness configuration, e.g. a scripted agent's script) retry N times from each point "
+                         "(default 0)")
+    ap.add_argument("--recoverability-dir", metavar="DIR",
+                    help="where the forks go (default: recoverability/ in the output folder; a folder of that name "
+                         "is never counted as part of the sweep)")
+    ap.add_argument("--recoverability-jobs", type=int, default=os.cpu_count() or 1, metavar="J",
+                    help="forks run at a time, each in its own process (default: the cores)")
     a = ap.parse_args(argv)
+    if a.recoverability_model_repeats < 0 or a.recoverability_jobs < 1:
+        ap.error("--recoverability-model-repeats must be >= 0 and --recoverability-jobs >= 1")
+    if not a.recoverability and (a.recoverability_model_repeats or a.recoverability_dir):
+        ap.error("--recoverability-model-repeats and --recoverability-dir need --recoverability")
     plan = None
     if a.plan_discordant is not None and a.plan_difference is None:
         ap.error("--plan-discordant goes with --plan-difference D")
@@ -440,14 +486,21 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     extra = {"compare": a.compare, "plan": plan,
              "bootstrap": {"resamples": a.resamples, "confidence": a.confidence, "seed": a.bootstrap_seed}}
+    recover = None
+    if a.recoverability:
+        recover = {"repeats": a.recoverability_model_repeats, "jobs": a.recoverability_jobs,
+                   "folder": Path(a.recoverability_dir) if a.recoverability_dir else None}
     try:
-        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, **extra)
+        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, recover=recover, **extra)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
         sys.exit(2)
     title, header, rows = tables(r)[0]
     print(md_table(header, rows))
     for title, header, rows in uncertainty_tables(r)[1:]:  # the comparison and the plan, when asked for
+        print(f"\n{title}\n\n{md_table(header, rows)}")
+    if r.get("recoverability"):
+        title, header, rows = recoverability.tables(r["recoverability"])[0]
         print(f"\n{title}\n\n{md_table(header, rows)}")
     for p in r["problems"]:
         print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)

@@ -107,3 +107,41 @@ def scatter(title: str, points: list[tuple[str, float, float]], xlabel: str, yla
         body.append(f'<circle cx="{px:.1f}" cy="{py:.1f}" r="5" fill="{PALETTE[i % len(PALETTE)]}"/>')
         body.append(_text(px + 7, py - 6, label))
     return _frame(left + width + 160, top + height + 40, body, title)
+
+
+def grouped_hbars(title: str, rows: list[tuple[str, list[tuple[float | None, tuple[float, float] | None]]]],
+                  series: list[str], fmt=lambda v: f"{100 * v:.1f}%") -> str:
+    """Horizontal bars in groups: one group per row label, one bar per series (value in 0..1,
+    optional interval drawn as a whisker; a None value draws no bar and writes "–"), with a legend
+    of ``series``."""
+    left, width, bar = 220, 360, 14
+    group = bar * (len(series) + 0.8)
+    cols = 3
+    legend_rows = (len(series) + cols - 1) // cols
+    h = 30 + group * len(rows) + 20 * legend_rows + 10
+    body = [_text(left, 14, title, extra='font-weight="bold"')]
+    for i, (label, vals) in enumerate(rows):
+        y0 = 26 + i * group
+        body.append(_text(left - 6, y0 + bar * len(series) / 2 + 4, label, "end"))
+        for j, (v, ci) in enumerate(vals):
+            y = y0 + j * bar
+            color = PALETTE[j % len(PALETTE)]
+            name = f"{label}, {series[j]}" if j < len(series) else label
+            if v is None:
+                body.append(_text(left + 4, y + bar * 0.8, "–"))
+                continue
+            wv = width * v
+            body.append(f'<rect x="{left}" y="{y:.1f}" width="{wv:.1f}" height="{bar - 2}" fill="{color}">'
+                        f'<title>{escape(name)}: {escape(fmt(v))}</title></rect>')
+            if ci is not None:
+                x0, x1 = left + width * ci[0], left + width * ci[1]
+                ym = y + (bar - 2) / 2
+                body.append(f'<path d="M{x0:.1f},{ym:.1f}H{x1:.1f}M{x0:.1f},{ym - 4:.1f}v8M{x1:.1f},{ym - 4:.1f}v8" '
+                            f'stroke="#222" fill="none"/>')
+            body.append(_text(left + max(wv, width * (ci[1] if ci else 0)) + 6, y + bar * 0.8, fmt(v)))
+    ly = 26 + len(rows) * group + 8
+    for j, s in enumerate(series):
+        lx, lyy = left + (j % cols) * 190, ly + (j // cols) * 20
+        body.append(f'<rect x="{lx}" y="{lyy:.1f}" width="10" height="10" fill="{PALETTE[j % len(PALETTE)]}"/>')
+        body.append(_text(lx + 14, lyy + 9, s))
+    return _frame(left + max(width + 90, cols * 190) + 40, int(h), body, title)

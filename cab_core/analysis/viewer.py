@@ -6,6 +6,11 @@ turn, every charged call with its arguments, status, physics steps and the resul
 every program with the calls it made, and the images the agent was shown. It is self-contained
 except for the video and the observation images, referenced by relative path inside the attempt
 directory, so the directory can be moved or archived as a whole.
+
+Forks (:mod:`cab_core.attempt.fork`) are linked both ways: the page of a fork (``result.json``
+``fork: {parent, at}``) links to its parent's page and says at which charged call it started; the page
+of an attempt that was forked (its ``forks.jsonl``) links to each fork's page. The links are relative
+(``<folder>/view.html``, the page cab-view writes there; ``cab-report`` writes every one it links to).
 """
 from __future__ import annotations
 
@@ -178,6 +183,40 @@ def _rows(summary: list[tuple[str, object]]) -> str:
     return "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
 
 
+def _page_link(rel: str) -> str:
+    """The page of the attempt folder ``rel`` (relative to this one), as a link target."""
+    return escape(rel.rstrip("/") + "/view.html")
+
+
+def fork_rows(d: Path, fork: dict | None) -> str:
+    """Table rows linking an attempt to the attempt it was forked from (``fork``: its ``result.json``
+    or configuration's ``{parent, at}``) and to the forks made of it (its ``forks.jsonl``)."""
+    from cab_core.attempt.fork import forks_of
+
+    out = ""
+    if isinstance(fork, dict) and isinstance(fork.get("parent"), str):
+        at = fork.get("at")
+        out += (f'<tr><th>fork of</th><td><a class="fork-parent" href="{_page_link(fork["parent"])}">'
+                f'{escape(fork["parent"])}</a> · fork at call {escape(str(at))}</td></tr>')
+    children = {f["child"]: f for f in forks_of(d)}  # a fork made again into the same folder: once
+    if children:
+        items = "".join(f'<li><a class="fork-child" href="{_page_link(c)}">{escape(c)}</a> · fork at call '
+                        f'{escape(str(f.get("at")))}{_fork_outcome(d / c)}</li>'
+                        for c, f in sorted(children.items(), key=lambda kv: (
+                            kv[1].get("at") if isinstance(kv[1].get("at"), int) else -1, kv[0])))
+        out += f"<tr><th>forks</th><td><ul>{items}</ul></td></tr>"
+    return out
+
+
+def _fork_outcome(child: Path) -> str:
+    """`` · <model> · success`` (or failure, or unfinished) for a fork's folder."""
+    try:
+        r = json.loads((child / "result.json").read_text())
+        return f" · {escape(str(r.get('model')))} · {'success' if (r.get('verdict') or {}).get('success') else 'failure'}"
+    except (OSError, ValueError, AttributeError):
+        return " · unfinished"
+
+
 def _events(d: Path) -> tuple[list[dict], str]:
     """The event log, and a table row saying what is wrong with it when it cannot be read."""
     try:
@@ -208,7 +247,7 @@ def render(a: Attempt) -> str:
         ("tool calls", f"{b.get('tool_calls_used')}/{b.get('tool_calls_limit')}"),
         ("simulated s", f"{b.get('sim_seconds_used')}/{b.get('sim_seconds_limit')}"),
         ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
-    ]) + bad
+    ]) + fork_rows(a.dir, r.get("fork")) + bad
     video = ('<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
              else "<p>no video recorded</p>")
     return _page(a.rel, f"{r['task']} · {a.config} · attempt {r['attempt']}", rows,
@@ -230,7 +269,7 @@ def render_unfinished(d: Path) -> str:
         ("configuration", config), ("instruction", start.get("instruction", "")),
         ("state", "unfinished: no result.json (still running, or interrupted)"),
         ("tool calls so far", charged), ("last event at wall s", events[-1].get("t_wall") if events else "–"),
-    ]) + bad
+    ]) + fork_rows(d, c.get("fork")) + bad
     return _page(d.name, f"{start.get('task', d.name)} · {config} · unfinished", rows,
                  f"<h2>Timeline so far</h2>{timeline(d, events)}")
 
