@@ -21,7 +21,7 @@ from omegaconf import OmegaConf
 from cab_core.errors import ConfigError
 
 CORE_CONFIG_MODULE = "cab_core.conf"
-GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment", "experiment")
+GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment", "experiment", "randomize")
 PROVIDER = "cab-plugins"  # the search path entries added here
 
 

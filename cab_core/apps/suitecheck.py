@@ -203,6 +203,9 @@ def main() -> None:
                     help="run each oracle N times under small perturbations (perturb.seed 1..N: objects moved "
                          "<= 1 mm and turned <= 0.5 deg, physical parameters +-2 %%); success: every oracle "
                          f"succeeds in at least {PERTURBED_SUCCESS_MIN * 100:.0f} %% of its runs on each simulator")
+    ap.add_argument("--randomize", default=None, metavar="OPTION",
+                    help="every attempt under this appearance randomisation (none, lighting, textures, camera, "
+                         "distractors, all: cab_core.attempt.randomize), drawn from each attempt's seed")
     ap.add_argument("--forks", action="store_true",
                     help="then fork each oracle attempt at every charged call (0..N) and let the oracle finish "
                          "from there; success: every fork succeeds or reports why the state is not recoverable")
@@ -211,6 +214,14 @@ def main() -> None:
     ap.add_argument("--compare", action="store_true",
                     help="run the check twice, --cold then warm, and print both wall times and the speed-up")
     a = ap.parse_args()
+    if a.randomize is not None:
+        from cab_core.config import composed
+
+        try:
+            composed([f"randomize={a.randomize}"])
+        except Exception:
+            print(f"cab-suite-check: unknown --randomize option {a.randomize!r}", file=sys.stderr)
+            sys.exit(2)
     if a.sim is None:
         from cab_core.config import default_selection
 
@@ -258,7 +269,7 @@ def main() -> None:
               f"verdict {verdict(cold_rows)}", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     rows = run_batch(tasks, seeds, max(1, a.jobs), out / "warm" if a.compare else out, agents, tuple(sims),
-                 cold=a.cold, perturb=a.perturb)
+                 cold=a.cold, perturb=a.perturb, randomize=a.randomize)
     timings["cold_s" if a.cold else "warm_s"] = round(time.monotonic() - t0, 1)
     print_table(rows)
     table = cross_sim(rows)

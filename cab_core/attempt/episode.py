@@ -81,6 +81,7 @@ class Episode:
         self.built = BuiltWorld(spec, self.task, self.sim, self.planner, self.emb, video_size)
         self.instance: SceneInstance = self.built.instance
         self.perturbation = self.built.perturbation
+        self.randomization = self.built.randomization
         self.ledger = BudgetLedger.create(spec.budget_tool_calls, spec.budget_sim_seconds,
                                           spec.budget_wall_seconds, self.sim.timestep,
                                           spec.run_code_max_internal_calls)
@@ -203,6 +204,7 @@ class Episode:
             instruction=self.task.info.instruction,
             scoring=self.verifier.scoring,
             perturbation=self.perturbation,
+            randomization=self.randomization,
             fork=self._fork_record,
             verdict=verdict,
             termination=self.termination,

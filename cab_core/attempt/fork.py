@@ -11,8 +11,8 @@ statuses and physics steps) and refuses to go on (:class:`ForkDiverged`) where i
 
 Why re-execution, not stored simulator states: it needs nothing the records do not already hold,
 so any attempt ever recorded can be forked (the real agent attempts in the project's shared data
-included); a state blob written after every call would perturb the run it is taken from (SAPIEN
-and PyBullet write a snapshot back into the world) and cost a rebuild per call on PyBullet.
+included); a state blob written after every call would perturb the run it is taken from (a simulator may
+write a saved state back into its world, see its plugin) and may cost a world rebuild per call.
 
 The child's records hold the prefix's events (marked ``"fork_prefix": true``) and snapshots, then
 a ``fork`` event, then its own agent's; ``result.json`` names the parent (a path relative to the
@@ -38,7 +38,7 @@ FORK_TOLERANCE_M = 0.005
 #: the parent's settings a fork keeps: everything that decides the world and the budgets
 KEPT = ("task", "seed", "sim", "embodiment", "planner", "budget_tool_calls", "budget_sim_seconds",
         "budget_wall_seconds", "run_code_max_internal_calls", "sandbox", "sim_cfg", "planner_cfg",
-        "embodiment_cfg", "perturb")
+        "embodiment_cfg", "perturb", "randomize")
 #: the event kinds that are direct calls of the agent, in the order it made them
 DIRECT = ("call", "call_refused")
 FORKS_FILE = "forks.jsonl"  # in the parent: one line per fork made of it (best effort)

@@ -278,6 +278,18 @@ class Perturbation(Block):
     objects: dict[str, dict[str, Num]] | None = None
 
 
+class Randomization(Block):
+    """What appearance randomisation drew (:mod:`cab_core.attempt.randomize`): the option, its
+    parts' parameters and, per part, the draws."""
+    omit_if_none = ("lighting", "textures", "camera", "distractors")
+    name: str
+    parts: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    lighting: dict[str, Any] | None = None
+    textures: dict[str, Any] | None = None
+    camera: dict[str, Any] | None = None
+    distractors: dict[str, Any] | None = None
+
+
 class Fork(Block):
     """A fork (:mod:`cab_core.attempt.fork`): the parent (relative to this attempt's folder), the
     charged call after which it started, and how closely the re-executed prefix matched."""
@@ -312,7 +324,7 @@ class AttemptRecord(Block):
     """``result.json``: one attempt's identity, verdict, termination, claim, budgets, timings,
     counts, sandbox, versions, checkpoints, video and, where they apply, who played, what was
     perturbed and the infrastructure failures. Fields in the order they are written."""
-    omit_if_none = ("agent", "perturbation", "fork")
+    omit_if_none = ("agent", "perturbation", "randomization", "fork")
     record_version: str
     task: str
     seed: int
@@ -326,6 +338,7 @@ class AttemptRecord(Block):
     instruction: str | None = None
     scoring: str | None = None
     perturbation: Perturbation | None = None
+    randomization: Randomization | None = None
     fork: Fork | None = None
     verdict: Verdict
     termination: Termination

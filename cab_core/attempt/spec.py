@@ -10,6 +10,7 @@ from typing import Any
 
 from cab_core.attempt.budget import BUDGET_KEYS, check_budget_value
 from cab_core.attempt.perturb import Perturbation
+from cab_core.attempt.randomize import Randomization
 from cab_core.errors import ConfigError
 
 
@@ -37,6 +38,9 @@ class AttemptSpec:
     model_cfg: dict = field(default_factory=dict)
     harness_cfg: dict = field(default_factory=dict)
     perturb: dict | None = None  # cab_core.attempt.perturb.Perturbation fields; None: the instance as sampled
+    #: appearance randomisation (:mod:`cab_core.attempt.randomize`): the option's name and the
+    #: parameters of the parts it draws; None: the scene as the task draws it
+    randomize: dict | None = None
     #: a fork (:mod:`cab_core.attempt.fork`): ``{"parent": <the parent's folder, relative to
     #: output_dir>, "at": K}``; None: an attempt from the scene's start
     fork: dict | None = None
@@ -103,6 +107,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
     wall_s = info.budget_wall_s if b.get("wall_seconds") is None else b["wall_seconds"]
     max_internal = 500 if b.get("run_code_max_internal_calls") is None else b["run_code_max_internal_calls"]
     perturbation = Perturbation.from_cfg(c.get("perturb"))
+    randomization = Randomization.from_cfg(c.get("randomize"))
     spec = AttemptSpec(
         task=info.name, seed=int(seed), attempt=int(attempt), sim=c["sim"]["name"], embodiment=c["embodiment"]["name"],
         planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
@@ -112,6 +117,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
         sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
         harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},
         perturb=None if perturbation is None else perturbation.as_record(),
+        randomize=None if randomization is None else randomization.as_record(),
     )
     return forked(spec, c.get("fork") or {})
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cab_core.attempt.perturb import Perturbation, perturb_scene
+from cab_core.attempt.randomize import Randomization, randomize_instance
 from cab_core.contracts.scene import CameraSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -35,11 +36,18 @@ class BuiltWorld:
         if spec.perturb is not None:
             p = Perturbation(**spec.perturb)
             self.perturbation = {**p.as_record(), "objects": perturb_scene(scene, p, spec.seed)}
+        self.randomization: dict | None = None
+        built_emb = embodiment  # what the simulator builds: its fixed cameras jittered by randomisation
+        if getattr(spec, "randomize", None):
+            r = Randomization(**spec.randomize)
+            built_emb, self.randomization = randomize_instance(
+                scene, embodiment, r, spec.seed, spec.task, task.info.instruction,
+                task.distractor_slots(self.instance) if "distractors" in r.parts else [])
         if video_size is not None:
-            head = next(c for c in embodiment.cameras if c.name == "head_camera")
+            head = next(c for c in built_emb.cameras if c.name == "head_camera")
             scene.cameras.append(CameraSpec(RECORD_CAMERA, int(video_size[0]), int(video_size[1]),
                                             head.fovy_deg, head.pose))
-        sim.build(scene, embodiment)
+        sim.build(scene, built_emb)
         planner.setup(embodiment, sim.timestep)
         sim.set_qpos(np.asarray(self.home_qpos(), float))
         sim.step(task.settle_steps())  # uncharged settling before the agent starts
@@ -55,7 +63,8 @@ class BuiltWorld:
     def scene_info(self) -> dict:
         """The privileged description of the instance (``privileged/scene_info.json``)."""
         return {"task": self.spec.task, "seed": self.spec.seed, "info": self.instance.info,
-                "objects": self.sim.object_names(), "perturbation": self.perturbation}
+                "objects": self.sim.object_names(), "perturbation": self.perturbation,
+                "randomization": self.randomization}
 
     def object_states(self) -> dict[str, Any]:
         """Every object's pose (and an articulated object's joint positions and link poses), rounded

@@ -26,6 +26,9 @@ class Material:
     restitution: float = 0.0
     roughness: float = 0.6
     metallic: float = 0.0
+    #: an RGB image file (PNG) shown on the shape's surface instead of the plain colour, or None;
+    #: how it is laid onto a primitive is the simulator's (its UV mapping), repeated as it needs
+    texture: str | None = None
 
 
 @dataclass(frozen=True)

@@ -102,6 +102,12 @@ class Task(ABC):
         of its stages are already achieved (``world.start`` holds the world at the attempt's
         start), complete the rest, or raise :class:`NotRecoverable` with the reason."""
 
+    def distractor_slots(self, instance: SceneInstance) -> list[tuple[float, float, float]]:
+        """Free places ``(x, y, z of the supporting surface)`` for distractor objects (appearance
+        randomisation, :mod:`cab_core.attempt.randomize`): where no verifier, checkpoint or
+        reference solution of this instance looks or moves. None offered: no distractors."""
+        return []
+
     def settle_steps(self) -> int:
         """Physics steps run at reset before the agent starts (not charged)."""
         return 100

@@ -329,7 +329,7 @@ class AttemptSupervisor:
 # -- batches: many one-off attempts (an oracle or the idle agent per task, seed and simulator) -----
 
 
-def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
+def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None) -> list[dict]:
     """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
     seed=S model=A sim=X`` composes it (in this thread: Hydra's composition is not thread-safe).
     ``cold``: a renderer generates its tables in each process (no cache folder), as before the cache."""
@@ -344,6 +344,8 @@ def attempt_configs(jobs: list[tuple], cold: bool) -> list[dict]:
             overrides = [f"task={task}", f"seed={seed}", f"model={agent}", f"sim={sim}", "attempt=1"]
             if perturb and perturb[0] is not None:
                 overrides.append(f"perturb.seed={perturb[0]}")
+            if randomize is not None:
+                overrides.append(f"randomize={randomize}")
             cfg = compose(config_name="config", overrides=normalise_overrides(overrides))
             plain = OmegaConf.to_container(cfg, resolve=True)
             if cold and "brdf_cache" in plain["sim"]:
@@ -362,7 +364,8 @@ def run_one(config: dict, out: str, settings) -> dict:
     info = task_info(task)
     identity = {"task": task, "seed": seed, "attempt": 1, "sim": sim, "model": agent}
     t0 = time.monotonic()
-    row = {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb}
+    row = {"task": task, "seed": seed, "agent": agent, "sim": sim, "perturb": perturb,
+           "randomize": (config.get("randomize") or {}).get("name", "none")}
     fork = config.get("fork") or {}
     if fork.get("from") is not None:
         row.update(parent=str(fork["from"]), fork_at=fork.get("at"))
@@ -397,11 +400,12 @@ def run_one(config: dict, out: str, settings) -> dict:
 
 def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None, jobs: int, out: Path,
           agents=("oracle", "idle"), sims: tuple[str, ...] | None = None, cold: bool = False,
-          perturb: int = 0) -> list[dict]:
+          perturb: int = 0, randomize: str | None = None) -> list[dict]:
     """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
     worker process that runs its attempts one after another (``sweep.warm_workers``), renderer
     tables read from the cache folder. ``cold``: a fresh process per attempt and no cache folder, as a
-    ``cab -m`` sweep ran attempts before warm workers, for comparison. ``perturb``: each attempt
+    ``cab -m`` sweep ran attempts before warm workers, for comparison. ``randomize``: the appearance
+    randomisation option of every attempt (``cab_core.attempt.randomize``). ``perturb``: each attempt
     ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.attempt.perturb``). ``seeds``: one
     list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
     from cab_core.plugins import task_info
@@ -421,7 +425,7 @@ def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | 
                     for k in (range(1, perturb + 1) if perturb else [None]):
                         where = out / sim / t / f"seed-{s}" / a / (f"perturb-{k}" if k else "")
                         jobs_list.append((t, s, a, str(where), sim, k))
-    configs = attempt_configs(jobs_list, cold)
+    configs = attempt_configs(jobs_list, cold, randomize)
     return run_configs(configs, [j[3] for j in jobs_list], jobs, cold)
 
 

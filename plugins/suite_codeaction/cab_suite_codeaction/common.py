@@ -370,6 +370,21 @@ def arm_names(embodiment: Any) -> list[str]:
     return sorted(arms) if arms else list(ARMS)
 
 
+def _body_radius(body: Body) -> float:
+    """How far a body reaches from its origin in the table plane, roughly (a mesh: 0.15 m)."""
+    r = 0.0
+    for s in body.shapes:
+        g = s.geometry
+        off = float(np.linalg.norm(np.asarray(s.pose[:2], float)))
+        if isinstance(g, Box):
+            r = max(r, off + float(np.linalg.norm(g.half_size[:2])))
+        elif isinstance(g, (Cylinder, Sphere, Capsule)):
+            r = max(r, off + float(g.radius) + (float(g.half_length) if isinstance(g, Capsule) else 0.0))
+        else:
+            r = max(r, off + 0.15)
+    return r
+
+
 class CodeActionTask(Task):
     """A catalog task of this suite: ``name`` selects the catalog entry (instruction, seed,
     scoring, budgets); unless a subclass sets it, it is the name of the subclass's module (the
@@ -430,6 +445,24 @@ class CodeActionTask(Task):
         from .oracle import resume
 
         resume(self, call, world)
+
+    #: free places for distractor objects (appearance randomisation): the back corners of the part
+    #: of the table the head camera sees, far from the robot, (x offset from the table's centre,
+    #: y); each kept only where no object of the instance is near
+    DISTRACTOR_PLACES = ((-0.36, 0.26), (0.36, 0.26), (-0.30, 0.14), (0.30, 0.14))
+    DISTRACTOR_CLEARANCE = 0.12  # m between a distractor's place and the reach of any object of the task
+
+    def distractor_slots(self, instance: SceneInstance) -> list[tuple[float, float, float]]:
+        top = float(instance.info["table_top_z"])
+        reach = [(np.asarray(b.pose[:2], float), _body_radius(b)) for b in instance.scene.bodies
+                 if b.name not in ("table", "wall")]
+        reach += [(np.asarray(a.pose[:2], float), 0.3) for a in instance.scene.articulations]
+        out = []
+        for dx, y in self.DISTRACTOR_PLACES:
+            p = np.array([self.table_x + dx, y])
+            if all(np.linalg.norm(p - c) > r + self.DISTRACTOR_CLEARANCE for c, r in reach):
+                out.append((float(p[0]), float(p[1]), top))
+        return out
 
     def keeps_hands(self, world: WorldView) -> bool:
         """Whether ``solve`` goes on from the hands as they are now (holding, closed, away from
