@@ -141,6 +141,7 @@ class AttemptMeasures:
     margin_predicate: str | None = None
     borderline: bool | None = None  # None: a record written before margins were recorded
     seed: int | None = None  # the task instance's seed: attempts on the same (task, seed) are paired
+    randomize: str = "none"  # the appearance randomisation option (cab_core.attempt.randomize)
 
     @classmethod
     def of(cls, a: Attempt) -> "AttemptMeasures":
@@ -179,6 +180,7 @@ class AttemptMeasures:
             margin_predicate=None if decided is None else decided.get("predicate"),
             borderline=None if decided is None else bool(decided.get("borderline")),
             seed=r.get("seed"),
+            randomize=str((r.get("randomization") or {}).get("name") or "none"),
         )
 
     def spatial_at(self, k: int) -> float | None:

@@ -38,7 +38,7 @@ from cab_core.analysis import svg
 from cab_core.analysis.failure import LABELS, STAGES, Classifier
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
 from cab_core.analysis.records import FORKS_FOLDER, Scan, read_json, scan
-from cab_core.analysis import recoverability, stats
+from cab_core.analysis import instances, recoverability, stats
 
 REPORT_VERSION = "cab-report/1"
 MALFORMED = (LookupError, TypeError, ValueError, AttributeError)  # a field of the wrong shape in a record
@@ -87,6 +87,9 @@ def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None 
          "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
          "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))],
          "comparison": None, "plan": None, "recoverability": None}
+    rows = r["attempt_rows"]
+    r["instances"] = instances.by_instance_kind(rows, instances.seed_kinds({m["task"] for m in rows}))
+    r["randomization"] = instances.by_randomization(rows)
     if compare:
         r["comparison"] = comparison(r, *compare, **(bootstrap or {}))
     if plan:
@@ -160,6 +163,7 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
             [[c["config"], *client_col(c), f"{c['successes']}/{c['attempts']}", pct(c["success_rate"]),
               f"{pct(c['wilson95'][0])}–{pct(c['wilson95'][1])}", f"{c['coverage']}/{c['tasks']}",
               *[str(c["consistency"].get(k, 0)) for k in ks]] for c in cs]),
+           *instances.tables(r),
            *uncertainty_tables(r),
            ("Stopping conditions and completion claims",
             ["Configuration", "Done", "Tool", "Phys.", "Other", "Correct", "Over", "Under", "Absent"],
