@@ -242,7 +242,7 @@ def check_command_line(argv: list[str]):
 
 #: what a fork keeps from its parent: groups compared by option name, keys by value
 _FORK_KEPT_GROUPS = ("task", "sim", "embodiment", "planner")
-_FORK_KEPT_SECTIONS = ("budget", "perturb", "sandbox")
+_FORK_KEPT_SECTIONS = ("budget", "perturb", "sandbox", "randomize")
 
 
 def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
@@ -259,10 +259,12 @@ def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
         parent = ForkPoint.load(fork_from.value(), at if isinstance(at, int) and at >= 0 else 0).config
     except CabError:
         return  # the fork itself says what is wrong with its parent, in one line
-    for g in _FORK_KEPT_GROUPS:
+    kept = {g: parent.get(g) for g in _FORK_KEPT_GROUPS}
+    kept["randomize"] = (parent.get("randomize") or {}).get("name", "none")
+    for g, theirs in kept.items():
         for v in choices.get(g, []):
-            if v != parent.get(g):
-                raise ConfigError(f"a fork keeps its parent's {g} ({parent.get(g)}); drop {g}={v}")
+            if v != theirs:
+                raise ConfigError(f"a fork keeps its parent's {g} ({theirs}); drop {g}={v}")
     for o in keys:
         top = o.key_or_group.split(".")[0]
         if o.key_or_group == "seed" and not o.is_sweep_override() and o.value() not in (None, parent.get("seed")):
