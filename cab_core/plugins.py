@@ -22,7 +22,7 @@ from cab_core.errors import ConfigError, PluginError, closest
 
 GROUP = "cab"
 KINDS = ("simulators", "planners", "embodiments", "task_suites", "harnesses", "agents",
-         "model_providers", "context_policies", "record_observers")
+         "model_providers", "context_policies", "record_observers", "record_exporters")
 
 
 def build_plugin_manager(extra: list[Any] | None = None, autoload: bool | None = None) -> pluggy.PluginManager:
@@ -234,11 +234,12 @@ class ObserverSpec(NamedTuple):
 
 def select_record_observers(record_cfg: Mapping | None, pm=None) -> list[ObserverSpec]:
     """The record observers ``record.observers`` selects among the installed ones (null or absent:
-    every installed one; a list of names; a mapping of name to its config) (:mod:`cab_core.attempt.observers`)."""
+    every installed one but those whose factory says ``on_by_default = False``; a list of names; a
+    mapping of name to its config) (:mod:`cab_core.attempt.observers`)."""
     chosen = (record_cfg or {}).get("observers")
     installed = registry("record_observers", pm)
     if chosen is None:
-        return [ObserverSpec(n, f, {}) for n, f in sorted(installed.items())]
+        return [ObserverSpec(n, f, {}) for n, f in sorted(installed.items()) if getattr(f, "on_by_default", True)]
     if isinstance(chosen, (list, tuple)):
         wanted = {}
         for n in chosen:

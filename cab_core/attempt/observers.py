@@ -3,7 +3,9 @@
 
 Which observers an attempt gets is the config key ``record.observers``:
 
-* absent or null: every installed observer, each with an empty config;
+* absent or null: every installed observer, each with an empty config, except those whose factory
+  has the attribute ``on_by_default = False`` (an observer that costs an attempt more than it
+  should pay by default: named, it is selected like any other);
 * a list of names: those (``[]``: none), each with an empty config;
 * a mapping ``name -> config`` (a mapping, or null for an empty one): those, each with its config.
 

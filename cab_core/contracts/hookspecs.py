@@ -114,7 +114,22 @@ def cab_record_observers() -> dict[str, Callable[[dict], Any]]:
     ``result.json`` is written; each a read-only deep copy. ``on_event`` runs while the recorder
     holds the record (events stay in order): keep it quick. An observer that raises is logged once
     and detached; the attempt and its verdict are unaffected (:mod:`cab_core.attempt.observers`). Called
-    as each attempt starts. All results are merged."""
+    as each attempt starts. All results are merged.
+
+    An observer that costs more than an attempt should pay for it by default sets the attribute
+    ``on_by_default = False`` on its factory: null then leaves it out, and only a list or mapping
+    that names it selects it."""
+
+
+@hookspec
+def cab_record_exporters() -> dict[str, Callable[[Any, Any], list]]:
+    """Formats an attempt's record can be exported to with ``cab-export <name> <attempt or sweep
+    folder>``: ``{"my_format": export}``. ``export(attempt_dir, out_dir)`` reads the finished
+    attempt in ``attempt_dir`` (a :class:`pathlib.Path`; ``result.json``, ``events.jsonl``,
+    ``observations/``, ``privileged/``...) and writes its file(s) into ``out_dir`` (the attempt's own
+    folder unless ``--out`` is given; created), returning the paths written. It raises
+    ``MissingDependency`` (the install command) when a library it needs is missing. Called once per
+    process. All results are merged."""
 
 
 # --- configuration ----------------------------------------------------------------------------
