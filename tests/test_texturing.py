@@ -95,3 +95,14 @@ def test_texture_image(tmp_path):
     with pytest.raises(SimulatorError, match="bad.png is not a readable image"):
         texturing.texture_image(bad, "body 'x'")
 
+
+def test_pattern_texture_is_srgb_encoded():
+    """The light parts of a procedural texture are its colour as an image shows it (sRGB)."""
+    from cab_core.attempt.randomize import pattern_texture
+
+    rgb = (0.2, 0.5, 0.8)
+    with Image.open(pattern_texture("checks", rgb, 7)) as im:
+        px = np.asarray(im.convert("RGB"), float).reshape(-1, 3)
+    light = px[np.argmax(px.sum(axis=1))]
+    want = [255 * (1.055 * c ** (1 / 2.4) - 0.055) for c in rgb]
+    np.testing.assert_allclose(light, want, atol=1.0)
