@@ -156,12 +156,15 @@ PATTERNS = ("stripes", "checks", "noise")
 
 def pattern_texture(kind: str, rgb, seed: int, size: int = 128) -> str:
     """A procedural texture image (PNG in the cache folder, made once): ``kind`` over the colour
-    ``rgb`` (0..1), its contrast and scale drawn from ``seed``. Returns the file's path."""
+    ``rgb`` (linear, 0..1, like every cab colour), its contrast and scale drawn from ``seed``. The
+    pixels are written sRGB-encoded, as an image file's are read (a simulator shows a texture's
+    bytes as it shows a plain colour's sRGB value), so the light stripes show ``rgb`` itself.
+    Returns the file's path."""
     from cab_core.contracts.scene import cache_dir
 
     folder = Path(cache_dir()) / "textures"
     folder.mkdir(parents=True, exist_ok=True)
-    key = hashlib.sha256(f"{kind}:{_r(rgb)}:{seed}:{size}".encode()).hexdigest()[:16]
+    key = hashlib.sha256(f"{kind}:{_r(rgb)}:{seed}:{size}:srgb".encode()).hexdigest()[:16]
     path = folder / f"{kind}-{key}.png"
     if path.exists():
         return str(path)
@@ -179,6 +182,7 @@ def pattern_texture(kind: str, rgb, seed: int, size: int = 128) -> str:
         m = np.kron(coarse, np.ones((size // 8, size // 8)))
     contrast = rng.uniform(0.15, 0.4)
     img = np.clip(np.asarray(rgb, float)[None, None, :3] * (1 - contrast * m[..., None]), 0, 1)
+    img = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.power(img, 1 / 2.4) - 0.055)
     from PIL import Image
 
     tmp = path.with_suffix(f".{rng.integers(1 << 30)}.tmp.png")

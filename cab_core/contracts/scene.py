@@ -26,8 +26,9 @@ class Material:
     restitution: float = 0.0
     roughness: float = 0.6
     metallic: float = 0.0
-    #: an RGB image file (PNG) shown on the shape's surface instead of the plain colour, or None;
-    #: how it is laid onto a primitive is the simulator's (its UV mapping), repeated as it needs
+    #: an RGB image file (PNG, sRGB values) shown on the shape's surface instead of the plain colour,
+    #: or None; on a primitive (box, sphere, cylinder, capsule) repeated every 0.3 m of surface as
+    #: :mod:`cab_core.contracts.texturing` maps it; a mesh keeps the plain colour. Visual only
     texture: str | None = None
 
 

@@ -721,6 +721,139 @@ def check_physics_independent_of_rendering(rendering: SimFactory, physics_only: 
         b.close()
 
 
+# -- textures -------------------------------------------------------------------------------------
+
+STRIPE_A = (235, 200, 40)  # yellow
+STRIPE_B = (40, 70, 210)  # blue
+TEXTURE_CAMERA = "texture_cam"
+_PANEL_CENTRE = (0.6, 0.4, 0.3)
+_PANEL_HALF = (0.2, 0.15, 0.15)
+
+
+def stripes_png(workdir: str | Path | None = None) -> Path:
+    """A 64 x 64 RGB PNG of diagonal stripes, 8 pixels wide, alternating :data:`STRIPE_A` and
+    :data:`STRIPE_B` (seamless when repeated)."""
+    from PIL import Image
+
+    path = assets_dir(workdir) / "stripes.png"
+    if not path.exists():
+        y, x = np.mgrid[0:64, 0:64]
+        m = ((x + y) // 8) % 2
+        img = np.where(m[..., None] == 0, np.array(STRIPE_A, np.uint8), np.array(STRIPE_B, np.uint8))
+        tmp = path.with_suffix(".tmp.png")
+        Image.fromarray(img.astype(np.uint8)).save(tmp)
+        tmp.replace(path)
+    return path
+
+
+def texture_scene(texture: str | None) -> SceneSpec:
+    """A static box (the panel: its top and its front face, normal -y, in view of
+    :data:`TEXTURE_CAMERA`); a sphere, a cylinder and a capsule dropped onto the back of its top (out
+    of the sampled middle of the faces) and a plain cube among them. The panel and the three round
+    bodies wear ``texture`` over a grey colour (None: plain grey)."""
+    grey = Material(color=(0.5, 0.5, 0.5, 1.0), texture=texture)
+    cx, cy, cz = _PANEL_CENTRE
+    top = cz + _PANEL_HALF[2]
+    along_y = (math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4))  # local x (the axis) -> world y
+    bodies = [
+        Body("panel", [Shape(Box(_PANEL_HALF), material=grey)], pose=(*_PANEL_CENTRE, 1, 0, 0, 0), kind="static"),
+        Body("t_ball", [Shape(Sphere(0.03), material=grey)], pose=(cx + 0.16, cy + 0.115, top + 0.04, 1, 0, 0, 0)),
+        Body("t_roll", [Shape(Cylinder(0.02, 0.03), material=grey)], pose=(cx - 0.16, cy + 0.115, top + 0.03)
+             + along_y),
+        Body("t_pill", [Shape(Capsule(0.02, 0.04), material=grey)], pose=(cx - 0.05, cy + 0.125, top + 0.03,
+                                                                           1, 0, 0, 0)),
+        Body("cube", [Shape(Box((0.02, 0.02, 0.02)), material=Material(color=(0.9, 0.1, 0.1, 1)))],
+             pose=(cx + 0.07, cy + 0.12, top + 0.03, 1, 0, 0, 0), mass=CUBE_MASS),
+    ]
+    cam = CameraSpec(TEXTURE_CAMERA, width=320, height=240, fovy_deg=45.0,
+                     pose=tuple(look_at_cv((cx, cy - 0.85, cz + 0.55), (cx, cy, cz))))
+    return SceneSpec(bodies=bodies, cameras=[cam], timestep=TIMESTEP)
+
+
+def _face_pixels(sim: Simulator, image: np.ndarray, face: str) -> np.ndarray:
+    """The pixels (n x 3) at a 16 x 16 grid of points over the middle 60% of a face of the panel
+    (``top`` or ``front``), projected with the simulator's camera pose and intrinsics."""
+    cx, cy, cz = _PANEL_CENTRE
+    hx, hy, hz = _PANEL_HALF
+    s = np.linspace(-0.6, 0.6, 16)
+    a, b = np.meshgrid(s, s)
+    if face == "top":
+        pts = np.stack([cx + a.ravel() * hx, cy + b.ravel() * hy, np.full(a.size, cz + hz)], axis=1)
+    else:
+        pts = np.stack([cx + a.ravel() * hx, np.full(a.size, cy - hy), cz + b.ravel() * hz], axis=1)
+    cam = sim.camera_pose(TEXTURE_CAMERA)
+    K = sim.camera_intrinsics(TEXTURE_CAMERA)
+    out = []
+    for p in pts:
+        q = transform_point(pose_inv(cam), p)
+        u, v = (K @ q)[:2] / q[2]
+        assert q[2] > 0 and 0 <= u < image.shape[1] and 0 <= v < image.shape[0], f"{face} face out of view"
+        out.append(image[int(v), int(u)])
+    return np.asarray(out, float)
+
+
+def _stripe_share(px: np.ndarray) -> tuple[float, float]:
+    """Shares of pixels of the yellow and of the blue stripe, told by hue (light scales them)."""
+    r, g, b = px[:, 0], px[:, 1], px[:, 2]
+    yellow = (r > b + 50) & (g > b + 30)
+    blue = b > r + 50
+    return float(np.mean(yellow)), float(np.mean(blue))
+
+
+def check_textures(factory: SimFactory) -> None:
+    """``Material.texture`` on primitives: a box wearing a high-contrast stripes image shows the
+    stripes on its top and on its side (a face normal to y: an engine that projects the image along
+    one axis streaks it there), in both stripe colours, where the plain grey box is uniform; the
+    textured sphere, cylinder and capsule render; a world with textures steps bit for bit like the
+    same world without (textures are visual only); a missing or unreadable texture file is a
+    SimulatorError naming the file, at build."""
+    from cab_core.errors import SimulatorError
+
+    png = stripes_png()
+    emb = make_embodiment()
+    a, b = factory(), factory()
+    try:
+        a.build(texture_scene(str(png)), emb)
+        b.build(texture_scene(None), emb)
+        ia, ib = a.render(TEXTURE_CAMERA), b.render(TEXTURE_CAMERA)
+        for face in ("top", "front"):
+            pa, pb = _face_pixels(a, ia, face), _face_pixels(b, ib, face)
+            sa, sb = float(pa.std(axis=0).mean()), float(pb.std(axis=0).mean())
+            assert sb < 15.0, f"{face} face of the plain box is not uniform (std {sb:.1f})"
+            assert sa > 30.0 and sa > 3 * sb, (
+                f"{face} face of the textured box shows no pattern (std {sa:.1f}, plain box {sb:.1f})")
+            ya, ba = _stripe_share(pa)
+            assert ya > 0.15 and ba > 0.15, (
+                f"{face} face of the textured box lacks a stripe colour (yellow {ya:.2f}, blue {ba:.2f} of "
+                f"its pixels)")
+            assert _stripe_share(pb) == (0.0, 0.0), f"{face} face of the plain box shows stripe colours"
+        _assert_bit_equal(world_state(a), world_state(b), "textured vs plain world, built")
+        for k in range(3):
+            _motion_script(a, 80, phase=80 * k)
+            _motion_script(b, 80, phase=80 * k)
+            ra, rb = a.render(TEXTURE_CAMERA), b.render(TEXTURE_CAMERA)
+            assert ra.std() > 2.0 and rb.std() > 2.0
+            _assert_bit_equal(world_state(a), world_state(b), f"textured vs plain world, step {80 * (k + 1)}")
+        ball = a.get_object_pose("t_ball")
+        assert ball[2] < _PANEL_CENTRE[2] + _PANEL_HALF[2] + 0.035, f"the textured ball did not land: {ball}"
+    finally:
+        a.close()
+        b.close()
+    bad = assets_dir() / "not-an-image.png"
+    bad.write_bytes(b"this is not a PNG file")
+    for path in (assets_dir() / "missing-texture.png", bad):
+        sim = factory()
+        try:
+            try:
+                sim.build(texture_scene(str(path)), emb)
+            except SimulatorError as e:
+                assert str(path) in str(e), f"the error does not name the texture file {path}: {e}"
+            else:
+                raise AssertionError(f"a build with texture file {path.name} did not raise SimulatorError")
+        finally:
+            sim.close()
+
+
 CHECKS: list[Callable[[SimFactory], None]] = [
     check_build_and_names,
     check_seeded_reset_identical,
@@ -734,13 +867,14 @@ CHECKS: list[Callable[[SimFactory], None]] = [
     check_timestep,
     check_object_api,
     check_render_samples,
+    check_textures,
 ]
 
 
 # Checks that render images; the others also run on a physics-only build.
 NEEDS_RENDERER: tuple[Callable[[SimFactory], None], ...] = (check_seeded_reset_identical,
                                                             check_sequential_builds_identical, check_cameras,
-                                                            check_render_samples)
+                                                            check_render_samples, check_textures)
 
 
 def check_id(check: Callable) -> str:

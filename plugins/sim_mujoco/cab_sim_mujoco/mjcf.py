@@ -10,6 +10,16 @@ the robot from its URDF, go through the same conversion. The MJCF uses MuJoCo's 
 - Collision geoms sit in geom group 3 (never drawn), visual geoms in group 1 (drawn, massless, no
   contacts), so inertia comes from collision geoms only (``inertiagrouprange``).
 - Capsules and cylinders lie along local x in cab and along z in MuJoCo: a quarter turn about y.
+- Textures (``Material.texture``): a textured box, sphere, cylinder or capsule's visual geom is a
+  mesh geom of the OBJ :func:`cab_core.contracts.texturing.uv_mesh` writes, with its texture
+  coordinates (tiles of 0.3 m of surface: the image repeats every 0.3 m on every face, see there),
+  and a material of a ``2d`` texture from the image file. MuJoCo's own mapping of a 2d texture onto
+  a primitive (projected along the geom's z axis, ``texrepeat``/``texuniform``) would streak it
+  down a box's sides, hence the mesh. MuJoCo multiplies the texture by the material colour, which
+  is white (alpha kept): the image replaces the plain colour, its bytes shown as they are (as the
+  sRGB-encoded plain colours are). Meshes keep their plain colour. The geom stays visual only
+  (group 1, no contacts, no mass): the collision geoms are the primitives as ever. A missing or
+  unreadable image is a ``SimulatorError`` naming it, physics-only builds included.
 - Cameras: cab's OpenCV frame (x right, y down, z forward) is MuJoCo's camera frame (x right, y up,
   looking along -z) turned half a turn about x.
 - The robot: gravity compensated links (``gravcomp``), one position servo per driven joint with the
@@ -32,6 +42,7 @@ from cab_core.contracts.scene import (ArticulatedObject, Body, Box, CameraSpec, 
                             SceneSpec, Shape, Sphere)
 from cab_core.contracts.simsupport import camera_mount, check_camera_spec, check_object_names, pose_or_bad
 from cab_core.contracts.simulator import ROBOT
+from cab_core.contracts.texturing import texture_image, textured, uv_mesh
 
 from .physics import PhysicsParams
 
@@ -170,6 +181,7 @@ class MjcfWriter:
         self.root = ET.Element("mujoco", model="cab")
         self._assets = ET.SubElement(self.root, "asset")
         self._meshes: dict[tuple, str] = {}
+        self._materials: dict[tuple, str] = {}  # (image file, alpha) -> textured material
         self._excludes: list[tuple[str, str]] = []
         self.plan = Plan(xml="")
 
@@ -234,8 +246,30 @@ class MjcfWriter:
                     raise BadCommand(f"{what}: MuJoCo collides a mesh as its convex hull; a non-convex "
                                      f"collision mesh must be split into convex pieces (convex=True)")
                 self._collision(self._geom(parent, g, pose, what), shape.material, density)
-            if shape.visual:
+            if not shape.visual:
+                continue
+            # the image is checked on meshes too, which keep their colour
+            image = None if shape.material.texture is None else texture_image(shape.material.texture, what)
+            if textured(shape):
+                el = self._geom(parent, Mesh(uv_mesh(g)), pose, what)
+                self._visual(el, shape.material.color)
+                del el.attrib["rgba"]  # a geom's own rgba would override its material's colour
+                el.set("material", self._textured_material(image, float(shape.material.color[3])))
+            else:
                 self._visual(self._geom(parent, g, pose, what), shape.material.color)
+
+    def _textured_material(self, image: str, alpha: float) -> str:
+        """A material showing ``image`` through the mesh's texture coordinates (repeated beyond
+        0..1). MuJoCo multiplies the texture by the material colour: white shows the image as it is.
+        Specular and shininess are MuJoCo's defaults, as on the plain-coloured geoms."""
+        key = (image, alpha)
+        name = self._materials.get(key)
+        if name is None:
+            name = self._materials[key] = f"texmat{len(self._materials)}"
+            tex = f"tex{len(self._materials) - 1}"
+            ET.SubElement(self._assets, "texture", name=tex, type="2d", file=image)
+            ET.SubElement(self._assets, "material", name=name, texture=tex, rgba=_fmt((1.0, 1.0, 1.0, alpha)))
+        return name
 
     # world ---------------------------------------------------------------------------------------
     def _options(self, scene: SceneSpec, timestep: float, cameras: list[CameraSpec]) -> None:

@@ -22,6 +22,18 @@ its base pose is the centre-of-mass frame; both are converted here). Cameras: co
 mount link and the OpenCV-axes spec, rendered with a projection built from K (1 px agreement with
 SAPIEN's pinhole model by construction).
 
+Textures (``Material.texture``): a textured box, sphere, cylinder or capsule is drawn as the
+triangle mesh :func:`cab_core.contracts.texturing.uv_mesh` writes (a ``GEOM_MESH`` visual shape;
+texture coordinates in tiles of 0.3 m of surface: the image repeats every 0.3 m on every face, see
+there), the image loaded with ``loadTexture`` and put on that visual shape with
+``changeVisualShape(textureUniqueId=...)`` (a capsule is then one mesh, not split into a cylinder
+and two spheres). TinyRenderer multiplies the texture by the shape's colour, which is white (alpha
+kept): the image replaces the plain colour; it samples the nearest texel and wraps coordinates
+beyond 0..1 (the EGL renderer repeats too). Meshes keep their plain colour. Visual shapes only:
+the collision shapes, links and masses are as without textures. ``resetSimulation`` drops the
+client's textures, so every (re)build loads them again. The image is checked at every build,
+physics-only ones included: a missing or unreadable file is a ``SimulatorError`` naming it.
+
 Snapshots: ``save_state`` records every multibody's base pose and velocity and joint positions and
 velocities exactly as Bullet holds them (float64), the drive targets, the step count and the last
 step's contacts. Restoring resets the physics client and rebuilds the world from the same
@@ -55,6 +67,7 @@ from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, Pa
                                 pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
                                 step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
+from cab_core.contracts.texturing import texture_image, textured, uv_mesh
 
 from . import massprops
 from . import renderer as _renderer
@@ -124,11 +137,11 @@ _Z_TO_X = (0.0, 0.0, 0.0, math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0
 
 def _split_capsules(shapes: list) -> list:
     """Visual shapes with every capsule drawn as a cylinder and two spheres (TinyRenderer's own
-    capsule mesh is coarse, with pointed ends)."""
+    capsule mesh is coarse, with pointed ends); a textured capsule is drawn as its own mesh."""
     out = []
     for s in shapes:
         g = s.geometry
-        if not isinstance(g, Capsule):
+        if not isinstance(g, Capsule) or textured(s):
             out.append(s)
             continue
         pose = pose_or_bad(s.pose)
@@ -232,6 +245,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._names: dict[tuple[int, int], str] = {}
         self._bodies: dict[str, _MultiBody] = {}
         self._ghosts: list[tuple[_MultiBody, int]] = []  # (body, collision-free body of extra visuals)
+        self._texture_ids: dict[str, int] = {}  # image file -> texture id (resetSimulation drops them)
         self._arts: dict[str, _MultiBody] = {}
         self._build_ground(scene)
         for body in scene.bodies:
@@ -276,7 +290,9 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             g = s.geometry
             pose = pose_or_bad(s.pose)
             kind, half, radius, length, fname, scale, flags = pybullet.GEOM_BOX, [0.0] * 3, 0.0, 0.0, "", [1.0] * 3, 0
-            if isinstance(g, Box):
+            if not collision and textured(s):  # a mesh with texture coordinates, in the shape frame
+                kind, fname = pybullet.GEOM_MESH, uv_mesh(g)
+            elif isinstance(g, Box):
                 half = [float(h) for h in g.half_size]
             elif isinstance(g, Sphere):
                 kind, radius = pybullet.GEOM_SPHERE, float(g.radius)
@@ -300,7 +316,9 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
                                ("flags", flags), (pos_key, list(pose[:3])), (orn_key, _xyzw(pose[3:]))):
                 out[key].append(value)
             if not collision:
-                out["rgbaColors"].append(_renderer.display_color(s.material.color))
+                # the renderer multiplies a texture by the colour: white shows the image as it is
+                rgba = (1.0, 1.0, 1.0, *s.material.color[3:4]) if s.material.texture is not None else s.material.color
+                out["rgbaColors"].append(_renderer.display_color(rgba))
         if not collision:
             del out["flags"]
         return out
@@ -344,6 +362,9 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         n_vis = max(n, -(-len(vis_shapes) // _MAX_SHAPES))
         vis_chunks = [vis_shapes[i * _MAX_SHAPES:(i + 1) * _MAX_SHAPES] for i in range(n_vis)]
         vis_chunks, ghost_chunks = vis_chunks[:n], vis_chunks[n:]
+        for sh in body.shapes:  # checked on physics-only builds too
+            if sh.visual and sh.material.texture is not None:
+                texture_image(sh.material.texture, f"body {body.name!r}")
         cols, viss = [], []
         for chunk in col_chunks:
             cols.append(c.createCollisionShapeArray(**self._shape_arrays(body, chunk, True)) if chunk else -1)
@@ -390,12 +411,34 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
                              angularDamping=float(body.angular_damping))
         mb = _MultiBody(uid, body.kind, frames[0])
         self._bodies[body.name] = mb
+        for link, chunk in enumerate(vis_chunks, start=-1):
+            self._apply_textures(body, uid, link, chunk)
         for chunk in ghost_chunks:
             vis = c.createVisualShapeArray(**self._shape_arrays(body, chunk, False))
             ghost = c.createMultiBody(0.0, -1, vis, list(pose[:3]), _xyzw(pose[3:]))
             if ghost < 0:
                 raise SimulatorError(f"body {body.name!r}: PyBullet refused its extra visual shapes")
+            self._apply_textures(body, ghost, -1, chunk)
             self._ghosts.append((mb, ghost))
+
+    def _apply_textures(self, body, uid: int, link: int, shapes: list) -> None:
+        """Put each textured shape's image on its visual shape (``shapes``: the link's visual shapes
+        in creation order, which is PyBullet's shape index)."""
+        for k, sh in enumerate(shapes):
+            if textured(sh):
+                self._c.changeVisualShape(uid, link, shapeIndex=k,
+                                          textureUniqueId=self._texture_id(sh.material.texture, body.name))
+
+    def _texture_id(self, path: str, body: str) -> int:
+        """The client's texture of an image file, loaded once per (re)build of the world."""
+        file = texture_image(path, f"body {body!r}")
+        tid = self._texture_ids.get(file)
+        if tid is None:
+            try:
+                tid = self._texture_ids[file] = self._c.loadTexture(file)
+            except pybullet.error as e:
+                raise SimulatorError(f"body {body!r}: PyBullet cannot load texture file {file}: {e}") from None
+        return tid
 
     def _place_ghosts(self) -> None:
         """Put each ghost (a body's visual shapes beyond its links' capacity) on its body."""

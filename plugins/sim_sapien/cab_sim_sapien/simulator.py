@@ -45,6 +45,16 @@ Snapshots (measured on the conformance world and on the aloha scenes, PhysX 5.3 
 - Two builds of the same spec step identically (PhysX CPU is deterministic for the same scene built
   in the same order); renders of the same state are identical.
 
+Textures (``Material.texture``): a textured box, sphere, cylinder or capsule is drawn as the
+triangle mesh :func:`cab_core.contracts.texturing.uv_mesh` writes (texture coordinates in tiles of
+0.3 m of surface: the image repeats every 0.3 m on every face, see there), with a
+``RenderMaterial`` whose base-colour texture is the image (``RenderTexture2D``: sRGB, decoded to
+linear like the plain colours, linear filtering, ``repeat`` addressing) and whose base colour is
+white: SAPIEN multiplies the two, so the image replaces the plain colour (alpha, roughness and
+metallic are the material's). Meshes keep their plain colour. Only the visual shape changes: the
+collision shapes are the primitives as ever. The image is checked at every build, physics-only
+ones included: a missing or unreadable file is a ``SimulatorError`` naming it.
+
 Contacts are not collected per step: ``get_contacts`` reads PhysX's report of the last step when it
 is first called after that step, so stepping costs nothing extra.
 """
@@ -70,6 +80,7 @@ from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, Pa
                                 pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
                                 step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
+from cab_core.contracts.texturing import texture_image, textured, uv_mesh
 
 from . import brdf as _brdf
 from . import renderer as _renderer
@@ -223,6 +234,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
     def _build_world(self, scene: SceneSpec, emb: EmbodimentSpec) -> None:
         s = self._scene
         self._materials: dict[tuple, object] = {}
+        self._textures: dict[str, object] = {}
         self._names_by_ptr: dict[int, str] = {}
         self._bodies: dict[str, _Rigid] = {}
         self._arts: dict[str, object] = {}  # articulated objects
@@ -277,8 +289,25 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     @staticmethod
     def _render_material(m: Material):
-        return sapien.render.RenderMaterial(base_color=[float(c) for c in m.color],
-                                            roughness=float(m.roughness), metallic=float(m.metallic))
+        """A textured material's base colour is white (its alpha kept): SAPIEN multiplies the
+        texture by the base colour, and the texture replaces the plain colour."""
+        color = [float(c) for c in m.color]
+        if m.texture is not None:
+            color[:3] = [1.0, 1.0, 1.0]
+        return sapien.render.RenderMaterial(base_color=color, roughness=float(m.roughness),
+                                            metallic=float(m.metallic))
+
+    def _texture(self, path: str, what: str):
+        """The render texture of an image file, loaded once per simulator: sRGB (decoded to linear
+        like the plain colours), linear filtering, repeated beyond 0..1."""
+        file = texture_image(path, what)
+        tex = self._textures.get(file)
+        if tex is None:
+            try:
+                tex = self._textures[file] = sapien.render.RenderTexture2D(file, srgb=True)
+            except Exception as e:  # noqa: BLE001 (SAPIEN raises plain RuntimeErrors)
+                raise SimulatorError(f"{what}: cannot load texture file {file}: {e}") from e
+        return tex
 
     def _build_body(self, body) -> None:
         if body.kind not in ("static", "dynamic", "kinematic"):
@@ -291,6 +320,8 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
             pose = _sp(pose_or_bad(shape.pose))
             if isinstance(g, Mesh) and not os.path.isfile(g.path):
                 raise BadCommand(f"body {body.name!r}: mesh file not found: {g.path}")
+            if shape.visual and shape.material.texture is not None:  # checked on physics-only builds too
+                texture_image(shape.material.texture, f"body {body.name!r}")
             if shape.collision:
                 mat = self._physx_material(shape.material)
                 dens = float(body.density)
@@ -317,7 +348,10 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
                 n_collision += 1
             if shape.visual and self._rs is not None:
                 rm = self._render_material(shape.material)
-                if isinstance(g, Box):
+                if textured(shape):
+                    rm.set_base_color_texture(self._texture(shape.material.texture, f"body {body.name!r}"))
+                    b.add_visual_from_file(uv_mesh(g), pose, material=rm)
+                elif isinstance(g, Box):
                     b.add_box_visual(pose, half_size=tuple(g.half_size), material=rm)
                 elif isinstance(g, Sphere):
                     b.add_sphere_visual(pose, radius=g.radius, material=rm)
@@ -479,7 +513,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         if scene is None:
             return
         for attr in ("_cameras", "_bodies", "_arts", "_art_links", "_robot", "_robot_links", "_drives",
-                     "_names_by_ptr", "_materials", "_contacts", "_px", "_rs"):
+                     "_names_by_ptr", "_materials", "_textures", "_contacts", "_px", "_rs"):
             if hasattr(self, attr):
                 setattr(self, attr, None)
         try:
