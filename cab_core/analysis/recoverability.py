@@ -43,7 +43,7 @@ not-recoverable reasons by kind.
 ``.../model-<i>``, ``<folder>`` by default ``recoverability/`` in the report's output folder (a
 folder of that name is never scanned as part of the sweep: :data:`cab_core.analysis.records.FORKS_FOLDER`).
 A fork whose ``result.json`` is there (and is no infrastructure failure) is not run again: a report
-that was interrupted, or is rerun with more repeats, makes only the forks that are missing.
+that was interrupted, or is run again with more repeats, makes only the forks that are missing.
 
 Pure functions over records (:func:`fork_points`, :func:`fork_fails_at`, :func:`summarize`,
 :func:`tables`, :func:`figure`) and :func:`run`, which makes the forks (through
