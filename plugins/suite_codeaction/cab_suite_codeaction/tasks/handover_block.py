@@ -35,6 +35,7 @@ from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_
 
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, srgb, vec, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis
+from ..stages_stageB import at_pose, closed, holds, near, near_point
 
 BLOCK_HALF = (0.03, 0.03, 0.10)
 BLOCK_SPAWN_Z = 0.842  # FACTS B.6: 2 mm above the table top for the 0.10 half-height
@@ -146,73 +147,161 @@ class HandoverBlock(CodeActionTask):
         ]
 
     # -- reference solution -----------------------------------------------------------------------
+    #: the reference solution's steps, in order (a fork goes on from the step its state shows)
+    STEPS = ("behind", "over", "down", "close", "lift", "to_handover", "right_reach", "right_round", "right_close",
+             "left_release", "left_up", "over_pad", "set_down", "right_open", "back_off")
+
+    @staticmethod
+    def _left_aim(world: WorldView) -> tuple[np.ndarray, list[float]]:
+        """The left TCP's grasp point on the block's top where it is now, and its top-down
+        orientation (fingers across the two faces nearest the gripper's opening now)."""
+        b = world.info["block"]
+        pose = world.pose(b["name"])
+        faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
+        q = top_down_quat(closest_opening(world.tcp_pose("left")[3:], faces))
+        return np.asarray(transform_point(pose, b["left_grasp_point"]), float), q
+
+    @staticmethod
+    def _right_aim(world: WorldView) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """From the front round the lower part of the block as it is held now: the approach, the
+        opening line (the block's face line nearest to x) and the TCP's grasp point."""
+        b = world.info["block"]
+        held = world.pose(b["name"])
+        faces = [yaw_axis(held[3:], (1, 0, 0)), yaw_axis(held[3:], (0, 1, 0))]
+        opening = max(faces, key=lambda f: abs(f[0]))
+        opening = opening if opening[0] < 0 else -opening
+        approach = np.array([-opening[1], opening[0], 0.0])  # horizontal, at right angles
+        approach = approach if approach[1] > 0 else -approach
+        return approach, opening, np.asarray(transform_point(held, b["right_grasp_point"]), float)
+
+    @staticmethod
+    def _place_target(world: WorldView) -> np.ndarray:
+        """The right TCP's target for standing the block (as the right hand holds it now) on the pad."""
+        b, p = world.info["block"], world.info["pad"]
+        pad_top = transform_point(world.pose(p["name"]), p["top_point"])
+        off = world.tcp_pose("right")[:3] - transform_point(world.pose(b["name"]), b["bottom_point"])
+        return pad_top + off + [0.0, 0.0, 0.004]
+
+    def _stage(self, world: WorldView) -> str | None:
+        """The first step of the reference solution still to do, read from the hands and the block
+        (a fork); None where the state is not one the solution passes through (at an attempt's
+        start too: there it starts with its first step)."""
+        info = world.info
+        b = info["block"]
+        name = b["name"]
+        if self.evaluate(world).predicates["block_on_pad"] and closed(world, "right"):
+            return "right_open"
+        if holds(world, "right", name):
+            if closed(world, "left"):
+                return "left_release"
+            if near(world, "left", transform_point(world.pose(name), b["left_grasp_point"]), 0.03):
+                return "left_up"
+            if near(world, "right", self._place_target(world) + [0.0, 0.0, 0.04]):
+                return "set_down"
+            return "over_pad"
+        if holds(world, "left", name):
+            pose = world.pose(name)
+            if near_point(pose[:3], info["handover_centre"], 0.03):
+                if closed(world, "right"):
+                    return None
+                approach, opening, low = self._right_aim(world)
+                q = tcp_quat(approach, opening)
+                if at_pose(world, "right", low, q):
+                    return "right_close"
+                if at_pose(world, "right", low - 0.10 * approach, q):
+                    return "right_round"
+                return "right_reach"
+            if pose[2] > b["initial_pose"][2] + 0.05:
+                return "to_handover"
+            return "lift"
+        if closed(world, "left"):
+            return None
+        g, q = self._left_aim(world)
+        if at_pose(world, "left", g, q):
+            return "close"
+        if at_pose(world, "left", g + [0.0, 0.0, 0.16], q):
+            return "down"
+        if at_pose(world, "left", g + [0.0, -0.15, 0.16], q):
+            return "over"
+        return None
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        return self._stage(world) is not None
+
     def solve(self, call, world: WorldView) -> None:
         """Left arm: top-down grasp of the block's top, lift, carry it to the handover point in
         front of the robot turning it square to the world axes. Right arm: grasp the lower part
         from the front, the left lets go and rises; the right carries the block over the pad,
-        lowers it onto the pad, releases and backs off (15 tool calls)."""
+        lowers it onto the pad, releases and backs off (15 tool calls). From a fork it goes on
+        from the step the state shows (``_stage``)."""
         info = world.info
-        b, p = info["block"], info["pad"]
+        b = info["block"]
         name = b["name"]
         left, right = Hands(call, "left"), Hands(call, "right")
+        start = self.STEPS.index(self._stage(world) or "behind")
+
+        def todo(step: str) -> bool:
+            return self.STEPS.index(step) >= start
 
         # 1. left arm: top-down onto the block's top, fingers across two faces
-        pose = world.pose(name)
-        faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
-        q = top_down_quat(closest_opening(world.tcp_pose("left")[3:], faces))
-        g = transform_point(pose, b["left_grasp_point"])
         # turn the gripper down well behind the block (a planned path may sweep through anything
-        # near it), then slide over it and go straight down
+        # near it), then slide over it and go straight down (to where the block was seen first)
+        g, q = self._left_aim(world)
         hover = g + [0.0, 0.0, 0.16]
-        left.reach(hover + [0.0, -0.15, 0.0], q, "behind and above the block")
-        left.move_to(world, hover, "over the block")
-        left.move_to(world, g, "down onto the block")
-        left.grip(0.0)
-        left.move(dz=0.10, what="lift", ok=TOLERANT)
+        if todo("behind"):
+            left.reach(hover + [0.0, -0.15, 0.0], q, "behind and above the block")
+        if todo("over"):
+            left.move_to(world, hover, "over the block")
+        if todo("down"):
+            left.move_to(world, g, "down onto the block")
+        if todo("close"):
+            left.grip(0.0)
+        if todo("lift"):
+            left.move(dz=0.10, what="lift", ok=TOLERANT)
 
         # 2. to the handover point, the block turned square to the world axes (opening along x)
-        hc = np.asarray(info["handover_centre"], float)
-        held = world.pose(name)
-        up = np.asarray(transform_point(held, b["left_grasp_point"]), float) - held[:3]
-        left.reach(hc + [0.0, 0.0, float(np.linalg.norm(up))], top_down_quat([1.0, 0.0, 0.0]), "to the handover")
+        if todo("to_handover"):
+            hc = np.asarray(info["handover_centre"], float)
+            held = world.pose(name)
+            up = np.asarray(transform_point(held, b["left_grasp_point"]), float) - held[:3]
+            left.reach(hc + [0.0, 0.0, float(np.linalg.norm(up))], top_down_quat([1.0, 0.0, 0.0]),
+                       "to the handover")
 
         # 3. right arm: from the front round the lower part, fingers open along the block's face
         # line nearest to x (the block may have turned a little in the left hand); the left lets go
         # only once the right fingers hold it, else the right backs off and aims again
-        for attempt in range(3):
-            held = world.pose(name)
-            faces = [yaw_axis(held[3:], (1, 0, 0)), yaw_axis(held[3:], (0, 1, 0))]
-            opening = max(faces, key=lambda f: abs(f[0]))
-            opening = opening if opening[0] < 0 else -opening
-            approach = np.array([-opening[1], opening[0], 0.0])  # horizontal, at right angles
-            approach = approach if approach[1] > 0 else -approach
-            low = transform_point(held, b["right_grasp_point"])
-            right.reach(low - 0.10 * approach, tcp_quat(approach, opening), "in front of the block")
-            low = transform_point(world.pose(name), b["right_grasp_point"])  # it may have swung meanwhile
-            right.move_to(world, low, "round the block", ok=TOLERANT)
-            right.grip(0.0)
-            if world.gripper_holds("right", name):
-                break
-            right.grip(1.0)
-            right.move(*(-0.10 * approach), what="back off to aim again", ok=TOLERANT)
-        else:
-            raise OracleFailed("the right hand did not get hold of the block in three tries")
-        left.grip(1.0)
-        left.move(dz=0.10, what="left hand up", ok=TOLERANT)
+        if todo("right_close"):
+            for attempt in range(3):
+                approach, opening, low = self._right_aim(world)
+                if attempt > 0 or todo("right_reach"):
+                    right.reach(low - 0.10 * approach, tcp_quat(approach, opening), "in front of the block")
+                if attempt > 0 or todo("right_round"):
+                    low = transform_point(world.pose(name), b["right_grasp_point"])  # it may have swung meanwhile
+                    right.move_to(world, low, "round the block", ok=TOLERANT)
+                right.grip(0.0)
+                if world.gripper_holds("right", name):
+                    break
+                right.grip(1.0)
+                right.move(*(-0.10 * approach), what="back off to aim again", ok=TOLERANT)
+            else:
+                raise OracleFailed("the right hand did not get hold of the block in three tries")
+        if todo("left_release"):
+            left.grip(1.0)
+        if todo("left_up"):
+            left.move(dz=0.10, what="left hand up", ok=TOLERANT)
 
         # 4. right arm: over the pad, down until the block stands on it, let go, back off
-        pad_top = transform_point(world.pose(p["name"]), p["top_point"])
-        cur = world.pose(name)
-        off = world.tcp_pose("right")[:3] - transform_point(cur, b["bottom_point"])
-        target = pad_top + off + [0.0, 0.0, 0.004]
-        right.reach(target + [0.0, 0.0, 0.04], None, "over the pad")
-        right.move_to(world, target, "set down", ok=TOLERANT)
-        right.grip(1.0)
+        if todo("set_down"):
+            target = self._place_target(world)
+            if todo("over_pad"):
+                right.reach(target + [0.0, 0.0, 0.04], None, "over the pad")
+            right.move_to(world, target, "set down", ok=TOLERANT)
+        if todo("right_open"):
+            right.grip(1.0)
         right.move(dy=-0.10, dz=0.02, what="back off", ok=TOLERANT)
         if not world.gripper_command("right") > GRIPPER_OPEN:
             raise OracleFailed("right gripper not open")
         call("done", report="left arm picked the block and handed it to the right arm, which stood it on the "
                             "blue pad and let go", success_claim=True)
-
 
 TASK = HandoverBlock

@@ -37,6 +37,7 @@ from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView,
 from ..assets_handover import microphone
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until
 from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, top_down_quat
+from ..stages_stageB import at_pose, closed, holds, near, near_point
 
 MODEL_IDS = (0, 4, 5)
 RAISED_Z = 0.92
@@ -137,38 +138,97 @@ class HandoverMic(CodeActionTask):
         ]
 
     # -- reference solution -----------------------------------------------------------------------
+    #: the reference solution's steps, in order (a fork goes on from the step its state shows)
+    STEPS = ("reach", "onto", "close", "carry", "receive", "receive_down", "receive_close", "release", "back_off",
+             "side")
+
+    def _stage(self, world: WorldView) -> str | None:
+        """The first step of the reference solution still to do, read from the hands and the
+        microphone (a fork); None where the state is not one the solution passes through (at an
+        attempt's start too: there it starts with its first step)."""
+        info = world.info
+        m = info["microphone"]
+        name = m["name"]
+        ga, ra = info["grasp_arm"], info["receiver_arm"]
+        pose = world.pose(name)
+        h = transform_point(pose, m["handle_point"])
+        head = transform_point(pose, m["head_grasp_point"])
+        if holds(world, ra, name):
+            if closed(world, ga):
+                return "release"
+            if near(world, ga, h, 0.03):
+                return "back_off"
+            return "side"
+        if holds(world, ga, name):
+            base = transform_point(pose, [0.0, 0.0, 0.0])
+            if not near_point(base, info["handover_base"], 0.03):
+                return "carry"
+            q = top_down_quat([1.0, 0.0, 0.0])
+            if at_pose(world, ra, head, q):
+                return "receive_close"
+            if at_pose(world, ra, head + [0.0, 0.0, 0.10], q):
+                return "receive_down"
+            return "receive"
+        forward = tcp_quat([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0])
+        if at_pose(world, ga, h, forward):
+            return "close"
+        if at_pose(world, ga, h + [0.0, -0.10, 0.0], forward):
+            return "onto"
+        return None
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        return self._stage(world) is not None
+
     def solve(self, call, world: WorldView) -> None:
         """The arm on the microphone's side grasps the handle from the front, lifts the microphone
         to the handover point in front of the robot; the other arm takes the head top-down, the
         first lets go and backs off, and the receiver carries the microphone to its side, raised
-        (10 tool calls)."""
+        (10 tool calls). From a fork it goes on from the step the state shows (``_stage``)."""
         info = world.info
         m = info["microphone"]
         name = m["name"]
         ga, ra = info["grasp_arm"], info["receiver_arm"]
         side = 1.0 if ra == "right" else -1.0
         grasper, receiver = Hands(call, ga), Hands(call, ra)
+        start = self.STEPS.index(self._stage(world) or "reach")
+
+        def todo(step: str) -> bool:
+            return self.STEPS.index(step) >= start
 
         # 1. grasping arm: from the front round the handle (fingers open along x), lift it to the
         # handover point
-        h = transform_point(world.pose(name), m["handle_point"])
         forward = tcp_quat([0.0, 1.0, 0.0], [-1.0, 0.0, 0.0])
-        grasper.grasp_from(world, h + [0.0, -0.10, 0.0], forward, h, "the handle")
-        base_now = transform_point(world.pose(name), [0.0, 0.0, 0.0])
-        grasper.move(*(np.asarray(info["handover_base"], float) - base_now), what="to the handover point", ok=TOLERANT)
+        # (the straight move goes to the handle as it was seen before the reach, as at the start)
+        h = transform_point(world.pose(name), m["handle_point"])
+        if todo("reach"):
+            grasper.reach(h + [0.0, -0.10, 0.0], forward, "to the handle")
+        if todo("onto"):
+            grasper.move_to(world, h, "onto the handle")
+        if todo("close"):
+            grasper.grip(0.0)
+        if todo("carry"):
+            base_now = transform_point(world.pose(name), [0.0, 0.0, 0.0])
+            grasper.move(*(np.asarray(info["handover_base"], float) - base_now), what="to the handover point",
+                         ok=TOLERANT)
 
         # 2. receiving arm: top-down onto the head (from above, straight down), close
         head = transform_point(world.pose(name), m["head_grasp_point"])
-        receiver.grasp_from(world, head + [0.0, 0.0, 0.10], top_down_quat([1.0, 0.0, 0.0]), head, "the head")
+        if todo("receive"):
+            receiver.reach(head + [0.0, 0.0, 0.10], top_down_quat([1.0, 0.0, 0.0]), "to the head")
+        if todo("receive_down"):
+            receiver.move_to(world, head, "onto the head")
+        if todo("receive_close"):
+            receiver.grip(0.0)
 
         # 3. hand over: the grasping arm lets go and backs off; the receiver carries it to its side
-        grasper.grip(1.0)
-        grasper.move(dy=-0.10, what="back off", ok=TOLERANT)
+        if todo("release"):
+            grasper.grip(1.0)
+        if todo("back_off"):
+            grasper.move(dy=-0.10, what="back off", ok=TOLERANT)
         receiver.move(dx=side * 0.15, dz=0.03, what="to the receiver's side", ok=TOLERANT)
         if not world.gripper_touches(ra, name):
             raise OracleFailed("the receiver does not hold the microphone")
         call("done", report=f"the {ga} arm picked up the microphone and handed it to the {ra} arm, which holds it "
                             "raised on its side", success_claim=True)
-
 
 TASK = HandoverMic

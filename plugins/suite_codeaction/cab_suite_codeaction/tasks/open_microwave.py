@@ -33,6 +33,7 @@ from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above
 
 from ..oracle import TOLERANT, Hands, tcp_quat
+from ..stages_stageB import at_pose, closed, near, near_xy
 from ..common import (CodeActionTask, box_inertia, draw_variant, hinged_urdf, pose_list, rand_pose, srgb, urdf_asset,
                       urdf_inertial, urdf_part, vec)
 
@@ -255,76 +256,170 @@ class OpenMicrowave(CodeActionTask):
         return [SpatialRule("Approach microwave", "either", approach, cylinder(2, (-6, 2))),
                 SpatialRule("Open door", "either", lambda w: pulled, sphere(5), prerequisites=(0,))]
 
+    #: the reference solution's steps, in order (a fork goes on from the step its state shows)
+    STEPS = ("open_left", "front", "onto", "close", "pull", "release", "rise", "park", "stage_right", "behind", "push")
+    #: the door opened this far (rad) by the pull: the right arm can come in behind it
+    PULLED = 0.6
+
+    @staticmethod
+    def _door(world: WorldView) -> dict[str, Any]:
+        """The microwave's door as the solution uses it: ``point(q, p)`` a door-frame point in the
+        world with the door at angle ``q``; ``local(q, xyz)`` a world point in the door's frame;
+        ``q()`` the door's angle now; the base's axes ``forward``, ``right``, ``up``."""
+        m = world.info["microwave"]
+        root = np.asarray(m["root_pose"], float)
+        rot = quat_to_mat(root[3:])  # microwave base axes in the world
+        hinge_b = np.asarray(m["hinge_point_base"], float)
+
+        def rz(q: float) -> np.ndarray:
+            c, s = np.cos(q), np.sin(q)
+            return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+        def point(q: float, p) -> np.ndarray:
+            """A door-frame point in the world with the door at angle ``q`` (hinge axis -z)."""
+            return transform_point(root, hinge_b + rz(q) @ np.asarray(p, float))
+
+        def local(q: float, xyz) -> np.ndarray:
+            return rz(q).T @ (rot.T @ (np.asarray(xyz, float) - root[:3]) - hinge_b)
+
+        def q_now() -> float:
+            return float(np.asarray(world.qpos(m["name"]))[int(m["door_joint_index"])])
+
+        return {"point": point, "local": local, "q": q_now, "forward": rot[:, 1], "right": rot[:, 0],
+                "up": rot[:, 2], "handle": np.asarray(m["handle_point_door"], float),
+                "width": float(m["door_width"]), "height": float(m["door_height"])}
+
+    def _stage(self, world: WorldView) -> str | None:
+        """The first step of the reference solution still to do, read from the hands and the door
+        (a fork); None where the state is not one the solution passes through (at an attempt's
+        start too: there it starts with its first step)."""
+        d = self._door(world)
+        q = d["q"]()
+        # the right arm: its fingertips behind the door (between the door and the cavity): push;
+        # where it stands in front of the free edge: in behind the door
+        r = d["local"](q, world.tcp_pose("right")[:3])
+        if 0.0 < r[0] < d["width"] + 0.03 and r[1] > 0.0 and 0.0 < r[2] < d["height"] and q >= self.PULLED:
+            return "push"
+        if q >= self.PULLED and near(world, "right", self._right_stage(d, q)):
+            return "behind"
+        # the left arm: on the bar, above it, or parked left of the hinge
+        bar = d["point"](q, d["handle"])
+        lt = world.tcp_pose("left")[:3]
+        on_bar = near_xy(world, "left", bar - 0.010 * d["forward"], 0.04)
+        if closed(world, "left"):
+            return "pull" if on_bar and world.gripper_touches("left", world.info["microwave"]["name"]) else None
+        if on_bar and abs(lt[2] - bar[2]) < 0.03:
+            return "close" if q < self.PULLED else "rise"
+        if on_bar and lt[2] > bar[2] + 0.15 and q >= self.PULLED:
+            return "park"
+        if q >= self.PULLED and lt[2] > bar[2] + 0.15 and float(np.dot(lt - self._park(d), d["right"])) < 0.02:
+            return "stage_right"
+        if q < 0.05 and at_pose(world, "left", bar - 0.110 * d["forward"], tcp_quat(d["forward"], d["right"])):
+            return "onto"
+        return None
+
+    @staticmethod
+    def _park(d) -> np.ndarray:
+        """Where the left TCP waits, left of the hinge, while the right arm pushes the door."""
+        return d["point"](0.0, [-0.12, 0.0, 0.0])
+
+    TIP = 0.035  # fingertips ahead of the TCP
+
+    def _right_stage(self, d, qd: float, col: bool = False) -> np.ndarray:
+        """The right TCP's start in front of the door's free edge at door angle ``qd`` (with
+        ``col``: the point 4 cm right of the edge, 15 cm behind the start)."""
+        edge = d["point"](qd, [d["width"], 0.0, 0.5 * d["height"]])
+        c = edge - (-d["right"]) * (self.TIP + 0.04)
+        return c if col else c - 0.15 * d["forward"]
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        return self._stage(world) is not None
+
     def solve(self, call, world: WorldView) -> None:
         """Pull with the left arm, push with the right. The left gripper grasps the handle bar
         from the front and pulls it along its arc in chords of 0.2 rad to 0.8 rad (holding its
         orientation: the bar turns in the fingers); it lets go, rises above the door and moves
         left past the hinge. The right gripper, fingertips pointing left, comes round the door's
-        free edge to its inner side and sweeps it open to ~1.5 rad (15 tool calls)."""
-        m = world.info["microwave"]
-        root = np.asarray(m["root_pose"], float)
-        rot = quat_to_mat(root[3:])  # microwave base axes in the world
-        hinge_b = np.asarray(m["hinge_point_base"], float)
-        handle_d = np.asarray(m["handle_point_door"], float)
-        door_w = float(m["door_width"])
-        mid = 0.5 * float(m["door_height"])
+        free edge to its inner side and sweeps it open to ~1.5 rad (15 tool calls).
 
-        def door_point(q: float, p) -> np.ndarray:
-            """A door-frame point in the world with the door at angle ``q`` (hinge axis -z)."""
-            c, s = np.cos(q), np.sin(q)
-            rz = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-            return transform_point(root, hinge_b + rz @ np.asarray(p, float))
+        From a fork it goes on from the step the state shows (``_stage``); from hands cleared
+        with the door already pulled open, it parks the left arm and pushes with the right; with
+        the door a little open, the left arm approaches the bar square to the door."""
+        d = self._door(world)
+        door_point, door_q = d["point"], d["q"]
+        handle_d = d["handle"]
+        door_w = d["width"]
+        mid = 0.5 * d["height"]
+        forward, right, up = d["forward"], d["right"], d["up"]
+        tip = self.TIP
+        stage = self._stage(world)
+        if stage is None:
+            stage = "park" if door_q() >= self.PULLED else "open_left"
+        start = self.STEPS.index(stage)
 
-        def door_q() -> float:
-            return float(np.asarray(world.qpos(m["name"]))[int(m["door_joint_index"])])
+        def todo(step: str) -> bool:
+            return self.STEPS.index(step) >= start
 
-        forward, right, up = rot[:, 1], rot[:, 0], rot[:, 2]
-        tip = 0.035  # fingertips ahead of the TCP
-
-        # 1. left arm: grasp the bar from the front (fingers across it, tips 1 cm off the door)
+        # 1. left arm: grasp the bar from the front (fingers across it, tips 1 cm off the door);
+        # a door already a little open: square to the door
         puller = Hands(call, "left")
-        bar = door_point(door_q(), handle_d)
-        grasp = bar - 0.010 * forward
-        puller.grip(1.0)
-        puller.reach(grasp - 0.10 * forward, tcp_quat(forward, right), "in front of the handle")
-        puller.move_to(world, grasp, "onto the handle")
-        puller.grip(0.0)
+        q0 = door_q()
+        toward = forward if q0 < 0.05 else -door_point(q0, [0.0, -1.0, 0.0]) + door_point(q0, [0.0, 0.0, 0.0])
+        across = right if q0 < 0.05 else door_point(q0, [1.0, 0.0, 0.0]) - door_point(q0, [0.0, 0.0, 0.0])
+        bar = door_point(q0, handle_d)
+        grasp = bar - 0.010 * toward
+        if todo("open_left"):
+            puller.grip(1.0)
+        if todo("front"):
+            puller.reach(grasp - 0.10 * toward, tcp_quat(toward, across), "in front of the handle")
+        if todo("onto"):
+            puller.move_to(world, grasp, "onto the handle")
+        if todo("close"):
+            puller.grip(0.0)
 
         # 2. pull along the bar's arc to 0.8 rad (the TCP keeps its offset from the bar axis; the
         # left arm runs out of reach at ~0.9 rad where the oven stands furthest left)
-        offset = world.tcp_pose("left")[:3] - door_point(door_q(), handle_d)
-        for q in (0.2, 0.4, 0.6, 0.8):
-            r = puller.move_to(world, door_point(q, handle_d) + offset, "pull the door", ok=TOLERANT)
-            if r["status"] != "SUCCESS":
-                break
+        if todo("pull"):
+            offset = world.tcp_pose("left")[:3] - door_point(door_q(), handle_d)
+            for q in (0.2, 0.4, 0.6, 0.8):
+                if q <= door_q() + 0.05:  # (a fork) the door is already there
+                    continue
+                r = puller.move_to(world, door_point(q, handle_d) + offset, "pull the door", ok=TOLERANT)
+                if r["status"] != "SUCCESS":
+                    break
 
         # 3. let go and rise straight up: the open fingers pass either side of the bar's upper
         # post, and the gripper ends above the door's top
-        puller.grip(1.0)
-        puller.move(*(0.20 * up), what="rise above the door", ok=TOLERANT)
+        if todo("release"):
+            puller.grip(1.0)
+        if todo("rise"):
+            puller.move(*(0.20 * up), what="rise above the door", ok=TOLERANT)
         # and on to the left, beyond the hinge: clear of the right arm's way to the door
-        park = door_point(0.0, [-0.12, 0.0, 0.0])
-        puller.move(*(right * float(np.dot(park - world.tcp_pose("left")[:3], right))), what="out of the way",
-                    ok=TOLERANT)
+        if todo("park"):
+            park = self._park(d)
+            puller.move(*(right * float(np.dot(park - world.tcp_pose("left")[:3], right))), what="out of the way",
+                        ok=TOLERANT)
 
         # 4. right arm: fingertips pointing left (fingers spread vertically), from well in front
         # of the door to 4 cm right of its free edge, then in behind the door
         pusher = Hands(call, "right")
-        qd = door_q()
         left = -right
-        edge = door_point(qd, [door_w, 0.0, mid])
-        col = edge - left * (tip + 0.04)
-        stage = col - 0.15 * forward
-        pusher.reach(stage, tcp_quat(left, up), "beside the free edge", ok=TOLERANT)
-        inside = door_point(qd, [0.30, 0.06, mid])  # 6 cm behind the door's inner face
-        into = col + forward * float(np.dot(inside - col, forward))
-        pusher.move_to(world, into, "behind the door", ok=TOLERANT)
+        if todo("behind"):
+            qd = door_q()
+            col = self._right_stage(d, qd, col=True)
+            if todo("stage_right"):
+                pusher.reach(col - 0.15 * forward, tcp_quat(left, up), "beside the free edge", ok=TOLERANT)
+            inside = door_point(qd, [0.30, 0.06, mid])  # 6 cm behind the door's inner face
+            into = col + forward * float(np.dot(inside - col, forward))
+            pusher.move_to(world, into, "behind the door", ok=TOLERANT)
 
         # 5. sweep the inner face open: fingertips along chords at 0.25 m from the hinge, 3 cm
         # inside the face (the door lags the chord's end angle by ~0.12 rad)
         # where the oven stands far left the right arm cannot follow a chord's end at 0.25 m: it
         # pushes on along a chord nearer the hinge (a shorter arc for the hand, the same angle)
         for q in (1.2, 1.65):
+            if q < door_q() + 0.1:  # (a fork) the door is already there
+                continue
             for radius in (0.25, 0.17):
                 target = door_point(q, [radius, 0.03, mid]) - left * tip
                 r = pusher.move_to(world, target, "push the door open", ok=TOLERANT)
