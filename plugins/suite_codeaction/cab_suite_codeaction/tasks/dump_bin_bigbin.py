@@ -205,40 +205,78 @@ class DumpBinBigbin(CodeActionTask):
         q_grasp = tcp_quat(a, (-a[1], a[0], 0.0))  # opening horizontal, the gripper's z axis up
         q_fwd = tcp_quat((0.0, 1.0, 0.0), (-1.0, 0.0, 0.0))
         q_pour = [float(v) for v in quat_mul(q_fwd, axis_angle_quat([1.0, 0.0, 0.0], POUR_ROLL))]
-        pose = world.pose(b["name"])
-        if pose[0] > 0.05:
-            Hands(call, "right").move(dx=0.10, dy=-0.05, dz=0.08, what="right arm aside", ok=TOLERANT)
         hands = Hands(call, "left")
-        for _ in range(GRASP_TRIES):
-            g = world_point(world.pose(b["name"]), b["grasp_point"]) - GRASP_SHORT * a
-            # above the side of the bin first (a planned path may sweep low), then straight down and in
-            hands.reach(g - PRE_GRASP * a + [0.0, 0.0, HOVER], q_grasp, "above the side of the small bin")
-            hands.move(dz=-HOVER, what="down beside the small bin")
-            # aim at where the bin is now (the path there may have brushed it)
-            g = world_point(world.pose(b["name"]), b["grasp_point"]) - GRASP_SHORT * a
-            hands.move_to(world, g, "around the small bin")
-            hands.grip(0.0)
-            hands.move(dz=LIFT, what="lift", ok=TOLERANT)
-            if world.gripper_holds("left", b["name"]):
-                break
-            # not held (it slipped): open, back out and up, and grasp again where it stands
-            hands.grip(1.0)
-            hands.move(*(-PRE_GRASP * a + [0.0, 0.0, HOVER]), what="back out", ok=TOLERANT)
+        if world.gripper_holds("left", b["name"]):
+            # from a later stage (a fork; ``keeps_hands``): the bin is held already
+            _go_on_held(world, hands, info, q_fwd, q_pour)
         else:
-            raise OracleFailed(f"{b['name']}: not held after {GRASP_TRIES} grasps")
-        hands.reach(POUR_TCP, q_fwd, "over the dustbin")
-        hands.reach(POUR_TCP, q_pour, "pour", ok=TOLERANT)
-        # the balls roll out only once the opening is past level, near the end of the roll: keep the
-        # bin tipped (small bobs up and down, the bin's centre staying above 1 m) until none is left
-        # in it, so that a slow roll (a tall, barely tapered bin) still empties it
-        for i in range(POUR_DWELL_MAX):
-            if not _balls_in_bin(world, info):
-                break
-            hands.move(dz=POUR_BOB if i % 2 == 0 else -POUR_BOB, what="keep pouring", ok=TOLERANT)
-        hands.reach(POUR_TCP, q_fwd, "turn back", ok=TOLERANT)
-        hands.reach(HOLD_TCP, q_fwd, "hold over the table")
+            pose = world.pose(b["name"])
+            if pose[0] > 0.05:
+                Hands(call, "right").move(dx=0.10, dy=-0.05, dz=0.08, what="right arm aside", ok=TOLERANT)
+            for _ in range(GRASP_TRIES):
+                g = world_point(world.pose(b["name"]), b["grasp_point"]) - GRASP_SHORT * a
+                # above the side of the bin first (a planned path may sweep low), then straight down and in
+                hands.reach(g - PRE_GRASP * a + [0.0, 0.0, HOVER], q_grasp, "above the side of the small bin")
+                hands.move(dz=-HOVER, what="down beside the small bin")
+                # aim at where the bin is now (the path there may have brushed it)
+                g = world_point(world.pose(b["name"]), b["grasp_point"]) - GRASP_SHORT * a
+                hands.move_to(world, g, "around the small bin")
+                hands.grip(0.0)
+                hands.move(dz=LIFT, what="lift", ok=TOLERANT)
+                if world.gripper_holds("left", b["name"]):
+                    break
+                # not held (it slipped): open, back out and up, and grasp again where it stands
+                hands.grip(1.0)
+                hands.move(*(-PRE_GRASP * a + [0.0, 0.0, HOVER]), what="back out", ok=TOLERANT)
+            else:
+                raise OracleFailed(f"{b['name']}: not held after {GRASP_TRIES} grasps")
+            hands.reach(POUR_TCP, q_fwd, "over the dustbin")
+            _pour(world, hands, info, q_fwd, q_pour)
+            hands.reach(HOLD_TCP, q_fwd, "hold over the table")
         call("done", report="poured the balls into the big dustbin; holding the small bin above the table",
              success_claim=True)
+
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether the left hand holds the small bin: then the solution goes on from there."""
+        return world.gripper_holds("left", world.info["small_bin"]["name"])
+
+
+def _pour(world: WorldView, hands: Hands, info: dict, q_fwd, q_pour) -> None:
+    """From over the dustbin (the hand pointing forward): roll the wrist to pour, keep the bin
+    tipped while a ball is in it, roll back."""
+    hands.reach(POUR_TCP, q_pour, "pour", ok=TOLERANT)
+    # the balls roll out only once the opening is past level, near the end of the roll: keep the
+    # bin tipped (small bobs up and down, the bin's centre staying above 1 m) until none is left
+    # in it, so that a slow roll (a tall, barely tapered bin) still empties it
+    for i in range(POUR_DWELL_MAX):
+        if not _balls_in_bin(world, info):
+            break
+        hands.move(dz=POUR_BOB if i % 2 == 0 else -POUR_BOB, what="keep pouring", ok=TOLERANT)
+    hands.reach(POUR_TCP, q_fwd, "turn back", ok=TOLERANT)
+
+
+def _at(world: WorldView, arm: str, xyz, quat, tol: float = 0.01) -> bool:
+    """Whether ``arm``'s TCP is within ``tol`` of ``xyz`` with orientation ``quat``."""
+    tcp = world.tcp_pose(arm)
+    return bool(np.linalg.norm(tcp[:3] - np.asarray(xyz, float)) < tol and abs(float(np.dot(tcp[3:], quat))) > 0.999)
+
+
+def _go_on_held(world: WorldView, hands: Hands, info: dict, q_fwd, q_pour) -> None:
+    """The rest of the solution with the small bin in the left hand: lift it if it still stands on
+    the table, pour it unless no ball is left in it (first over the dustbin, pointing forward, unless the hand is there already), turn back
+    if it is still tipped, hold it over the table."""
+    verifier = DumpBinBigbinVerifier(info)
+    if verifier.lowest_z(world) < float(info["table_top_z"]) + 0.02:  # closed on it, not lifted yet
+        hands.move(dz=LIFT, what="lift", ok=TOLERANT)
+    if _balls_in_bin(world, info):
+        if not _at(world, "left", POUR_TCP, q_fwd):
+            hands.reach(POUR_TCP, q_fwd, "over the dustbin")
+        _pour(world, hands, info, q_fwd, q_pour)
+    elif abs(float(np.dot(world.tcp_pose("left")[3:], q_fwd))) < 0.99:  # still tipped
+        hands.reach(POUR_TCP, q_fwd, "turn back", ok=TOLERANT)
+    if not _at(world, "left", HOLD_TCP, q_fwd):
+        hands.reach(HOLD_TCP, q_fwd, "hold over the table")
 
 
 def _balls_in_bin(world: WorldView, info: dict) -> list[str]:

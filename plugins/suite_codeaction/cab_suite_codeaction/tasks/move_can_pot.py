@@ -43,7 +43,7 @@ from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_
 from ..assets_pots import CAN_VARIANTS, POT_VARIANTS, can_geometry, can_shapes, pot_geometry, pot_shapes
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, draw_variant, pose_list, rand_pose,
                       sample_until, vec, yaw_of)
-from ..oracle import TOLERANT, Hands, top_down_quat
+from ..oracle import OPEN, TOLERANT, Hands, top_down_quat
 
 POT_IDS = tuple(range(len(POT_VARIANTS)))
 CAN_IDS = tuple(sorted(CAN_VARIANTS))
@@ -198,18 +198,35 @@ class MoveCanPot(CodeActionTask):
         hands = Hands(call, arm)
         q = top_down_quat([0.0, 1.0, 0.0])
         grasp = transform_point(world.pose(can["name"]), can["grasp_local"])
-        # turn the wrist to top-down where the gripper is (a planned reach that turns it on the way
-        # can sweep the fingers through the can: measured), then travel straight to the hover
-        hands.turn_in_place(world, q, what="turn the gripper top-down")
         hover = grasp + [0.0, 0.0, 0.16]
-        for _ in range(3):  # a move covers at most 0.30 m
-            d = hover - world.tcp_pose(arm)[:3]
-            if np.linalg.norm(d) < 0.005:
-                break
-            hands.move(*d, what="over the can", ok=TOLERANT)
-        hands.move_to_height(world, grasp[2], "descend onto the can", ok=TOLERANT)
-        hands.grip(0.0)
-        hands.move(dz=0.15, what="lift the can", ok=TOLERANT)
+        if world.gripper_holds(arm, can["name"]):
+            # from a later stage (a fork; ``keeps_hands``): the can is in the hand already
+            preds = self.evaluate(world).predicates
+            if all(preds[k] for k in ("on_start_side", "near_pot", "aligned_with_pot", "can_upright", "set_down")):
+                hands.grip(1.0)  # set down in its place: let go
+                hands.move(dz=0.10, what="rise", ok=TOLERANT)
+                call("done", report=f"set the can down upright {PLACE_DIS:.2f} m {arm} of the pot, level with it",
+                     success_claim=True)
+                return
+            if float(world.pose(can["name"])[2]) < float(pot["initial_z"]) + 0.01:  # still on the table
+                hands.move(dz=0.15, what="lift the can", ok=TOLERANT)
+        else:
+            if world.gripper_command(arm) < OPEN:
+                hands.grip(1.0)
+            # turn the wrist to top-down where the gripper is (a planned reach that turns it on the way
+            # can sweep the fingers through the can: measured), then travel straight to the hover
+            if not _top_down(world, arm, q):
+                hands.turn_in_place(world, q, what="turn the gripper top-down")
+            tcp = world.tcp_pose(arm)[:3]
+            if not (np.linalg.norm(tcp[:2] - grasp[:2]) < 0.01 and grasp[2] - 0.01 < tcp[2] < hover[2] - 0.005):
+                for _ in range(3):  # a move covers at most 0.30 m
+                    d = hover - world.tcp_pose(arm)[:3]
+                    if np.linalg.norm(d) < 0.005:
+                        break
+                    hands.move(*d, what="over the can", ok=TOLERANT)
+            hands.move_to_height(world, grasp[2], "descend onto the can", ok=TOLERANT)
+            hands.grip(0.0)
+            hands.move(dz=0.15, what="lift the can", ok=TOLERANT)
         p = world.pose(pot["name"])
         sign = -1.0 if arm == "left" else 1.0
         # where the TCP must be for the can's base to end 3 mm above the table: keep the measured
@@ -223,6 +240,18 @@ class MoveCanPot(CodeActionTask):
         hands.move(dz=0.10, what="rise", ok=TOLERANT)
         call("done", report=f"set the can down upright {PLACE_DIS:.2f} m {arm} of the pot, level with it",
              success_claim=True)
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether the can's arm holds the can, or is open and turned top-down (on its way to the
+        can): then the solution goes on from there."""
+        arm = world.info["arm"]
+        return bool(world.gripper_holds(arm, world.info["can"]["name"])
+                    or (world.gripper_command(arm) >= OPEN and _top_down(world, arm, top_down_quat([0.0, 1.0, 0.0]))))
+
+
+def _top_down(world: WorldView, arm: str, q) -> bool:
+    """Whether ``arm``'s TCP is turned as ``q`` (within about 2.5 deg)."""
+    return abs(float(np.dot(world.tcp_pose(arm)[3:], q))) > 0.9998
 
 
 TASK = MoveCanPot

@@ -35,7 +35,7 @@ from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView,
 
 from ..assets_bins import DIVERSE_BOTTLES, bottle_body, bottle_info
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, yaw_of
-from ..oracle import Hands, tcp_quat, world_point
+from ..oracle import OPEN, TOLERANT, Hands, tcp_quat, world_point
 
 TARGET_XY = {"bottle1": (-0.06, -0.105), "bottle2": (0.06, -0.105)}
 XY_TOLERANCE = 0.1
@@ -47,6 +47,7 @@ HOLD_POINT = {"bottle1": (-0.115, -0.105, 0.98), "bottle2": (0.115, -0.105, 0.98
 GRASP_SHORT = 0.01  # the TCP stops this far short of the bottle's axis (the palm stays off the bottle)
 PRE_GRASP = 0.10
 FORWARD = (0.0, 1.0, 0.0)
+POISED = 0.015  # an open TCP this close to its grasp point is about to close on the bottle
 
 
 class PickDiverseBottlesVerifier(Verifier):
@@ -120,7 +121,12 @@ class PickDiverseBottles(CodeActionTask):
     def solve(self, call, world: WorldView) -> None:
         """Each arm in turn (left first): a side grasp of the bottle's body from the front (fingers
         closing across it), lift, and carry the bottle's centre to its hold point in front of the
-        robot; the left bottle is held while the right arm fetches the other (11 calls)."""
+        robot; the left bottle is held while the right arm fetches the other (11 calls).
+
+        From a later stage (a fork; ``keeps_hands``): a bottle its arm holds is not picked again
+        (lifted first if it still stands on the table, then carried to its hold point unless it is
+        there); a hand open around its bottle closes on it; an arm doing nothing useful opens and
+        goes on from where it is."""
         info = world.info
         q = tcp_quat(FORWARD, (-1.0, 0.0, 0.0))  # as at home: the gripper's z axis up
         fwd = np.asarray(FORWARD)
@@ -128,11 +134,49 @@ class PickDiverseBottles(CodeActionTask):
             b = info[key]
             arm = ARM_OF[key]
             hands = Hands(call, arm)
-            g = _grasp_tcp(world.pose(b["name"]), b)
-            hands.grasp_from(world, g - PRE_GRASP * fwd, q, g, "the bottle", lift=0.08)
+            stage = _stage(world, key, q)
+            if stage == "held":
+                preds = self.evaluate(world).predicates
+                if preds[f"{key}_xy"] and preds[f"{key}_raised"]:
+                    continue
+                if _base_z(world, b) < float(info["table_top_z"]) + 0.02:  # still on the table
+                    hands.move(dz=0.08, what="lift", ok=TOLERANT)
+            elif stage == "poised":
+                hands.grip(0.0)
+                hands.move(dz=0.08, what="lift", ok=TOLERANT)
+            else:
+                if world.gripper_command(arm) < OPEN:
+                    hands.grip(1.0)
+                g = _grasp_tcp(world.pose(b["name"]), b)
+                hands.grasp_from(world, g - PRE_GRASP * fwd, q, g, "the bottle", lift=0.08)
             held = world_point(world.pose(b["name"]), b["functional_point"]) - world.tcp_pose(arm)[:3]
             hands.reach(np.asarray(HOLD_POINT[key]) - held, None, "hold in front")
         call("done", report="holding both bottles up in front of the robot", success_claim=True)
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether a hand holds its bottle or is open around it, ready to close: then the solution
+        goes on from there (the other hand as it is)."""
+        q = tcp_quat(FORWARD, (-1.0, 0.0, 0.0))
+        return any(_stage(world, key, q) != "free" for key in ("bottle1", "bottle2"))
+
+
+def _stage(world: WorldView, key: str, q) -> str:
+    """How far the pick of bottle ``key`` by its arm has come: ``"held"`` (every finger on it),
+    ``"poised"`` (the open hand around it, at the grasp, as the solution turns it), ``"free"``."""
+    b = world.info[key]
+    arm = ARM_OF[key]
+    if world.gripper_holds(arm, b["name"]):
+        return "held"
+    tcp = world.tcp_pose(arm)
+    if (world.gripper_command(arm) >= OPEN and abs(float(np.dot(tcp[3:], q))) > 0.995
+            and np.linalg.norm(tcp[:3] - _grasp_tcp(world.pose(b["name"]), b)) < POISED):
+        return "poised"
+    return "free"
+
+
+def _base_z(world: WorldView, b: dict) -> float:
+    """The height of the bottle's base centre (on its axis)."""
+    return float(transform_point(world.pose(b["name"]), (0.0, 0.0, -float(b["height"]) / 2))[2])
 
 
 def _grasp_tcp(pose, b: dict) -> np.ndarray:

@@ -35,7 +35,7 @@ from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_
 
 from ..assets_placing import BREAD_BASKETS, BREAD_BASKET_MASS, BREAD_MASS, bread_basket_shapes, bread_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose, yaw_of
-from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
+from ..oracle import OPEN, TOLERANT, Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
 
 BASKET_XY = (0.0, -0.2)
 BREAD_IDS = (0, 1, 3, 5, 6)
@@ -269,7 +269,6 @@ class PlaceBreadBasket(CodeActionTask):
         tol = float(info["xy_tolerance"])
         z_min = float(info["bread_min_z"])
         breads = sorted(info["breads"], key=lambda b: b["pose"][0])  # left to right
-        arms = ["left" if world.pose(b["name"])[0] < 0 else "right" for b in breads]
         turn = slot_turn(bk, yaw_of(world.pose(bk["name"])[3:]), breads, tol)
 
         def slot_axis() -> np.ndarray:
@@ -279,6 +278,12 @@ class PlaceBreadBasket(CodeActionTask):
 
         def pick(b: dict, arm: str, dz: float) -> None:
             hands = Hands(call, arm)
+            if world.gripper_holds(arm, b["name"]):
+                if world.pose(b["name"])[2] - b["size"][2] / 2 < z_min + 0.03:  # still down: lift it
+                    hands.move(dz=0.10, what="lift", ok=TOLERANT)
+                return
+            if world.gripper_command(arm) < OPEN:
+                hands.grip(1.0)
             for _ in range(PICK_TRIES):
                 hands.pick_top_down(world, b["name"], dz)
                 if world.gripper_holds(arm, b["name"]):
@@ -288,6 +293,27 @@ class PlaceBreadBasket(CodeActionTask):
 
         placed_heights: dict[str, float] = {}
         slots: dict[str, float] = {}
+
+        def settled(b: dict) -> bool:
+            p = world.pose(b["name"])
+            d = np.asarray(p[:2]) - np.asarray(world.pose(bk["name"])[:2])
+            return bool(np.max(np.abs(d)) < tol - SETTLED_MARGIN and p[2] > z_min + 0.005)
+
+        # from a later stage (a fork): a bread resting in the basket, in no hand, stays there (the
+        # next one is let go above it, in the other slot); one a hand holds is placed by that hand
+        # (lifted first if it still lies on the table)
+        holder = {b["name"]: next((a for a in info["arms"] if world.gripper_holds(a, b["name"])), None)
+                  for b in breads}
+        for b in breads:
+            if holder[b["name"]] is None and settled(b):
+                d = np.asarray(world.pose(b["name"])[:2]) - np.asarray(world.pose(bk["name"])[:2])
+                slots[b["name"]] = 1.0 if float(d @ slot_axis()[:2]) >= 0 else -1.0
+                placed_heights[b["name"]] = b["size"][2]
+        breads = [b for b in breads if b["name"] not in placed_heights]
+        for a in info["arms"]:  # an open hand down in the basket: up first, as after a release
+            if _down_in_basket(world, a):
+                Hands(call, a).move(dz=0.08, what="retreat", ok=TOLERANT)
+        arms = [holder[b["name"]] or ("left" if world.pose(b["name"])[0] < 0 else "right") for b in breads]
 
         def place(b: dict, arm: str) -> None:
             # slot: beside the slot axis, on the arm's side if still free
@@ -320,11 +346,6 @@ class PlaceBreadBasket(CodeActionTask):
                                       refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
             placed_heights[b["name"]] = height
 
-        def settled(b: dict) -> bool:
-            p = world.pose(b["name"])
-            d = np.asarray(p[:2]) - np.asarray(world.pose(bk["name"])[:2])
-            return bool(np.max(np.abs(d)) < tol - SETTLED_MARGIN and p[2] > z_min + 0.005)
-
         def put_again(b: dict, arm: str) -> None:
             """Pick the bread where it lies (the fingertips 3 mm above what it rests on) and put it
             in its slot once more."""
@@ -355,6 +376,26 @@ class PlaceBreadBasket(CodeActionTask):
                 place(b, arm)
                 put_again(b, arm)
         call("done", report="put every piece of bread into the basket", success_claim=True)
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether a hand holds a bread, or an open hand is down in the basket (a bread just let
+        go): then the solution goes on from the hands as they are (taking a hand from the basket
+        back to its start drags the basket along)."""
+        info = world.info
+        return any(world.gripper_holds(a, b["name"]) for a in info["arms"] for b in info["breads"]) \
+            or any(_down_in_basket(world, a) for a in info["arms"])
+
+
+def _down_in_basket(world: WorldView, arm: str) -> bool:
+    """Whether ``arm``'s hand is open with its TCP over the basket and less than 5 cm above its
+    rim (where a bread is let go; the solution retreats 8 cm up from there)."""
+    bk = world.info["basket"]
+    bp = world.pose(bk["name"])
+    tcp = world.tcp_pose(arm)
+    local = quat_to_mat(bp[3:]).T @ (tcp[:3] - bp[:3])
+    hx, hy = (float(v) for v in bk["outer_half_size"])
+    return bool(world.gripper_command(arm) >= OPEN and abs(local[0]) < hx and abs(local[1]) < hy
+                and local[2] < float(bk["rim_z"]) + 0.05)
 
 
 TASK = PlaceBreadBasket

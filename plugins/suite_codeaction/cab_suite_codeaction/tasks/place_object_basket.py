@@ -41,7 +41,7 @@ from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_
 from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CARS, TOY_CAR_MASS,
                               handled_basket_shapes, playing_cards_shapes, toy_car_shapes)
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, rand_pose, yaw_of
-from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, top_down_quat
+from ..oracle import OPEN, TOLERANT, Hands, OracleFailed, closest_opening, top_down_quat
 from .place_bread_basket import grasp_tcp_dz
 
 RISE = 0.02
@@ -187,44 +187,81 @@ class PlaceObjectBasket(CodeActionTask):
             slot = transform_point(world.pose(bk["name"]), info["slot_in_basket"])
             return np.array([slot[0] - held[0], slot[1] - held[1], slot[2] + RELEASE_GAP + h / 2 - held[2]])
 
-        for _ in range(PICK_TRIES):
-            # 1. pick the object (lifted 20 cm: clear of the handle on the way to the basket)
-            hands.pick_top_down(world, name, float(obj["grasp_tcp_dz"]), lift=0.20, across=grasp_axis(obj))
-            if not world.gripper_holds(o_arm, name):
-                hands.grip(1.0)  # it slipped out on the lift: open, pick it again where it lies
-                continue
-            # 2. into the basket's front half: fingers open along +x (the wrist camera toward the robot),
-            # from high above: the carried object clears the handle (its bar 17 cm above the table)
-            tcp = world.tcp_pose(o_arm)
-            held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(name)[:3] - tcp[:3]))
-            hands.reach(target(held0) + [0.0, 0.0, 0.26], qr, "above the place")
-            if not world.gripper_holds(o_arm, name):  # lost on the way: never aim at where it fell
+        # from a later stage (a fork; ``keeps_hands``): an object resting in the basket, in no hand,
+        # stays there; one the object's arm holds is not picked again (and is let go at once where
+        # it touches the basket already); a basket the other arm holds, or is open around the
+        # handle of, is lifted from there
+        obj_done = _in_basket(world, name, bk["name"]) and not any(world.gripper_holds(a, name) for a in info["arms"])
+        if not obj_done:
+            held = world.gripper_holds(o_arm, name)
+            if not held and world.gripper_command(o_arm) < OPEN:
                 hands.grip(1.0)
-                if _in_basket(world, name, bk["name"]):
+            for attempt in range(PICK_TRIES):
+                if not (attempt == 0 and held):
+                    # 1. pick the object (lifted 20 cm: clear of the handle on the way to the basket)
+                    hands.pick_top_down(world, name, float(obj["grasp_tcp_dz"]), lift=0.20, across=grasp_axis(obj))
+                    if not world.gripper_holds(o_arm, name):
+                        hands.grip(1.0)  # it slipped out on the lift: open, pick it again where it lies
+                        continue
+                elif _down_in_basket(world, info):  # held, down in the basket already: let go
+                    hands.grip(1.0)
+                    hands.move(dz=0.10, what="retreat", ok=TOLERANT)
                     break
-                hands.move(dz=0.05, what="clear of the basket", ok=TOLERANT)
-                continue
-            # the place from where the object now sits in the hand
-            t = target(world.pose(name)[:3] - world.tcp_pose(o_arm)[:3])
-            hands.move_to(world, t, "down to the place", ok=TOLERANT)
-            hands.grip(1.0)
-            hands.move(dz=0.10, what="retreat", ok=TOLERANT)
-            break
-        else:
-            raise OracleFailed(f"{name}: not held over the basket after {PICK_TRIES} picks")
-        hands.move(dx=-0.18 if o_arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
+                elif world.in_contact(name, "table"):  # held, still on the table: lift it first
+                    hands.move(dz=0.20, what="lift", ok=TOLERANT)
+                # 2. into the basket's front half: fingers open along +x (the wrist camera toward the robot),
+                # from high above: the carried object clears the handle (its bar 17 cm above the table)
+                tcp = world.tcp_pose(o_arm)
+                held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(name)[:3] - tcp[:3]))
+                hands.reach(target(held0) + [0.0, 0.0, 0.26], qr, "above the place")
+                if not world.gripper_holds(o_arm, name):  # lost on the way: never aim at where it fell
+                    hands.grip(1.0)
+                    if _in_basket(world, name, bk["name"]):
+                        break
+                    hands.move(dz=0.05, what="clear of the basket", ok=TOLERANT)
+                    continue
+                # the place from where the object now sits in the hand
+                t = target(world.pose(name)[:3] - world.tcp_pose(o_arm)[:3])
+                hands.move_to(world, t, "down to the place", ok=TOLERANT)
+                hands.grip(1.0)
+                hands.move(dz=0.10, what="retreat", ok=TOLERANT)
+                break
+            else:
+                raise OracleFailed(f"{name}: not held over the basket after {PICK_TRIES} picks")
+        if obj_done and _hand_in_basket(world, info):  # just let go: up first (taking the hand away
+            hands.move(dz=0.10, what="retreat", ok=TOLERANT)  # low drags the basket along)
+        if not obj_done or np.linalg.norm(world.tcp_pose(o_arm)[:2] - world.pose(bk["name"])[:2]) < 0.15:
+            hands.move(dx=-0.18 if o_arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
 
         # 3. the other arm: the handle bar from above, fingers across it (along y)
         # (the planned reach turns the wrist and dips the hand ~8 cm on the way: rise first and
         # come from 20 cm above the bar, so the fingers pass over the handle)
         lifter = Hands(call, b_arm)
-        lifter.move(dz=0.15, what="rise before turning the wrist", ok=TOLERANT)
-        qb = top_down_quat(closest_opening(world.tcp_pose(b_arm)[3:], [np.array([0.0, 1.0, 0.0])]))
-        lifter.pick_top_down(world, bk["name"], float(bk["handle_bar_point"][2]), hover=0.20, lift=0.10, quat=qb)
+        if world.gripper_holds(b_arm, bk["name"]):
+            if not self.evaluate(world).predicates["basket_raised"]:
+                lifter.move(dz=0.10, what="lift", ok=TOLERANT)
+        elif _at_handle(world, info):
+            lifter.grip(0.0)
+            lifter.move(dz=0.10, what="lift", ok=TOLERANT)
+        else:
+            if world.gripper_command(b_arm) < OPEN:
+                lifter.grip(1.0)
+            lifter.move(dz=0.15, what="rise before turning the wrist", ok=TOLERANT)
+            qb = top_down_quat(closest_opening(world.tcp_pose(b_arm)[3:], [np.array([0.0, 1.0, 0.0])]))
+            lifter.pick_top_down(world, bk["name"], float(bk["handle_bar_point"][2]), hover=0.20, lift=0.10, quat=qb)
         # a basket hanging from its handle still sways after the lift: hold it closed a moment so
         # the object rests in it again before reporting
         lifter.grip(0.0)
         call("done", report="put the object into the basket and lifted the basket by its handle", success_claim=True)
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether the object's arm holds the object or is open down in the basket (the object just
+        let go), or the basket's arm holds the basket or is open around its handle: then the
+        solution goes on from the hands as they are."""
+        info = world.info
+        return bool(world.gripper_holds(info["object_arm"], info["object"]["name"])
+                    or world.gripper_holds(info["basket_arm"], info["basket"]["name"]) or _at_handle(world, info)
+                    or _hand_in_basket(world, info))
 
 
 def grasp_axis(obj: dict) -> tuple[float, float, float]:
@@ -234,6 +271,37 @@ def grasp_axis(obj: dict) -> tuple[float, float, float]:
     narrower cabin once the car tilts a little: on PyBullet the pinched car then rolls about its
     length and slides out within a 20 cm lift (heldout seeds 101, 103)."""
     return (1.0, 0.0, 0.0) if obj["type"] == "toycar" else (0.0, 1.0, 0.0)
+
+
+def _at_handle(world: WorldView, info: dict) -> bool:
+    """Whether the basket's arm is open around the handle bar, pointing down, at the grasp (a
+    grasp under way)."""
+    arm, bk = info["basket_arm"], info["basket"]
+    tcp = world.tcp_pose(arm)
+    grasp = np.asarray(world.pose(bk["name"])[:3]) + [0.0, 0.0, float(bk["handle_bar_point"][2])]
+    return bool(world.gripper_command(arm) >= OPEN and quat_to_mat(tcp[3:])[2, 0] < -0.99
+                and np.linalg.norm(tcp[:3] - grasp) < 0.015)
+
+
+def _hand_in_basket(world: WorldView, info: dict) -> bool:
+    """Whether the object's arm is open with its TCP over the basket, less than 5 cm above its rim
+    (where the object is let go; the solution retreats 10 cm up from there)."""
+    bk = info["basket"]
+    bp = world.pose(bk["name"])
+    arm = info["object_arm"]
+    local = quat_to_mat(bp[3:]).T @ (world.tcp_pose(arm)[:3] - bp[:3])
+    hx, hy = (float(v) for v in bk["outer_half_size"])
+    return bool(world.gripper_command(arm) >= OPEN and abs(local[0]) < hx and abs(local[1]) < hy
+                and local[2] < float(bk["rim_z"]) + 0.05)
+
+
+def _down_in_basket(world: WorldView, info: dict) -> bool:
+    """Whether the object's centre is inside the basket, below its rim."""
+    bk = info["basket"]
+    bp = world.pose(bk["name"])
+    local = quat_to_mat(bp[3:]).T @ (np.asarray(world.pose(info["object"]["name"])[:3]) - bp[:3])
+    hx, hy = (float(v) for v in bk["inner_half_size"])
+    return bool(abs(local[0]) < hx and abs(local[1]) < hy and local[2] < float(bk["rim_z"]))
 
 
 def _in_basket(world: WorldView, name: str, basket: str) -> bool:

@@ -36,7 +36,7 @@ from cab_core.contracts.verifier import (Evaluation, Margin, Verifier, WorldView
 
 from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info
 from ..common import CodeActionTask, pose_list, rand_pose, sample_until
-from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
+from ..oracle import OPEN, TOLERANT, Hands, OracleFailed, tcp_quat, world_point
 
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
@@ -60,6 +60,7 @@ HAND_CLEAR = 0.07  # the empty hand's TCP this far above the standing bottles' t
 # part, the gripper housing, 3 cm below the TCP)
 CARRY_CLEAR = 0.05  # the held bottle's base this far above the standing bottles' tops while carried
 PICK_TRIES = 2
+POISED = 0.015  # an open TCP this close to a bottle's grasp is about to close on it
 
 
 class PutBottlesDustbinVerifier(Verifier):
@@ -188,34 +189,50 @@ class PutBottlesDustbin(CodeActionTask):
         stands on its side (28 calls)."""
         info = world.info
         q = tcp_quat(APPROACH, (-APPROACH[1], APPROACH[0], 0.0))  # the gripper's z axis up
-        if any(world.pose(info[k]["name"])[0] > 0.05 for k in info["bottles"]):
+        # from a later stage (a fork): the bottles already in the dustbin stay there; the drop
+        # places along the dustbin go on from their count
+        verifier = self.verifier_class(info)
+        left = [k for k in info["bottles"] if not verifier.in_region(world.pose(info[k]["name"])[:3])]
+        # (the right arm steps aside once: not again when it is away from its start already)
+        right_home = (world.start or {}).get("tcp", {}).get("right")
+        right_away = right_home is not None and world.tcp_pose("right")[0] - right_home[0] > 0.10
+        if any(world.pose(info[k]["name"])[0] > 0.05 for k in left) and not right_away:
             Hands(call, "right").move(dx=0.15, dy=-0.05, dz=0.05, what="right arm aside", ok=TOLERANT)
         hands = Hands(call, "left")
-        left = list(info["bottles"])
-        for i in range(len(info["bottles"])):
-            key = min(left, key=lambda k: float(world.pose(info[k]["name"])[:2] @ APPROACH[:2]))
+        for i in range(len(info["bottles"]) - len(left), len(info["bottles"])):
+            # a bottle the hand holds, or is open around (``keeps_hands``), is the one it goes on with
+            held_key = next((k for k in left if world.gripper_holds("left", info[k]["name"])), None)
+            poised_key = next((k for k in left if _poised(world, info[k], q)), None) if held_key is None else None
+            key = held_key or poised_key or min(left, key=lambda k: float(world.pose(info[k]["name"])[:2] @ APPROACH[:2]))
             b = info[key]
             name = b["name"]
             hover_z = _tops(world, info, left) + HAND_CLEAR
             left.remove(key)
             carry_top = _tops(world, info, left) + CARRY_CLEAR  # what the held bottle must pass over
-            for _ in range(PICK_TRIES):
-                g = _grasp_tcp(world.pose(name), b)
-                pre = g - PRE_GRASP * APPROACH
-                hands.reach([pre[0], pre[1], max(pre[2], hover_z)], q, "above the approach to the bottle")
-                hands.move_to_height(world, pre[2], "down before the bottle")
-                g = _grasp_tcp(world.pose(name), b)  # where it stands now
-                hands.move_to(world, g, "around the bottle")
-                hands.grip(0.0)
+            if held_key is not None:
                 base = _base_z(world, b)
-                hands.move(dz=max(LIFT, carry_top - base), what="lift", ok=TOLERANT)
-                if world.gripper_holds("left", name):
-                    break
-                # not held: open, back out along the approach and up, and take it again
-                hands.grip(1.0)
-                hands.move(*(-PRE_GRASP * APPROACH), what="back out", ok=TOLERANT)
+                over_bin = np.all(np.abs(world.pose(name)[:2] - verifier.center) < verifier.half)
+                if not over_bin and base < carry_top:
+                    hands.move(dz=max(LIFT, carry_top - base), what="lift", ok=TOLERANT)
             else:
-                raise OracleFailed(f"{name}: not held after {PICK_TRIES} grasps")
+                for t in range(PICK_TRIES):
+                    if not (t == 0 and poised_key is not None):
+                        g = _grasp_tcp(world.pose(name), b)
+                        pre = g - PRE_GRASP * APPROACH
+                        hands.reach([pre[0], pre[1], max(pre[2], hover_z)], q, "above the approach to the bottle")
+                        hands.move_to_height(world, pre[2], "down before the bottle")
+                        g = _grasp_tcp(world.pose(name), b)  # where it stands now
+                        hands.move_to(world, g, "around the bottle")
+                    hands.grip(0.0)
+                    base = _base_z(world, b)
+                    hands.move(dz=max(LIFT, carry_top - base), what="lift", ok=TOLERANT)
+                    if world.gripper_holds("left", name):
+                        break
+                    # not held: open, back out along the approach and up, and take it again
+                    hands.grip(1.0)
+                    hands.move(*(-PRE_GRASP * APPROACH), what="back out", ok=TOLERANT)
+                else:
+                    raise OracleFailed(f"{name}: not held after {PICK_TRIES} grasps")
             tcp = world.tcp_pose("left")[:3]
             held = world.pose(name)[:3] - tcp
             drop = _drop_tcp(info, b, held, DROP_Y[i])
@@ -227,6 +244,21 @@ class PutBottlesDustbin(CodeActionTask):
             up = _tops(world, info, left) + HAND_CLEAR if left else world.tcp_pose("left")[2] + 0.15
             hands.move(dz=max(0.15, up - world.tcp_pose("left")[2]), what="rise", ok=TOLERANT)
         call("done", report="dropped the three bottles into the dustbin", success_claim=True)
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """Whether the left hand holds a bottle or is open around one, ready to close: then the
+        solution goes on from there."""
+        info = world.info
+        q = tcp_quat(APPROACH, (-APPROACH[1], APPROACH[0], 0.0))
+        return any(world.gripper_holds("left", info[k]["name"]) or _poised(world, info[k], q) for k in info["bottles"])
+
+
+def _poised(world: WorldView, b: dict, q) -> bool:
+    """Whether the left hand is open around bottle ``b`` at its grasp, turned as the solution
+    turns it (a grasp under way)."""
+    tcp = world.tcp_pose("left")
+    return bool(world.gripper_command("left") >= OPEN and abs(float(np.dot(tcp[3:], q))) > 0.995
+                and np.linalg.norm(tcp[:3] - _grasp_tcp(world.pose(b["name"]), b)) < POISED)
 
 
 def _tops(world: WorldView, info: dict, keys) -> float:
