@@ -317,7 +317,7 @@ class PlaceDualShoes(CodeActionTask):
                         hands[a].move(dz=0.10, what="rise", ok=TOLERANT)
                     if world.gripper_command(a) < 1.0:
                         hands[a].grip(1.0)
-                elif held[a] and float(world.pose(shoe_of[a])[2]) < float(world.start["objects"][shoe_of[a]][2]) + 0.05:
+                elif held[a] and float(world.pose(shoe_of[a])[2]) < float(info["table_top_z"]) + 0.05:
                     hands[a].move(dz=LIFT, what="lift", ok=TOLERANT)
             if placed["left"] and not held["left"]:
                 self._park_left(world, hands["left"])
@@ -366,9 +366,9 @@ class PlaceDualShoes(CodeActionTask):
         call("done", report="put both shoes into the shoe box side by side, toes pointing left, and let go",
              success_claim=True)
 
-
     @staticmethod
     def _park_left(world: WorldView, h: Hands) -> None:
+        """The left hand out along x to LEFT_PARK_X (clear of the right shoe's swing)."""
         for _ in range(2):  # move_delta goes at most MAX_STEP at a time
             dx = LEFT_PARK_X - float(world.tcp_pose(h.arm)[0])
             if dx > -0.01:
