@@ -187,7 +187,9 @@ class BlocksRankingSize(CodeActionTask):
         an arm reaching across the midline meets the other's parked gripper otherwise. A block found
         more than 1.5 cm from its spot after its placement (a small block can slip out of the
         fingers on the way: physics near that edge differs between machines) is picked up again
-        from where it lies, at most three tries in all."""
+        from where it lies, at most three tries in all. From a later state (a fork): the row is the
+        one chosen from the attempt's start, a block already on its spot stays, a block held top-down
+        is carried on (``keeps_hands``), an empty hand just above a block rises before it steps aside."""
         info = world.info
         top = float(info["table_top_z"])
         blocks = info["blocks"]

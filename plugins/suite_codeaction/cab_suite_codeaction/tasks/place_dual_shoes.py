@@ -253,7 +253,9 @@ class PlaceDualShoes(CodeActionTask):
         the right arm waits with its shoe at x >= RIGHT_WAIT_X while the left arm turns its shoe
         toe-left, sets it down in the near place, opens and parks at x = LEFT_PARK_X; the right arm
         puts its shoe in the far place the same way. Each lets go half open and opens fully
-        once risen clear of its shoe (21-22 tool calls)."""
+        once risen clear of its shoe (21-22 tool calls). From a later state (a fork): a shoe already
+        in its place stays, a shoe in hand is carried on (``keeps_hands``), the shoes still to move
+        are picked one arm at a time."""
         info = world.info
         grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
         target_q = np.asarray(info["target_quat"], float)

@@ -138,7 +138,8 @@ class StackBlocksThree(CodeActionTask):
         """Each cube is picked top-down by the arm on its side (fingers across the two faces needing
         the least wrist roll, or the other two where an open finger would land on another cube;
         aimed again if the arm's way there pushed it, picked again if it is not held) and put on the stack in the
-        cleared area in front of the robot, bottom to top."""
+        cleared area in front of the robot, bottom to top. From a later state (a fork) the cubes
+        already on the stack, bottom up, are left there (``_levels_done``)."""
         info = world.info
         half = float(info["block_half_size"])
         tx, ty = (float(v) for v in info["stack_target_xy"])

@@ -192,7 +192,9 @@ class StackBowlsThree(CodeActionTask):
         finger would then come down on another bowl. It hangs a few degrees tilted from the pinch:
         carried high, the gripper tips back by that much so that it is upright, its axis over the
         support's; lowered until it sits (a bowl let go from above, or tilted, can wedge on the
-        rim below), let go, and the arm withdraws to its side."""
+        rim below), let go, and the arm withdraws to its side. From a later state (a fork): bowls
+        already stacked stay (``_bowls_done``), a pinched bowl is carried on (``keeps_hands``), a hand
+        still at a rim it let go rises before it steps aside."""
         info = world.info
         b = info["bowl"]
         top = float(info["table_top_z"])
