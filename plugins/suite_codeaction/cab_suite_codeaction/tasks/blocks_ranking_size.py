@@ -39,7 +39,7 @@ from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_
 
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, grippers_open, pose_list, rand_pose, sample_until,
                       srgb, vec, yaw_of)
-from ..oracle import Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
+from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
 
 HALF_RANGES = ((0.030, 0.033), (0.024, 0.027), (0.018, 0.021))  # block1 (largest) .. block3
 BLOCK_NAMES = ("block1", "block2", "block3")
@@ -187,14 +187,20 @@ class BlocksRankingSize(CodeActionTask):
         an arm reaching across the midline meets the other's parked gripper otherwise. A block found
         more than 1.5 cm from its spot after its placement (a small block can slip out of the
         fingers on the way: physics near that edge differs between machines) is picked up again
-        from where it lies, at most three tries in all."""
+        from where it lies, at most three tries in all. From a later state (a fork): the row is the
+        one chosen from the attempt's start, a block already on its spot stays, a block held top-down
+        is carried on (``keeps_hands``), an empty hand just above a block rises before it steps aside."""
         info = world.info
         top = float(info["table_top_z"])
         blocks = info["blocks"]
         halves = [float(b["half_size"]) for b in blocks]
         # row spots: centres spaced by the half-sizes plus the gap, the middle block at x = 0
         xs = [-(halves[0] + halves[1] + ROW_GAP), 0.0, halves[1] + halves[2] + ROW_GAP]
-        start = [np.asarray(world.pose(b["name"])[:3], float) for b in blocks]
+        # the row is chosen from where the blocks stood at the attempt's start (from a later state
+        # the same row is finished; at the start these are the poses now)
+        first = world.start["objects"] if world.start is not None else {}
+        start = [np.asarray(first[b["name"]] if b["name"] in first else world.pose(b["name"]), float)[:3]
+                 for b in blocks]
 
         def free(y: float) -> bool:
             for i in range(3):
@@ -206,13 +212,34 @@ class BlocksRankingSize(CodeActionTask):
 
         row_y = next((y for y in (ROW_Y, ROW_Y - 0.03, ROW_Y + 0.02, ROW_Y - 0.05) if free(y)), ROW_Y - 0.05)
         turned: set[str] = set()
+        for arm in info["arms"]:  # a fork: an empty hand just above a block it let go rises and steps aside
+            if self._low_empty_hand(world, arm):
+                turned.add(arm)
+                hands = Hands(call, arm)
+                hands.move(dz=0.06, what="retreat", ok=TOLERANT)
+                hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the row")
         for i, b in enumerate(blocks):
+            holder = self._holder(world, b["name"])
+            if holder is None and self._on_spot(world, b["name"], xs[i], row_y):
+                continue  # already in its place in the row (a state a fork starts from)
             for attempt in range(PLACE_TRIES):  # a block that slipped out on the way is picked up again
                 name, h = b["name"], halves[i]
                 pose = world.pose(name)
-                arm = "left" if pose[0] < 0 else "right"
+                if attempt == 0 and holder is not None:  # held already: go on from the grasp
+                    arm = holder
+                    turned.add(arm)
+                    if world.pose(name)[2] < top + h + 0.03:
+                        Hands(call, arm).move(dz=0.07, what="lift", ok=TOLERANT)
+                else:
+                    arm = "left" if pose[0] < 0 else "right"
                 # a high hover: turning the wrist down from its start pose sweeps the fingers low
                 hands = Hands(call, arm, hover=HOVER)
+                if attempt == 0 and holder is not None:
+                    self._place(call, world, hands, b, h, xs[i], row_y, top)
+                    spot = world.pose(b["name"])[:2]
+                    if np.hypot(spot[0] - xs[i], spot[1] - row_y) <= PLACE_TOL_M:
+                        break
+                    continue
                 faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
                 # fingers preferably on the faces closest to the world's y axis (it is set down with them
                 # on its +-y faces, so opening the fingers never pushes a neighbour in the row), unless
@@ -240,24 +267,81 @@ class BlocksRankingSize(CodeActionTask):
                     hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
                     turned.add(arm)
                 hands.pick(grasp, q, lift=0.07)
-                # the held block in the TCP frame, then the TCP pose that puts it square on its spot
-                tcp = world.tcp_pose(arm)
-                held = quat_to_mat(tcp[3:]).T @ (np.asarray(world.pose(name)[:3], float) - tcp[:3])
-                opening = quat_to_mat(tcp[3:])[:, 1]
-                q_place = top_down_quat(closest_opening(tcp[3:], [np.array([0.0, 1.0, 0.0])]))
-                target = np.array([xs[i], row_y, top + h + 0.004])
-                tcp_target = target - quat_to_mat(q_place) @ held
-                if not np.isfinite(tcp_target).all() or abs(opening[2]) > 0.5:
-                    raise OracleFailed(f"{name}: the grasp is not top-down")
-                hands.place(tcp_target, q_place, retreat=0.06)
-                # step aside (and back toward the robot) so the other arm can reach the row
-                # (far: an arm reaching across the midline meets the other arm's parked gripper)
-                hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the row")
+                self._place(call, world, hands, b, h, xs[i], row_y, top)
                 spot = world.pose(b["name"])[:2]
                 if np.hypot(spot[0] - xs[i], spot[1] - row_y) <= PLACE_TOL_M:
                     break
         call("done", report="lined the blocks up largest to smallest, left to right, at the table's front centre",
              success_claim=True)
+
+    @staticmethod
+    def _place(call, world: WorldView, hands: Hands, b: dict, h: float, x: float, row_y: float, top: float) -> None:
+        """Set the block ``b`` held by ``hands`` down square on its row spot (x, row_y), then step aside."""
+        name, arm = b["name"], hands.arm
+        # the held block in the TCP frame, then the TCP pose that puts it square on its spot
+        tcp = world.tcp_pose(arm)
+        held = quat_to_mat(tcp[3:]).T @ (np.asarray(world.pose(name)[:3], float) - tcp[:3])
+        opening = quat_to_mat(tcp[3:])[:, 1]
+        q_place = top_down_quat(closest_opening(tcp[3:], [np.array([0.0, 1.0, 0.0])]))
+        target = np.array([x, row_y, top + h + 0.004])
+        tcp_target = target - quat_to_mat(q_place) @ held
+        if not np.isfinite(tcp_target).all() or abs(opening[2]) > 0.5:
+            raise OracleFailed(f"{name}: the grasp is not top-down")
+        hands.place(tcp_target, q_place, retreat=0.06)
+        # step aside (and back toward the robot) so the other arm can reach the row
+        # (far: an arm reaching across the midline meets the other arm's parked gripper)
+        hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the row")
+
+    @staticmethod
+    def _holder(world: WorldView, name: str) -> str | None:
+        """The arm whose closed gripper holds ``name`` (every finger on it), if any."""
+        return next((a for a in world.info["arms"]
+                     if world.gripper_command(a) < 0.5 and world.gripper_holds(a, name)), None)
+
+    @staticmethod
+    def _on_spot(world: WorldView, name: str, x: float, y: float) -> bool:
+        """Whether ``name`` rests on the table at its row spot (x, y), square enough to stay."""
+        p = world.pose(name)
+        return bool(np.hypot(p[0] - x, p[1] - y) <= PLACE_TOL_M and not any(
+            world.gripper_touches(a, name) for a in world.info["arms"]))
+
+    @staticmethod
+    def _low_empty_hand(world: WorldView, arm: str) -> bool:
+        """Whether ``arm``'s open gripper is moved from its start down to within 12 cm of a block's
+        top, over it (as after letting it go in the row): taking it home from there sweeps the
+        block along. Never at the scene's start."""
+        if world.start is None or world.gripper_command(arm) < 0.8:
+            return False
+        tcp = world.tcp_pose(arm)[:3]
+        if np.linalg.norm(tcp - world.start["tcp"][arm][:3]) < 0.02:
+            return False
+        for b in world.info["blocks"]:
+            p = world.pose(b["name"])[:3]
+            if np.hypot(*(tcp[:2] - p[:2])) < 0.06 and tcp[2] < p[2] + float(b["half_size"]) + 0.12:
+                return True
+        return False
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """True where one closed gripper holds a block top-down and the other hand is empty, or an
+        open hand is just above a block it let go and the other is empty: the solution goes on from
+        that grasp (putting the block down first could push it off square), or lifts the hand
+        straight up before it steps aside."""
+        if world.start is None:
+            return False
+        arms = list(world.info["arms"])
+        names = [b["name"] for b in world.info["blocks"]]
+        if any(self._low_empty_hand(world, a) for a in arms):
+            return all(world.gripper_command(a) > 0.8 and not any(world.gripper_holds(a, n) for n in names)
+                       for a in arms)
+        held = [(a, n) for a in arms for n in names if world.gripper_command(a) < 0.5 and world.gripper_holds(a, n)]
+        if len(held) != 1:
+            return False
+        arm, _ = held[0]
+        other = [a for a in arms if a != arm]
+        if abs(quat_to_mat(world.tcp_pose(arm)[3:])[2, 0]) < 0.9:  # the approach axis not pointing down
+            return False
+        return all(world.gripper_command(a) > 0.8 and not any(world.gripper_touches(a, n) for n in names)
+                   for a in other)
 
 
 TASK = BlocksRankingSize

@@ -253,7 +253,9 @@ class PlaceDualShoes(CodeActionTask):
         the right arm waits with its shoe at x >= RIGHT_WAIT_X while the left arm turns its shoe
         toe-left, sets it down in the near place, opens and parks at x = LEFT_PARK_X; the right arm
         puts its shoe in the far place the same way. Each lets go half open and opens fully
-        once risen clear of its shoe (21-22 tool calls)."""
+        once risen clear of its shoe (21-22 tool calls). From a later state (a fork): a shoe already
+        in its place stays, a shoe in hand is carried on (``keeps_hands``), the shoes still to move
+        are picked one arm at a time."""
         info = world.info
         grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
         target_q = np.asarray(info["target_quat"], float)
@@ -281,40 +283,66 @@ class PlaceDualShoes(CodeActionTask):
                     best, cost = o, k
             return np.asarray(tcp_quat([0.0, 0.0, -1.0], best))
 
-        # 1. both arms: fingers half open (a shoe may stand with its heel close to the box), hover
-        # above the heels, descend, pinch, lift
-        for a in arms:
-            hands[a].grip(PRE_GRIP)
-        grasp_w = {a: transform_point(world.pose(shoe_of[a]), grasp) for a in arms}
-        q = {a: pick_quat(a) for a in arms}
-        up = np.array([0.0, 0.0, HOVER])
-        r = call("reach_both_tcp", left_xyz=(grasp_w["left"] + up).tolist(), right_xyz=(grasp_w["right"] + up).tolist(),
-                 left_quat=q["left"].tolist(), right_quat=q["right"].tolist())
-        if r.get("status") != "SUCCESS":
-            raise OracleFailed(f"hover above the heels: {r.get('status')} {r.get('failure')}")
-        down = {a: (grasp_w[a] - world.tcp_pose(a)[:3]).tolist() for a in arms}
-        call("move_both_delta", left_delta=down["left"], right_delta=down["right"])
-        for a in arms:
-            hands[a].grip(0.0)
-        call("move_both_delta", left_delta=[0.0, 0.0, LIFT], right_delta=[0.0, 0.0, LIFT])
-
         # a shoe that slipped out is picked again where it lies (heel aimed from its present pose)
         def aim(a: str):
             return lambda pose: (transform_point(pose, grasp), pick_quat(a))
 
+        up = np.array([0.0, 0.0, HOVER])
+        # from a later state (a fork): a shoe already in its place stays there, a shoe in hand is
+        # carried on; neither at the scene's start
+        placed = {a: self._placed(world, a) for a in arms}
+        held = {a: self._holds(world, a) for a in arms}
+        if not any(placed.values()) and not any(held.values()):
+            # 1. both arms: fingers half open (a shoe may stand with its heel close to the box), hover
+            # above the heels, descend, pinch, lift
+            for a in arms:
+                hands[a].grip(PRE_GRIP)
+            grasp_w = {a: transform_point(world.pose(shoe_of[a]), grasp) for a in arms}
+            q = {a: pick_quat(a) for a in arms}
+            r = call("reach_both_tcp", left_xyz=(grasp_w["left"] + up).tolist(),
+                     right_xyz=(grasp_w["right"] + up).tolist(), left_quat=q["left"].tolist(),
+                     right_quat=q["right"].tolist())
+            if r.get("status") != "SUCCESS":
+                raise OracleFailed(f"hover above the heels: {r.get('status')} {r.get('failure')}")
+            down = {a: (grasp_w[a] - world.tcp_pose(a)[:3]).tolist() for a in arms}
+            call("move_both_delta", left_delta=down["left"], right_delta=down["right"])
+            for a in arms:
+                hands[a].grip(0.0)
+            call("move_both_delta", left_delta=[0.0, 0.0, LIFT], right_delta=[0.0, 0.0, LIFT])
+        else:
+            floor = float(info["box"]["floor_top_z"])
+            for a in arms:
+                if placed[a] and not held[a]:  # a hand by its placed shoe lets go, rises clear
+                    if float(world.tcp_pose(a)[2]) < floor + 0.12:
+                        if world.gripper_command(a) < PRE_GRIP:
+                            hands[a].grip(PRE_GRIP)
+                        hands[a].move(dz=0.10, what="rise", ok=TOLERANT)
+                    if world.gripper_command(a) < 1.0:
+                        hands[a].grip(1.0)
+                elif held[a] and float(world.pose(shoe_of[a])[2]) < float(info["table_top_z"]) + 0.05:
+                    hands[a].move(dz=LIFT, what="lift", ok=TOLERANT)
+            if placed["left"] and not held["left"]:
+                self._park_left(world, hands["left"])
+            for a in arms:
+                if not placed[a] and not held[a]:
+                    hands[a].grip(PRE_GRIP)
+                    hands[a].pick_held(world, shoe_of[a], aim(a), lift=LIFT)
+
         for a in arms:
-            if not world.gripper_holds(a, shoe_of[a]):
+            if not placed[a] and not world.gripper_holds(a, shoe_of[a]):
                 hands[a].grip(PRE_GRIP)
                 hands[a].pick_held(world, shoe_of[a], aim(a), lift=LIFT)
 
         # the right arm waits out of the left arm's way (a heel picked near the box would leave its
         # wrist where the left wrist comes down to place)
         wait_dx = RIGHT_WAIT_X - float(world.tcp_pose("right")[0])
-        if wait_dx > 0.01:
+        if wait_dx > 0.01 and not placed["right"]:
             hands["right"].move(dx=wait_dx, what="wait aside with the right shoe", ok=TOLERANT)
 
         # 2. one after the other: carry over the place (turning the toe to -x), set down, let go
         for arm in arms:
+            if placed[arm]:
+                continue
             spread = -PLACE_SPREAD if arm == "left" else PLACE_SPREAD
             px, py = PLACE_X + box[0] - BOX_XY[0], place_of[arm][1] + spread
             shoe_goal = np.array([px, py, float(info["box"]["floor_top_z"]) + RELEASE_DROP, *target_q])
@@ -336,13 +364,48 @@ class PlaceDualShoes(CodeActionTask):
             h.move(dz=0.10, what="rise", ok=TOLERANT)
             h.grip(1.0)
             if arm == "left":  # well clear of the right shoe's swing on its way to the box
-                for _ in range(2):  # move_delta goes at most MAX_STEP at a time
-                    dx = LEFT_PARK_X - float(world.tcp_pose(arm)[0])
-                    if dx > -0.01:
-                        break
-                    h.move(dx=max(dx, -MAX_STEP), what="out of the way", ok=TOLERANT)
+                self._park_left(world, h)
         call("done", report="put both shoes into the shoe box side by side, toes pointing left, and let go",
              success_claim=True)
+
+    @staticmethod
+    def _park_left(world: WorldView, h: Hands) -> None:
+        """The left hand out along x to LEFT_PARK_X (clear of the right shoe's swing)."""
+        for _ in range(2):  # move_delta goes at most MAX_STEP at a time
+            dx = LEFT_PARK_X - float(world.tcp_pose(h.arm)[0])
+            if dx > -0.01:
+                break
+            h.move(dx=max(dx, -MAX_STEP), what="out of the way", ok=TOLERANT)
+
+    @staticmethod
+    def _holds(world: WorldView, arm: str) -> bool:
+        """Whether ``arm``'s closed gripper holds its own shoe (the left arm the left shoe)."""
+        return world.gripper_command(arm) < 0.3 and world.gripper_holds(arm, world.info["shoes"][arm]["name"])
+
+    @classmethod
+    def _placed(cls, world: WorldView, arm: str) -> bool:
+        """Whether ``arm``'s shoe stands in its place in the box, toe left, not held."""
+        info = world.info
+        p = np.asarray(world.pose(info["shoes"][arm]["name"]), float)
+        place = np.asarray(info["places"][arm], float)
+        return bool(np.all(np.abs(p[:2] - place) < 0.03)
+                    and abs(p[2] - float(info["box"]["floor_top_z"])) < 0.015
+                    and _quat_error(p[3:], info["target_quat"]) < 0.05
+                    and not cls._holds(world, arm))
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """True where a closed hand holds its shoe, or a hand is still by its shoe set down in the
+        box: the solution carries the shoe on, or lets go and rises as it would have."""
+        if world.start is None:
+            return False
+        for a in world.info["arms"]:
+            shoe = world.info["shoes"][a]["name"]
+            if self._holds(world, a):
+                return True
+            if self._placed(world, a) and (world.gripper_touches(a, shoe) or np.linalg.norm(
+                    world.tcp_pose(a)[:3] - world.pose(shoe)[:3]) < 0.2):
+                return True
+        return False
 
 
 def _angle_between(a, b) -> float:

@@ -138,12 +138,16 @@ class StackBlocksThree(CodeActionTask):
         """Each cube is picked top-down by the arm on its side (fingers across the two faces needing
         the least wrist roll, or the other two where an open finger would land on another cube;
         aimed again if the arm's way there pushed it, picked again if it is not held) and put on the stack in the
-        cleared area in front of the robot, bottom to top."""
+        cleared area in front of the robot, bottom to top. From a later state (a fork) the cubes
+        already on the stack, bottom up, are left there (``_levels_done``)."""
         info = world.info
         half = float(info["block_half_size"])
         tx, ty = (float(v) for v in info["stack_target_xy"])
         base_z = float(info["table_top_z"]) + half
+        done = self._levels_done(world)
         for level, colour in enumerate(info["stack_order"]):
+            if level < done:  # already on the stack (a state a fork starts from)
+                continue
             name = info["blocks"][colour]["name"]
             pose = world.pose(name)
             arm = "left" if pose[0] < 0 else "right"
@@ -177,6 +181,36 @@ class StackBlocksThree(CodeActionTask):
             # meets a parked arm's otherwise); a planned move where the straight one cannot go
             hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the stack", planned_rise=0.05)
         call("done", report="stacked blue on green on red", success_claim=True)
+
+    @staticmethod
+    def _levels_done(world: WorldView) -> int:
+        """How many cubes, bottom up, already stand where the stack needs them and rest there (no
+        gripper holds them): the bottom one in the cleared area (or under the next one), each of
+        the others on the one below it. 0 at the scene's start (the cleared area is empty)."""
+        info = world.info
+        names = [info["blocks"][c]["name"] for c in info["stack_order"]]
+        half = float(info["block_half_size"])
+        tol = np.asarray(info["tolerance"], float)
+        base_z = float(info["table_top_z"]) + half
+
+        def free(n: str) -> bool:
+            return not any(world.gripper_touches(a, n) for a in info["arms"])
+
+        def on(upper: str, lower: str) -> bool:
+            d = world.pose(upper)[:3] - world.pose(lower)[:3] - [0.0, 0.0, 2 * half]
+            return bool(np.all(np.abs(d) < tol))
+
+        p0 = world.pose(names[0])[:3]
+        base = (np.hypot(*(p0[:2] - np.asarray(info["stack_target_xy"], float))) < 0.02
+                and abs(p0[2] - base_z) < 0.01 and free(names[0]))
+        done = 0
+        if base or on(names[1], names[0]):  # the bottom cube stays where it is
+            done = 1
+            for k in range(1, len(names)):
+                if not (on(names[k], names[k - 1]) and free(names[k])):
+                    break
+                done = k + 1
+        return done
 
 
 TASK = StackBlocksThree

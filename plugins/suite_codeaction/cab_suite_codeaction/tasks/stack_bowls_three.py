@@ -35,7 +35,7 @@ from cab_core.contracts.verifier import Margin, WorldView, margin_all, margin_be
 from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual
 from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose,
                       sample_until, srgb)
-from ..oracle import Hands, OracleFailed, top_down_quat
+from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat
 
 BOWL = Vessel(r_bottom=0.032, r_rim=0.058, height=0.05, wall=0.0045, base=0.005, band=0.015)
 BOWL_MASS = 0.12  # kg, a small melamine/porcelain rice bowl
@@ -192,7 +192,9 @@ class StackBowlsThree(CodeActionTask):
         finger would then come down on another bowl. It hangs a few degrees tilted from the pinch:
         carried high, the gripper tips back by that much so that it is upright, its axis over the
         support's; lowered until it sits (a bowl let go from above, or tilted, can wedge on the
-        rim below), let go, and the arm withdraws to its side."""
+        rim below), let go, and the arm withdraws to its side. From a later state (a fork): bowls
+        already stacked stay (``_bowls_done``), a pinched bowl is carried on (``keeps_hands``), a hand
+        still at a rim it let go rises before it steps aside."""
         info = world.info
         b = info["bowl"]
         top = float(info["table_top_z"])
@@ -202,21 +204,40 @@ class StackBowlsThree(CodeActionTask):
         names = [x["name"] for x in info["bowls"]]
         turned: set[str] = set()
         support = None
-        for name in names:
-            c = np.asarray(world.pose(name)[:3], float)
-            arm = "left" if c[0] < 0 else "right"
-            hands = Hands(call, arm, hover=HOVER)
-            phi = self._pinch_angle(world, name, arm)
-            radial = np.array([np.cos(phi), np.sin(phi), 0.0])
-            q = top_down_quat(radial)
-            if world.gripper_command(arm) != PINCH_OPEN:
-                hands.grip(PINCH_OPEN)
-            if arm not in turned:
-                # turn the gripper down where it is, away from the bowls
-                hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
+        for arm in info["arms"]:  # a fork: a hand that just let a bowl go rises and steps aside first
+            if self._low_empty_hand(world, arm):
                 turned.add(arm)
-            grasp = c + r_g * radial + [0.0, 0.0, grasp_dz]
-            hands.pick(grasp, q, lift=0.10)
+                hands = Hands(call, arm, hover=HOVER)
+                hands.move(dz=0.08, what="retreat", ok=TOLERANT)
+                hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the stack")
+        done = self._bowls_done(world)
+        for k, name in enumerate(names):
+            if k < done:  # already in place (a state a fork starts from)
+                support = name
+                continue
+            c = np.asarray(world.pose(name)[:3], float)
+            holder = self._holder(world, name)
+            if holder is not None:  # pinched already: go on from the grasp, lifted clear first
+                arm = holder
+                hands = Hands(call, arm, hover=HOVER)
+                turned.add(arm)
+                low = c[2] - (top if support is None else float(world.pose(support)[2]) + rise)
+                if low < 0.08:
+                    hands.move(dz=0.10, what="lift", ok=TOLERANT)
+            else:
+                arm = "left" if c[0] < 0 else "right"
+                hands = Hands(call, arm, hover=HOVER)
+                phi = self._pinch_angle(world, name, arm)
+                radial = np.array([np.cos(phi), np.sin(phi), 0.0])
+                q = top_down_quat(radial)
+                if world.gripper_command(arm) != PINCH_OPEN:
+                    hands.grip(PINCH_OPEN)
+                if arm not in turned:
+                    # turn the gripper down where it is, away from the bowls
+                    hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
+                    turned.add(arm)
+                grasp = c + r_g * radial + [0.0, 0.0, grasp_dz]
+                hands.pick(grasp, q, lift=0.10)
             tcp = world.tcp_pose(arm)
             if abs(quat_to_mat(tcp[3:])[2, 0]) < 0.9:
                 raise OracleFailed(f"{name}: the gripper is no longer pointing down")
@@ -238,6 +259,76 @@ class StackBowlsThree(CodeActionTask):
             if world.gripper_command(arm) <= GRIPPER_OPEN:
                 Hands(call, arm).grip(1.0)
         call("done", report="stacked the three bowls into one another", success_claim=True)
+
+    @staticmethod
+    def _holder(world: WorldView, name: str) -> str | None:
+        """The arm whose closed gripper pinches ``name`` (every finger on it), if any."""
+        return next((a for a in world.info["arms"]
+                     if world.gripper_command(a) < 0.2 and world.gripper_holds(a, name)), None)
+
+    @staticmethod
+    def _bowls_done(world: WorldView) -> int:
+        """How many bowls, in the order the solution stacks them, already stand where it puts them,
+        upright and let go: bowl1 on the table at the stack's spot, each next one nested in the one
+        before. 0 at the scene's start (the spot is kept clear)."""
+        info = world.info
+        names = [x["name"] for x in info["bowls"]]
+        top = float(info["table_top_z"])
+        rise = float(info["bowl"]["nest_rise"])
+
+        def rests(n: str) -> bool:
+            upright = quat_to_mat(world.pose(n)[3:])[2, 2] > 0.98
+            return upright and not any(world.gripper_touches(a, n) for a in info["arms"])
+
+        p = [np.asarray(world.pose(n)[:3], float) for n in names]
+        spot = np.asarray(info["stack_target_xy"], float)
+        if not (np.hypot(*(p[0][:2] - spot)) < 0.03 and abs(p[0][2] - top) < 0.01 and rests(names[0])):
+            return 0
+        done = 1
+        for k in range(1, len(names)):
+            d = p[k] - p[k - 1]
+            if not (np.hypot(d[0], d[1]) < 0.02 and abs(d[2] - rise) < 0.01 and rests(names[k])):
+                break
+            done = k + 1
+        return done
+
+    @staticmethod
+    def _low_empty_hand(world: WorldView, arm: str) -> bool:
+        """Whether ``arm``'s open (or pinch-open) gripper, moved from its start, is down at a bowl's
+        rim (as after letting it go): opening it wide there and taking it home drags the bowl
+        along. Never at the scene's start."""
+        if world.start is None or world.gripper_command(arm) < 0.2:
+            return False
+        tcp = world.tcp_pose(arm)[:3]
+        if np.linalg.norm(tcp - world.start["tcp"][arm][:3]) < 0.02:
+            return False
+        b = world.info["bowl"]
+        for x in world.info["bowls"]:
+            p = world.pose(x["name"])[:3]
+            if (np.hypot(*(tcp[:2] - p[:2])) < float(b["rim_outer_radius"]) + 0.03
+                    and tcp[2] < p[2] + float(b["grasp_tcp_dz"]) + 0.06):
+                return True
+        return False
+
+    def keeps_hands(self, world: WorldView) -> bool:
+        """True where a closed gripper pinches a bowl and the other hand holds nothing: the solution
+        carries it on (put down where it hangs, over the stack, it can land on a rim and roll off);
+        or where a hand that just let a bowl go is still at its rim, the other holding nothing: it
+        rises straight up before it steps aside."""
+        if world.start is None:
+            return False
+        arms = list(world.info["arms"])
+        names = [x["name"] for x in world.info["bowls"]]
+        if any(self._low_empty_hand(world, a) for a in arms):
+            return all(world.gripper_command(a) >= 0.2 and not any(world.gripper_holds(a, n) for n in names)
+                       for a in arms)
+        held = [(a, n) for a in arms for n in names if world.gripper_command(a) < 0.2 and world.gripper_holds(a, n)]
+        if len(held) != 1:
+            return False
+        arm = held[0][0]
+        if abs(quat_to_mat(world.tcp_pose(arm)[3:])[2, 0]) < 0.9:  # not pointing down
+            return False
+        return all(not any(world.gripper_touches(a, n) for n in names) for a in arms if a != arm)
 
     @staticmethod
     def _pinch_angle(world: WorldView, name: str, arm: str) -> float:
