@@ -36,7 +36,7 @@ from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_
 from ..assets_pots import ROLLER_VARIANTS, roller_geometry, roller_shapes
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of
 from ..oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
-from ..stages_stageB import at_pose, holds
+from ..stages import at_pose, holds
 
 MODEL_IDS = (0, 2)
 RAISED_Z = 0.80

@@ -35,7 +35,7 @@ from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_
 
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, srgb, vec, yaw_of
 from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis
-from ..stages_stageB import at_pose, closed, holds, near, near_point
+from ..stages import at_pose, closed, holds, near, near_point
 
 BLOCK_HALF = (0.03, 0.03, 0.10)
 BLOCK_SPAWN_Z = 0.842  # FACTS B.6: 2 mm above the table top for the 0.10 half-height

@@ -37,7 +37,7 @@ from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView,
 from ..assets_handover import microphone
 from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until
 from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, top_down_quat
-from ..stages_stageB import at_pose, closed, holds, near, near_point
+from ..stages import at_pose, closed, holds, near, near_point
 
 MODEL_IDS = (0, 4, 5)
 RAISED_Z = 0.92

@@ -33,7 +33,7 @@ from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above
 
 from ..oracle import TOLERANT, Hands, tcp_quat
-from ..stages_stageB import at_pose, closed, near, near_xy
+from ..stages import at_pose, closed, near, near_xy
 from ..common import (CodeActionTask, box_inertia, draw_variant, hinged_urdf, pose_list, rand_pose, srgb, urdf_asset,
                       urdf_inertial, urdf_part, vec)
 
