@@ -43,7 +43,7 @@ from cab_core.apps.studio.play import PLAYED, Plays, installed
 from cab_core.attempt.runner import run_attempt
 from cab_core.errors import AttemptEnded, CabError, ConfigError
 
-HERE = Path(__file__).parent
+HERE = Path(__file__).resolve().parent  # the real folder (an editable install links each file)
 COOKIE = "cab_studio_token"
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 #: images of only the most recent image-bearing results stay visible, as under the reference

@@ -146,9 +146,11 @@ def sweep_group(sweep: Path, root: Path, now: float | None = None) -> Group:
     g.not_started = max(0, (planned or 0) - in_plan)
     sessions = m.get("sessions") or []
     started = sessions[-1].get("started") if sessions and isinstance(sessions[-1], dict) else None
-    if g.running and isinstance(started, (int, float)):
-        fresh = sum(1 for a in states if a.state in ("done", "infra") and a.updated >= started)
-        left = g.not_started + g.running
+    planned_running = sum(1 for a in states if a.state == "running" and (not folders or a.rel in folders))
+    if planned_running and isinstance(started, (int, float)):  # only the planned jobs: a played attempt is no job
+        fresh = sum(1 for a in states if a.state in ("done", "infra") and a.updated >= started
+                    and (not folders or a.rel in folders))
+        left = g.not_started + planned_running
         if fresh:
             g.eta_s = left * max(now - started, 1e-6) / fresh
     return g

@@ -103,10 +103,10 @@ function showBudget(b) {
 }
 function addResult(tool, args, res) {
   callCount += 1;
-  const payload = res.payload || {}, bad = payload.error !== undefined;
+  const payload = res.payload || {}, bad = payload.error != null || payload.ok === false;
   const card = el("div", {class: "result" + (bad ? " error" : ""), "data-tool": tool, "data-n": callCount},
     el("div", {}, el("b", {}, `${callCount}. ${tool}`), " ", bad ? el("span", {class: "bad"}, "error") :
-       el("span", {}, payload.status || "ok")),
+       el("span", {class: payload.status && payload.status !== "SUCCESS" ? "bad" : "good"}, payload.status || "ok")),
     el("details", {}, el("summary", {}, "arguments"), el("pre", {}, JSON.stringify(args, null, 1))),
     el("pre", {class: "payload"}, JSON.stringify(payload, null, 1)));
   if (res.images && res.images.length) {
@@ -153,6 +153,7 @@ async function call(ev) {
     if (res.payload !== undefined) addResult(tool, args, res);
     showBudget(res.budget);
     if (res.ended) finish(res.status);
+    else document.getElementById("state").textContent = `Playing: ${callCount} call(s) made.`;
   } finally {
     document.getElementById("busy").hidden = true;
     if (!ended) btn.disabled = false;
