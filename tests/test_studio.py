@@ -256,6 +256,34 @@ def test_the_tree_lists_the_sweep_and_follows_a_running_attempt(site, tmp_path):
     wait(driver, lambda d: len(d.find_elements("css selector", "#attempts tbody tr")) == 4, 30, "4 attempts")
 
 
+@pytest.mark.sim
+def test_a_running_attempts_page_grows_with_its_records(site):
+    """An attempt's records written as a running attempt writes them (the oracle's, copied line by
+    line): its open page shows each new call, then the verdict once result.json appears."""
+    driver = site["driver"]
+    src = site["sweep"] / TASK / "oracle" / "mujoco" / "seed-0" / "attempt-1"
+    d = site["root"] / "live" / "oracle-copy"
+    (d / "observations").mkdir(parents=True)
+    lines = (src / "events.jsonl").read_text().splitlines(keepends=True)
+    (d / "events.jsonl").write_text("".join(lines[:2]))  # attempt_start, capture_head
+    shutil.copy(src / "observations" / "obs_0001.png", d / "observations")
+    driver.get(f"{site['server'].base}/attempt/live/oracle-copy/")
+    calls_so_far = ("return [...document.querySelectorAll('th')].find(t => t.textContent === 'tool calls so far')"
+                    "?.nextElementSibling.textContent")
+    assert driver.execute_script(calls_so_far) == "1"
+    with open(d / "events.jsonl", "a") as f:
+        f.write("".join(lines[2:4]))  # set_gripper, reach_tcp
+    wait(driver, lambda d: d.execute_script(calls_so_far) == "3", 30, "the page to show 3 calls")
+    assert "reach_tcp" in driver.find_element("tag name", "body").text
+    with open(d / "events.jsonl", "a") as f:
+        f.write("".join(lines[4:]))
+    for name in ("video.mp4", "result.json"):  # result.json last, as an attempt writes it
+        shutil.copy(src / name, d / name)
+    wait(driver, lambda d: "verdict" in [t.text for t in d.find_elements("tag name", "th")], 30, "the finished page")
+    assert "success" in driver.find_element("tag name", "body").text
+    assert driver.find_element("tag name", "video")
+
+
 def oracle_calls(sweep: Path) -> list[dict]:
     d = sweep / TASK / "oracle" / "mujoco" / "seed-0" / "attempt-1"
     return [e for e in map(json.loads, (d / "events.jsonl").read_text().splitlines()) if e.get("kind") == "call"]
@@ -314,6 +342,8 @@ def played(site):
     img = wait(driver, lambda d: d.find_element("css selector", "#results img.obs"), 30)
     wait(driver, lambda d: d.execute_script("return arguments[0].naturalWidth", img) > 0, 30, "the image to load")
     out["budget1"] = driver.find_element("id", "calls-left").text
+    folder = f"{site['server'].base}/attempt/sweep/{TASK}/human/mujoco/seed-0/attempt-1/"
+    out["while_played"] = (fetch(folder)[1], fetch(folder + "observations/obs_0001.png")[0])
     # ray from a clicked pixel: the form's obs_id and px are filled by the click
     choose(driver, "ray")
     driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", img)  # all of it in view
@@ -366,6 +396,8 @@ def test_a_person_plays_click_bell_to_success(site, played):
     u, v = (int(x) for x in played["clicked"]["px"].split(","))
     assert abs(u - 320) <= 2 and abs(v - 240) <= 2
     assert played["ray"]["valid"] is True
+    page, image = played["while_played"]  # nothing of the attempt is shown beside the play page while it runs
+    assert "being played" in page and "obs_0001" not in page and image == 404
     assert played["run_code"]["ok"] and played["run_code"]["value"] == ["SUCCESS", "SUCCESS", "SUCCESS"]
     # the record: the human agent, the person's handle, the verifier's success
     assert (r["model"], r["harness"], r["sim"]) == ("human", "direct", "mujoco")

@@ -25,7 +25,6 @@ import concurrent.futures as cf
 import queue
 import secrets
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -192,13 +191,3 @@ class HumanAgent:
             episode.finish()  # result.json before the answer: the page goes on to the result
         return Answer(job.name, payload, shown, withheld, dict(self.bridge.budget), episode.ended)
 
-
-def wait_ready(bridge: PlayBridge, timeout: float, alive) -> bool:
-    """Wait until the bridge is published, or ``alive()`` turns false; True when ready."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if bridge.ready.wait(0.1):
-            return True
-        if not alive():
-            return False
-    return bridge.ready.is_set()

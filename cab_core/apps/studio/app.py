@@ -41,7 +41,7 @@ from cab_core.analysis.records import Attempt
 from cab_core.apps.studio import tree
 from cab_core.apps.studio.play import PLAYED, Plays, installed
 from cab_core.attempt.runner import run_attempt
-from cab_core.errors import AttemptEnded, CabError, ConfigError
+from cab_core.errors import AttemptEnded, CabError
 
 HERE = Path(__file__).resolve().parent  # the real folder (an editable install links each file)
 COOKIE = "cab_studio_token"
@@ -188,8 +188,9 @@ class Studio:
         if self.plays.playing(d):
             body = ("<p class='playing'>This attempt is being played; its records are shown once it has ended.</p>")
             return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(rel)}</title></head><body>"
-                    f"{self.nav([(rel, None)])}{body}{self._live(rel, False)}</body></html>")
+                    f"{self.nav([(rel, None)])}{body}{self._live(d, rel, False)}</body></html>")
         finished = (d / "result.json").exists()
+        live = self._live(d, rel, finished)  # stamped before the records are read: a change meanwhile shows
         note = ""
         if finished:
             try:
@@ -200,14 +201,19 @@ class Studio:
         else:
             page = viewer.render_unfinished(d)
         page = page.replace("<body>", f"<body>{self.nav([(rel, None)])}{note}", 1)
-        return page.replace("</body>", f"{self._live(rel, finished)}</body>", 1)
+        return page.replace("</body>", f"{live}</body>", 1)
 
-    @staticmethod
-    def _live(rel: str, finished: bool) -> str:
-        """A running attempt's page fetches itself again whenever its records change."""
+    def stamp(self, d: Path) -> str:
+        """Changes whenever the attempt's records (or whether it is being played) change."""
+        return hashlib.sha256(json.dumps([tree.signature(d), self.plays.playing(d)]).encode()).hexdigest()[:16]
+
+    def _live(self, d: Path, rel: str, finished: bool) -> str:
+        """A running attempt's page fetches itself again whenever its records change (the stamp of
+        the records it was rendered from is in the page)."""
         if finished:
             return ""
-        return (f"<script src='/static/live.js' data-stamp='/api/stamp?rel={quote(rel)}'></script>")
+        return (f"<script src='/static/live.js' data-stamp='/api/stamp?rel={quote(rel)}' "
+                f"data-rendered='{self.stamp(d)}'></script>")
 
 
 def build_app(root: Path, state_dir: Path | None = None, token: str | None = None, loopback: bool = True) -> Starlette:
@@ -263,8 +269,9 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
         if found is None:
             return JSONResponse({"error": "no attempt"}, 404)
         d = found[0]
-        return JSONResponse({"finished": (d / "result.json").exists() and not studio.plays.playing(d),
-                             "playing": studio.plays.playing(d), "stamp": tree.signature(d)})
+        playing = studio.plays.playing(d)
+        return JSONResponse({"finished": (d / "result.json").exists() and not playing, "playing": playing,
+                             "stamp": studio.stamp(d)})
 
     def play_form(request: Request, error: str | None = None, form: dict | None = None, status: int = 200):
         choices = installed()
