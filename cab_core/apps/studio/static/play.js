@@ -179,6 +179,6 @@ async function poll() {
   }
   showBudget(s.budget);
   if (s.ended || s.state === "finished") return finish(s);
-  if (!s.ready) setTimeout(poll, 1000);
+  setTimeout(poll, s.ready ? 3000 : 1000);  // while playing: an ending without a call (the wall-clock budget) shows
 }
 poll();
