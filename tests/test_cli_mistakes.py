@@ -105,8 +105,9 @@ def test_unknown_key_in_a_sweep(tmp_path):
     (["harness=mcp", "harness.transprt=http"], "unknown key 'harness.transprt'; did you mean harness.transport? valid "
      f"keys under harness (harness=mcp): {', '.join(option_keys('harness/mcp'))}"),
     (["harness.transport=http"], "unknown key 'harness.transport'; valid keys under harness (harness=auto): name"),
-    (["+seeds=3"], "unknown key 'seeds'; did you mean seed or sweep? valid top-level keys: seed, attempt, budget, "
-                   "sandbox, record, perturb, sweep, embodiment, experiment, harness, model, planner, sim, task"),
+    (["+seeds=3"], "unknown key 'seeds'; did you mean seed or seed_set or sweep? valid top-level keys: seed, seed_set, "
+                   "attempt, budget, sandbox, record, perturb, fork, sweep, embodiment, experiment, harness, model, "
+                   "planner, randomize, sim, task"),
     (["perturb.sed=3"], "unknown key 'perturb.sed'; did you mean perturb.seed? valid keys under perturb: seed, "
                         "position_m, angle_deg, physics_fraction"),
 ])
