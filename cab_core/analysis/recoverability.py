@@ -57,7 +57,6 @@ from collections import Counter
 from html import escape
 from pathlib import Path
 
-from cab_core.analysis import svg
 from cab_core.analysis.failure import LABELS
 from cab_core.analysis.measures import wilson
 
@@ -231,9 +230,12 @@ def tables(rec: dict) -> list[tuple[str, list[str], list[list[str]]]]:
              where)]
 
 
-def figure(rec: dict) -> str:
-    """Grouped bars: per configuration with failures, the share recovered by the reference solution
-    from each point (and by the model's retries, when run), with Wilson 95 % intervals."""
+def figure(rec: dict):
+    """Grouped bars (a matplotlib Figure named ``recoverability``): per configuration with failures,
+    the share recovered by the reference solution from each point (and by the model's retries, when
+    run), with Wilson 95 % intervals; each bar's title says whose and from where."""
+    from cab_core.analysis import figures  # matplotlib: imported only when a report is drawn
+
     series = [f"oracle from {POINT_LABELS[p]}" for p in POINTS]
     with_model = bool(rec.get("repeats"))
     if with_model:
@@ -244,7 +246,7 @@ def figure(rec: dict) -> str:
             continue
         parts = [c["oracle"][p] for p in POINTS] + ([c["model"][p] for p in POINTS] if with_model else [])
         rows.append((c["config"], [(s["share"], tuple(s["wilson95"]) if s["wilson95"] else None) for s in parts]))
-    return svg.grouped_hbars("Failures recoverable (Wilson 95% interval)", rows, series)
+    return figures.grouped_hbars("recoverability", "Failures recoverable (Wilson 95% interval)", rows, series)
 
 
 def _outcome(f: dict | None) -> str:
