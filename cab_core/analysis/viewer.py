@@ -22,15 +22,6 @@ from pathlib import Path
 from cab_core.analysis.records import Attempt, attempt_dirs, read_jsonl
 from cab_core.errors import CabError, RecordError
 
-CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}
-td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}th{background:#f3f3f3}
-.call{border-left:4px solid #4e79a7;margin:.6em 0;padding:.2em .8em}.internal{border-left-color:#bab0ac;margin-left:2em}
-.turn{border-left:4px solid #b07aa1;margin:.6em 0;padding:.2em .8em;background:#faf6fa}
-.bad{color:#b00}.good{color:#070}.mark{color:#070;font-weight:bold;margin:.2em 0 .2em 1em}
-pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-height:24em}
-img.obs{max-width:320px;margin:2px;border:1px solid #ccc}summary{cursor:pointer;color:#333}"""
-
-
 def _json(obj) -> str:
     return escape(json.dumps(obj, indent=1))
 
@@ -179,10 +170,6 @@ def _margins(v: dict) -> str:
             "<th>margin</th><th>of tolerance</th><th>measured</th><th>threshold</th></tr>" + rows + "</table>")
 
 
-def _rows(summary: list[tuple[str, object]]) -> str:
-    return "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
-
-
 def _page_link(rel: str) -> str:
     """The page of the attempt folder ``rel`` (relative to this one), as a link target."""
     return escape(rel.rstrip("/") + "/view.html")
@@ -225,9 +212,14 @@ def _events(d: Path) -> tuple[list[dict], str]:
         return [], f"<tr><th>events</th><td class='bad'>{escape(str(e))}</td></tr>"
 
 
-def _page(title: str, heading: str, rows: str, sections: str) -> str:
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(title)}</title><style>{CSS}</style>"
-            f"</head><body><h1>{escape(heading)}</h1><table>{rows}</table>{sections}</body></html>\n")
+def _page(title: str, heading: str, summary: list[tuple[str, object]], extra_rows: str,
+          sections: list[tuple[str, str]]) -> str:
+    """The page (``templates/attempt.html.j2``): the summary table (``extra_rows``: rows made here,
+    escaped), then each section (heading, HTML made here)."""
+    from cab_core.analysis.pages import Markup, render
+
+    return render("attempt.html.j2", title=title, heading=heading, summary=[(k, str(v)) for k, v in summary],
+                  extra_rows=Markup(extra_rows), sections=[(h, Markup(b)) for h, b in sections])
 
 
 def render(a: Attempt) -> str:
@@ -236,7 +228,7 @@ def render(a: Attempt) -> str:
     v, claim, b = r["verdict"], r["claim"], r["budget"]
     claimed = claim.get("success_claim")
     events, bad = _events(a.dir)
-    rows = _rows([
+    summary = [
         ("task", f"{r['task']} (seed {r['seed']}, attempt {r['attempt']})"),
         ("configuration", a.config), ("instruction", r.get("instruction", "")),
         ("verdict", "success" if v["success"] else "failure"),
@@ -247,13 +239,14 @@ def render(a: Attempt) -> str:
         ("tool calls", f"{b.get('tool_calls_used')}/{b.get('tool_calls_limit')}"),
         ("simulated s", f"{b.get('sim_seconds_used')}/{b.get('sim_seconds_limit')}"),
         ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
-    ]) + fork_rows(a.dir, r.get("fork")) + bad
+    ]
     video = ('<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
              else "<p>no video recorded</p>")
-    return _page(a.rel, f"{r['task']} · {a.config} · attempt {r['attempt']}", rows,
-                 f"<h2>Verdict details</h2>{_margins(v)}{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
-                 f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
-                 f"<h2>Timeline</h2>{timeline(a.dir, events, r.get('checkpoints'))}")
+    return _page(a.rel, f"{r['task']} · {a.config} · attempt {r['attempt']}", summary,
+                 fork_rows(a.dir, r.get("fork")) + bad,
+                 [("Verdict details", f"{_margins(v)}{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"),
+                  ("Checkpoints", _checkpoints(r.get("checkpoints"))), ("Video", video),
+                  ("Timeline", timeline(a.dir, events, r.get("checkpoints")))])
 
 
 def render_unfinished(d: Path) -> str:
@@ -264,14 +257,14 @@ def render_unfinished(d: Path) -> str:
     c = start.get("config") or {}
     config = f"{c.get('model', '?')} ({c.get('harness', '?')}, {c.get('sim', '?')})"
     charged = sum(1 for e in events if e.get("kind") == "call" and e.get("charged", True))
-    rows = _rows([
+    summary = [
         ("task", f"{start.get('task', '?')} (seed {start.get('seed', '?')}, attempt {start.get('attempt', '?')})"),
         ("configuration", config), ("instruction", start.get("instruction", "")),
         ("state", "unfinished: no result.json (still running, or interrupted)"),
         ("tool calls so far", charged), ("last event at wall s", events[-1].get("t_wall") if events else "–"),
-    ]) + fork_rows(d, c.get("fork")) + bad
-    return _page(d.name, f"{start.get('task', d.name)} · {config} · unfinished", rows,
-                 f"<h2>Timeline so far</h2>{timeline(d, events)}")
+    ]
+    return _page(d.name, f"{start.get('task', d.name)} · {config} · unfinished", summary,
+                 fork_rows(d, c.get("fork")) + bad, [("Timeline so far", timeline(d, events))])
 
 
 def attempts_below(root: Path) -> list[str]:

@@ -28,6 +28,7 @@ from html import escape
 from pathlib import Path
 from urllib.parse import quote, urlsplit
 
+from jinja2 import FileSystemLoader
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import (FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, RedirectResponse,
@@ -36,7 +37,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
-from cab_core.analysis import viewer
+from cab_core.analysis import pages, viewer
 from cab_core.analysis.records import Attempt
 from cab_core.apps.studio import tree
 from cab_core.apps.studio.play import PLAYED, Plays, installed
@@ -123,7 +124,8 @@ class Studio:
         self.state_dir = Path(state_dir) if state_dir else default_state_dir(self.root)
         self.plays = Plays(self.root, run_attempt)
         self._report_locks: dict[str, threading.Lock] = {}
-        self.templates = Jinja2Templates(directory=str(HERE / "templates"))
+        # the studio's templates extend the pages' shared base (cab_core/analysis/templates/base.html.j2)
+        self.templates = Jinja2Templates(env=pages.environment(FileSystemLoader(str(HERE / "templates"))))
 
     # -- paths -------------------------------------------------------------------------------
     def inside(self, rel: str) -> Path | None:
