@@ -120,3 +120,11 @@ def test_matplotlib_is_imported_only_to_draw():
             "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib')))")
     out = subprocess.run([sys.executable, "-c", "import json; " + code], capture_output=True, text=True, check=True)
     assert json.loads(out.stdout) == []
+
+
+@pytest.mark.sim
+def test_no_figure_files(sweep, tmp_path, capsys):
+    rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--no-figure-files"])
+    assert not (tmp_path / "figures").exists() and "## Figures" not in (tmp_path / "report.md").read_text()
+    assert list(inline(tmp_path)) == NAMES  # the page shows them all the same
+    assert "figures/" not in capsys.readouterr().err

@@ -383,12 +383,14 @@ def html(r: dict, view_links: dict[str, str], figs: list | None = None) -> str:
                   cases=Markup(recoverability.html_cases(r["recoverability"], view_links)) if r.get("recoverability") else "")
 
 
-def write(root: Path, out: Path | None = None, views: bool = True, recover: dict | None = None, **extra) -> dict:
+def write(root: Path, out: Path | None = None, views: bool = True, recover: dict | None = None,
+          figure_files: bool = True, **extra) -> dict:
     """Build the report for ``root`` and write report.json, report.md and report.html into ``out``
     (default: ``root``); with ``views``, also each attempt's view.html, linked from the page.
     ``recover``: fork the failed attempts (:func:`recoverability.run`'s ``repeats``, ``jobs`` and
     ``folder``, default ``<out>/recoverability``). ``extra``: what :func:`build` adds (``compare``,
-    ``plan``, ``bootstrap``)."""
+    ``plan``, ``bootstrap``). ``figure_files``: also write each figure as PDF, SVG and PNG into
+    ``<out>/figures/`` (listed in report.md); the page has them inline either way."""
     from cab_core.analysis.viewer import write_view
 
     root = Path(root)
@@ -411,9 +413,10 @@ def write(root: Path, out: Path | None = None, views: bool = True, recover: dict
     from cab_core.analysis import figures as fg
 
     figs = figures(r)
-    written = fg.write_files(figs, out / FIGURES_FOLDER)
+    if figure_files:
+        fg.write_files(figs, out / FIGURES_FOLDER)
     (out / "report.json").write_text(json.dumps(r, indent=1))
-    (out / "report.md").write_text(markdown(r, [(f.cab_name, f.cab_title) for f in figs]))
+    (out / "report.md").write_text(markdown(r, [(f.cab_name, f.cab_title) for f in figs] if figure_files else None))
     (out / "report.html").write_text(html(r, links, figs))
     return r
 
@@ -430,6 +433,9 @@ def main(argv: list[str] | None = None) -> None:
                                            "may be left out with --plan-difference (the plan alone)")
     ap.add_argument("--out", help="where report.md/.html/.json go (default: the directory itself)")
     ap.add_argument("--no-views", action="store_true", help="do not write each attempt's view.html")
+    ap.add_argument("--no-figure-files", action="store_true",
+                    help=f"do not write {FIGURES_FOLDER}/ (each figure as PDF, SVG and PNG, for papers); the page "
+                         "shows the figures either way")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"),
                     help="compare two configurations on their shared task instances (names as the report writes "
                          "them, or a prefix of exactly one: 'oracle')")
@@ -496,7 +502,8 @@ def main(argv: list[str] | None = None) -> None:
         recover = {"repeats": a.recoverability_model_repeats, "jobs": a.recoverability_jobs,
                    "folder": Path(a.recoverability_dir) if a.recoverability_dir else None}
     try:
-        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, recover=recover, **extra)
+        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, recover=recover,
+                  figure_files=not a.no_figure_files, **extra)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
         sys.exit(2)
@@ -511,8 +518,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)
     if r["in_flight"]:
         print(f"cab-report: {len(r['in_flight'])} unfinished attempt(s) not counted", file=sys.stderr)
-    print(f"cab-report: wrote report.md, report.html, report.json and {FIGURES_FOLDER}/ (PDF, SVG, PNG of each figure) "
-          f"to {a.out or a.dir}", file=sys.stderr)
+    files = "" if a.no_figure_files else f" and {FIGURES_FOLDER}/ (PDF, SVG, PNG of each figure)"
+    print(f"cab-report: wrote report.md, report.html, report.json{files} to {a.out or a.dir}", file=sys.stderr)
     if not r["attempts"]:  # only unfinished, unreadable or excluded attempts: the tables are empty
         print(f"cab-report: no finished attempt to measure under {a.dir}", file=sys.stderr)
         sys.exit(1)

@@ -162,7 +162,7 @@ class Studio:
                 out.mkdir(parents=True, exist_ok=True)
                 # cab-report itself, in its own process: the report exactly as it writes it
                 r = subprocess.run([sys.executable, "-c", "from cab_core.analysis.report import main; main()",
-                                    str(folder), "--out", str(out), "--no-views"],
+                                    str(folder), "--out", str(out), "--no-views", "--no-figure-files"],
                                    capture_output=True, text=True, timeout=600)
                 if r.returncode == 2 or not (out / "report.html").is_file():
                     return f"<p>cab-report wrote no report for {escape(rel)}:</p><pre>{escape(r.stderr)}</pre>", 200
