@@ -123,8 +123,9 @@ def test_matplotlib_is_imported_only_to_draw():
 
 
 @pytest.mark.sim
-def test_no_figure_files(sweep, tmp_path, capsys):
+def test_no_figure_files(built, sweep, tmp_path, capsys):
     rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--no-figure-files"])
     assert not (tmp_path / "figures").exists() and "## Figures" not in (tmp_path / "report.md").read_text()
     assert list(inline(tmp_path)) == NAMES  # the page shows them all the same
     assert "figures/" not in capsys.readouterr().err
+    assert (tmp_path / "report.html").read_bytes() == (built[1] / "report.html").read_bytes()  # one layout either way

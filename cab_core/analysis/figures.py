@@ -205,6 +205,10 @@ def scatter(name: str, title: str, points: list[tuple[str, float, float]], xlabe
 # output
 # ---------------------------------------------------------------------------------------------
 def _save(fig: Figure, fmt: str) -> bytes:
+    """The figure in ``fmt``. The first save lays it out (constrained layout, measured by the
+    format's renderer); the SVG is always the first, so the page and every file share one layout."""
+    if fmt != "svg" and getattr(fig, "cab_svg", None) is None:
+        svg_file(fig)
     buf = io.BytesIO()
     meta = dict(METADATA[fmt])
     if fmt in ("svg", "pdf"):
