@@ -380,7 +380,7 @@ def html(r: dict, view_links: dict[str, str], figs: list | None = None) -> str:
     return render("report.html.j2", notes=notes(r), tables=tabs, attempts=attempts,
                   unfinished=[(d, view_links[d]) for d in r["in_flight"] if d in view_links],
                   figures=[Markup(fg.inline_svg(f)) for f in figs],
-                  cases=Markup(recoverability.html_cases(r["recoverability"], view_links)) if r.get("recoverability") else "")
+                  cases=recoverability.page_cases(r["recoverability"], view_links) if r.get("recoverability") else None)
 
 
 def write(root: Path, out: Path | None = None, views: bool = True, recover: dict | None = None,
