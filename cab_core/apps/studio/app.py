@@ -29,6 +29,7 @@ from pathlib import Path
 from urllib.parse import quote, urlsplit
 
 from jinja2 import FileSystemLoader
+from markupsafe import Markup
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import (FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, RedirectResponse,
@@ -171,26 +172,21 @@ class Studio:
             data = json.loads((out / "report.json").read_text())
         base = "" if rel == "." else rel + "/"
         for a in [m["rel"] for m in data.get("attempt_rows", [])] + list(data.get("in_flight", [])):
-            link = f'<a class="attempt-link" href="/attempt/{quote(base + a)}/">{escape(a)}</a>'
-            page = page.replace(f"<tr><td>{escape(a)}</td>", f"<tr><td>{link}</td>")
+            link = f'<a class="attempt-link" href="/attempt/{quote(base + a)}/">{Markup.escape(a)}</a>'
+            page = page.replace(f"<tr><td>{Markup.escape(a)}</td>", f"<tr><td>{link}</td>")  # escaped as the template does
         nav = self.nav([("report", None)], rel)
         return page.replace("<body>", f"<body>{nav}", 1), 200
 
     def nav(self, trail: list[tuple[str, str | None]], group: str | None = None) -> str:
-        items = ['<a href="/">cab-studio</a>']
-        if group is not None:
-            items.append(f'<a href="/group?rel={quote(group)}">{escape(group)}</a>')
-        items += [f'<a href="{escape(u)}">{escape(t)}</a>' if u else escape(t) for t, u in trail]
-        return ('<nav class="studio" style="font:14px sans-serif;margin-bottom:1em">'
-                + " › ".join(items) + ' · <a href="/play">play an attempt</a></nav>')
+        items = [("cab-studio", "/")] + ([(group, f"/group?rel={quote(group)}")] if group is not None else []) + trail
+        return self.templates.env.get_template("nav.html").render(items=items)
 
     # -- an attempt's page ----------------------------------------------------------------------
     def attempt_page(self, d: Path) -> str:
         rel = tree._rel(d, self.root)
         if self.plays.playing(d):
-            body = ("<p class='playing'>This attempt is being played; its records are shown once it has ended.</p>")
-            return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(rel)}</title></head><body>"
-                    f"{self.nav([(rel, None)])}{body}{self._live(d, rel, False)}</body></html>")
+            return self.templates.env.get_template("playing.html").render(
+                rel=rel, nav=Markup(self.nav([(rel, None)])), live=Markup(self._live(d, rel, False)))
         finished = (d / "result.json").exists()
         live = self._live(d, rel, finished)  # stamped before the records are read: a change meanwhile shows
         note = ""
