@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from cab_core.analysis import recoverability as rc
+from cab_core.analysis.figures import inline_svg
 from cab_core.analysis.records import scan
 
 TASK = "grab_roller_dual_contact"  # cheap on MuJoCo: the oracle needs 7 calls
@@ -63,6 +65,12 @@ def fork(outcome, kind=None, at=0, fails_at=None) -> dict:
 
 
 REC, NR, UNEX, ERR = "recovered", "not_recoverable", "unexplained", "error"
+
+
+def path_x(d: str) -> tuple[float, float]:
+    """The horizontal extent of an SVG path made of straight segments (matplotlib's bars)."""
+    xs = [float(v) for v in re.findall(r"[ML]\s*(-?[\d.]+)\s", d)]
+    return min(xs), max(xs)
 
 
 def cases() -> list[dict]:
@@ -125,15 +133,19 @@ def test_tables_and_figure_from_the_shares():
     assert dict(zip(header, rows[2]))["Failures"] == "0"
     assert where == [["A", "failure point", "subgoal 1: reach", "1", "off_table 1"],
                      ["A", "last call", "subgoal 2: grasp", "3", "budget 2, unexplained 1"]]
-    svg = ET.fromstring(rc.figure(rec))
+    svg = ET.fromstring(inline_svg(rc.figure(rec)))
     ns = "{http://www.w3.org/2000/svg}"
-    bars = [r for r in svg.iter(f"{ns}rect") if r.find(f"{ns}title") is not None]
+    assert svg.get("aria-label") == "Failures recoverable (Wilson 95% interval)"
+    bars = [g for g in svg.iter(f"{ns}g") if g.get("id", "").startswith("recoverability-bar-")]
     # A: 4 bars, B: the last-call ones (the failure point has no share), C: no failure, no row
     assert [b.find(f"{ns}title").text for b in bars] == [
         "A, oracle from failure point: 66.7%", "A, oracle from last call: 25.0%",
         "A, model retry from failure point: 50.0%", "A, model retry from last call: 16.7%",
         "B, oracle from last call: 100.0%", "B, model retry from last call: 0.0%"]
-    assert float(bars[0].get("width")) == pytest.approx(360 * 2 / 3, abs=0.1)
+    spans = [path_x(b.find(f"{ns}path").get("d")) for b in bars]  # each bar's (left, right) on the page
+    assert len({round(x0, 3) for x0, _ in spans}) == 1  # all from the same 0%
+    full = spans[4][1] - spans[4][0]
+    assert [(x1 - x0) / full for x0, x1 in spans] == pytest.approx([2 / 3, 1 / 4, 1 / 2, 1 / 6, 1, 0], abs=1e-3)
     rec0 = {"repeats": 0, "configs": rc.summarize(cases(), ["A"], repeats=0)}
     assert "Model retry from failure point" not in rc.tables(rec0)[0][1]
 
@@ -320,11 +332,19 @@ def test_page_shows_the_table_and_the_figure_in_a_browser(sweep, tmp_path):
         fig = driver.find_element(By.CSS_SELECTOR, 'svg[aria-label="Failures recoverable (Wilson 95% interval)"]')
         assert fig.is_displayed() and fig.size["width"] > 300 and fig.size["height"] > 100
         bars = dict(driver.execute_script(
-            "return [...arguments[0].querySelectorAll('rect > title')]"
-            ".map(t => [t.textContent, t.parentElement.getBoundingClientRect().width]);", fig))
-        assert bars["scripted (direct, mujoco), oracle from failure point: 100.0%"] == pytest.approx(360, abs=1)
-        assert bars["scripted (direct, mujoco), oracle from last call: 0.0%"] == 0
-        assert bars["idle (direct, mujoco), oracle from failure point: 100.0%"] == pytest.approx(360, abs=1)
+            "return [...arguments[0].querySelectorAll('g[id^=\"recoverability-bar-\"] > title')]"
+            ".map(t => { const r = t.parentElement.getBoundingClientRect(); return [t.textContent, [r.left, r.right]]; });",
+            fig))
+        ticks = dict(driver.execute_script(  # the x axis' tick labels, at their centres
+            "return [...arguments[0].querySelectorAll('g[id^=\"recoverability-xtick_\"] text')]"
+            ".map(t => { const r = t.getBoundingClientRect(); return [t.textContent, (r.left + r.right) / 2]; });", fig))
+        zero, full = ticks["0%"], ticks["100%"]
+        assert full - zero > 250
+        for name in ("scripted (direct, mujoco), oracle from failure point: 100.0%",
+                     "idle (direct, mujoco), oracle from failure point: 100.0%"):  # from 0% to 100%
+            assert bars[name] == pytest.approx([zero, full], abs=1.5)
+        left, right = bars["scripted (direct, mujoco), oracle from last call: 0.0%"]
+        assert left == pytest.approx(zero, abs=1.5) and right - left < 1
         # from the forks table to the fork's page, which links back to its parent's page and says where it started
         forks = table_after(driver, "Forks of the failed attempts")
         assert forks[0][:5] == ["Attempt", "Configuration", "First failed stage", "Failure point", "Last call"]

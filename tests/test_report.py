@@ -1,5 +1,6 @@
 """cab-report on a real sweep (oracle, idle, scripted over two tasks): every number the report shows
 is recomputed here from result.json and events.jsonl directly, never through cab_core.analysis."""
+import functools
 import json
 import re
 import shutil
@@ -169,7 +170,8 @@ def test_markdown_and_html(built, sweep):
     for fig in svgs:  # each figure is well-formed SVG with marks drawn
         root = ET.fromstring(fig)
         assert root.tag.endswith("svg") and len(root) > 3
-    assert "http://" not in page.replace('xmlns="http://www.w3.org/2000/svg"', "") and "https://" not in page
+    namespaces = ('xmlns="http://www.w3.org/2000/svg"', 'xmlns:xlink="http://www.w3.org/1999/xlink"')
+    assert "http://" not in functools.reduce(lambda p, ns: p.replace(ns, ""), namespaces, page) and "https://" not in page
     for m in r["attempt_rows"]:  # every attempt's page exists
         assert (sweep / m["rel"] / "view.html").is_file()
     links = [l.split('"')[0] for l in page.split('<a href="')[1:]]

@@ -203,9 +203,12 @@ def shot(driver, name: str, tmp: Path) -> Path:
 
 
 def wait(driver, cond, timeout: float = 60, what: str = ""):
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.support.ui import WebDriverWait
 
-    return WebDriverWait(driver, timeout, poll_frequency=0.25).until(cond, what)
+    # a live page reloads itself when its records change: an element found just before is then stale
+    return WebDriverWait(driver, timeout, poll_frequency=0.25,
+                         ignored_exceptions=(StaleElementReferenceException,)).until(cond, what)
 
 
 @pytest.fixture(scope="module")

@@ -54,10 +54,8 @@ from __future__ import annotations
 import os
 import shutil
 from collections import Counter
-from html import escape
 from pathlib import Path
 
-from cab_core.analysis import svg
 from cab_core.analysis.failure import LABELS
 from cab_core.analysis.measures import wilson
 
@@ -231,9 +229,12 @@ def tables(rec: dict) -> list[tuple[str, list[str], list[list[str]]]]:
              where)]
 
 
-def figure(rec: dict) -> str:
-    """Grouped bars: per configuration with failures, the share recovered by the reference solution
-    from each point (and by the model's retries, when run), with Wilson 95 % intervals."""
+def figure(rec: dict):
+    """Grouped bars (a matplotlib Figure named ``recoverability``): per configuration with failures,
+    the share recovered by the reference solution from each point (and by the model's retries, when
+    run), with Wilson 95 % intervals; each bar's title says whose and from where."""
+    from cab_core.analysis import figures  # matplotlib: imported only when a report is drawn
+
     series = [f"oracle from {POINT_LABELS[p]}" for p in POINTS]
     with_model = bool(rec.get("repeats"))
     if with_model:
@@ -244,7 +245,7 @@ def figure(rec: dict) -> str:
             continue
         parts = [c["oracle"][p] for p in POINTS] + ([c["model"][p] for p in POINTS] if with_model else [])
         rows.append((c["config"], [(s["share"], tuple(s["wilson95"]) if s["wilson95"] else None) for s in parts]))
-    return svg.grouped_hbars("Failures recoverable (Wilson 95% interval)", rows, series)
+    return figures.grouped_hbars("recoverability", "Failures recoverable (Wilson 95% interval)", rows, series)
 
 
 def _outcome(f: dict | None) -> str:
@@ -259,46 +260,42 @@ def _outcome(f: dict | None) -> str:
     return f"no fork: {f.get('reason') or ''}".rstrip(": ")
 
 
-def html_cases(rec: dict, view_links: dict[str, str] | None = None) -> str:
-    """Every failed attempt with its fork points and each fork's outcome, linked to the attempt's
-    and the forks' pages (``view_links``: attempt dir relative to the report's directory -> page;
-    a fork links to ``<its folder>/view.html`` when ``view_links`` is given)."""
+def page_cases(rec: dict, view_links: dict[str, str] | None = None) -> dict:
+    """Every failed attempt with its fork points and each fork's outcome, for the report page's
+    table of forks (``templates/report.html.j2``): ``head`` and ``rows`` of cells, each ``{text,
+    href}`` (href None: no link) or, for the model's retries, ``{ok, n, marks: [{mark, title, href}]}``.
+    The cells link to the attempt's and the forks' pages (``view_links``: attempt dir relative to
+    the report's directory -> page; a fork links to ``<its folder>/view.html`` when ``view_links``
+    is given)."""
     view_links = view_links if view_links is not None else {}
     with_pages = bool(view_links)
 
-    def fork_cell(f: dict | None) -> str:
-        text = escape(_outcome(f))
-        if f is None or not with_pages or f["outcome"] not in OUTCOMES:
-            return f"<td>{text}</td>"
-        return f'<td><a href="{escape(f["dir"])}/view.html">{text}</a></td>'
+    def fork_cell(f: dict | None) -> dict:
+        linked = f is not None and with_pages and f["outcome"] in OUTCOMES
+        return {"text": _outcome(f), "href": f"{f['dir']}/view.html" if linked else None}
 
-    def models(fs: list[dict]) -> str:
+    def models(fs: list[dict]) -> dict:
         if not fs:
-            return "<td>–</td>"
-        links = []
-        for f in fs:
-            mark = "✓" if f["outcome"] == "recovered" else ("!" if f["outcome"] not in OUTCOMES else "✗")
-            links.append(f'<a href="{escape(f["dir"])}/view.html" title="{escape(_outcome(f))}">{mark}</a>'
-                         if with_pages and f["outcome"] in OUTCOMES else f'<span title="{escape(_outcome(f))}">{mark}</span>')
-        ok = sum(f["outcome"] == "recovered" for f in fs)
-        return f"<td>{ok}/{len(fs)} {' '.join(links)}</td>"
+            return {"text": "–", "href": None}
+        marks = [{"mark": "✓" if f["outcome"] == "recovered" else ("!" if f["outcome"] not in OUTCOMES else "✗"),
+                  "title": _outcome(f), "href": f"{f['dir']}/view.html" if with_pages and f["outcome"] in OUTCOMES else None}
+                 for f in fs]
+        return {"ok": sum(f["outcome"] == "recovered" for f in fs), "n": len(fs), "marks": marks}
 
     with_model = bool(rec.get("repeats"))
     head = ["Attempt", "Configuration", "First failed stage", "Failure point", "Last call", "Oracle from failure point",
             "Oracle from last call", *(["Model from failure point", "Model from last call"] if with_model else [])]
     rows = []
     for x in rec["cases"]:
-        link = view_links.get(x["rel"])
-        name = f'<a href="{escape(link)}">{escape(x["rel"])}</a>' if link else escape(x["rel"])
         fp = x["points"]["failure_point"]
-        cells = [f"<td>{name}</td>", f"<td>{escape(x['config'])}</td>", f"<td>{escape(x['failed_stage'] or '–')}</td>",
-                 f"<td>{'–' if fp is None else fp}</td>", f"<td>{x['points']['last_call']}</td>",
+        cells = [{"text": x["rel"], "href": view_links.get(x["rel"])}, {"text": x["config"], "href": None},
+                 {"text": x["failed_stage"] or "–", "href": None}, {"text": "–" if fp is None else str(fp), "href": None},
+                 {"text": str(x["points"]["last_call"]), "href": None},
                  fork_cell(x["oracle"].get("failure_point")), fork_cell(x["oracle"].get("last_call"))]
         if with_model:
             cells += [models((x.get("model") or {}).get(p) or []) for p in POINTS]
-        rows.append("<tr>" + "".join(cells) + "</tr>")
-    return ("<h2>Forks of the failed attempts</h2><table><tr>" + "".join(f"<th>{escape(h)}</th>" for h in head)
-            + "</tr>" + "".join(rows) + "</table>")
+        rows.append(cells)
+    return {"head": head, "rows": rows}
 
 
 def notes(rec: dict) -> list[str]:

@@ -6,6 +6,10 @@ groups attempts by configuration (model, harness, simulator), and writes
     report.json   every number, machine-readable (what the tests and other tools read)
     report.md     the tables as Markdown (the summary table is also printed)
     report.html   one self-contained page: the tables, inline SVG figures, links to attempt pages
+    figures/      each figure as PDF, SVG and PNG, for papers (listed in report.md)
+
+The figures are matplotlib's (:mod:`cab_core.analysis.figures`), the page a Jinja2 template
+(:mod:`cab_core.analysis.pages`, ``templates/report.html.j2``).
 
 Unfinished attempts (records without ``result.json``) and unreadable ones are listed, never fatal.
 
@@ -29,12 +33,10 @@ from __future__ import annotations
 import json
 import os
 import sys
-from html import escape
 from pathlib import Path
 
 from cab_core.errors import CabError, RecordError
 from cab_core.contracts.verifier import BORDERLINE_FRACTION
-from cab_core.analysis import svg
 from cab_core.analysis.failure import LABELS, STAGES, Classifier
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
 from cab_core.analysis.records import FORKS_FOLDER, Scan, read_json, scan
@@ -291,8 +293,16 @@ def notes(r: dict) -> list[str]:
     return out
 
 
-def markdown(r: dict) -> str:
+def markdown(r: dict, figs: list[tuple[str, str]] | None = None) -> str:
+    """The tables as Markdown; ``figs``: (name, title) of the figures written to ``figures/``, listed
+    (the SVG shown, the PDF and PNG linked)."""
     parts = ["# cab report", "\n\n".join(notes(r))]
+    if figs:
+        from cab_core.analysis.figures import PNG_DPI
+
+        parts.append("## Figures\n\n" + f"PDF, SVG and PNG ({PNG_DPI} dpi) of each figure in `{FIGURES_FOLDER}/`.\n\n"
+                     + "\n\n".join(f"![{t}]({FIGURES_FOLDER}/{n}.svg)\n\n{t}: [PDF]({FIGURES_FOLDER}/{n}.pdf) · "
+                                     f"[SVG]({FIGURES_FOLDER}/{n}.svg) · [PNG]({FIGURES_FOLDER}/{n}.png)" for n, t in figs))
     for title, header, rows in tables(r):
         parts.append(f"## {title}\n\n{md_table(header, rows)}")
     return "\n\n".join(parts) + "\n"
@@ -301,47 +311,39 @@ def markdown(r: dict) -> str:
 # ---------------------------------------------------------------------------------------------
 # HTML
 # ---------------------------------------------------------------------------------------------
-CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0 1.5em}
-td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td:first-child,th:first-child{text-align:left}
-th{background:#f3f3f3}.ok{background:#d9f2d9}.part{background:#fff3c4}.bad{background:#f8d7d7}
-figure{display:inline-block;margin:0 1em 1em 0;vertical-align:top}"""
+FIGURES_FOLDER = "figures"  # beside report.md: <name>.pdf, .svg, .png of each figure
 
 
-def figures(r: dict) -> list[str]:
-    """The page's figures, as inline SVG: success, outcomes, claims, coverage, cost and time."""
+def figures(r: dict) -> list:
+    """The report's figures (matplotlib Figures, :mod:`cab_core.analysis.figures`): success,
+    outcomes and failure stages, claims, coverage, coverage over charged calls, success against cost
+    and against wall time (where known), recoverability (when run)."""
+    from cab_core.analysis import figures as fg  # matplotlib: imported only when a report is drawn
+
     cs = r["configs"]
     outcomes = [(c["config"], [c["successes"]] + [c["failure_stages"].get(s, 0) for s in STAGES]) for c in cs]
-    figs = [svg.hbars("Success rate (Wilson 95% interval)",
-                      [(c["config"], c["success_rate"], tuple(c["wilson95"])) for c in cs]),
-            svg.stacked("Outcome and failure stage per attempt", outcomes, ["Success"] + [LABELS[s] for s in STAGES]),
-            svg.stacked("Completion claims", [(c["config"], [c["claims"][k] for k in CLAIMS]) for c in cs], list(CLAIMS)),
-            svg.hbars("Subgoal checkpoint coverage (task-weighted)",
-                      [(c["config"], c["subgoal_coverage"] or 0.0, None) for c in cs]),
-            svg.hbars("Spatial checkpoint coverage (task-weighted)",
-                      [(c["config"], c["spatial_coverage"] or 0.0, None) for c in cs]),
-            svg.lines("Spatial checkpoint coverage over charged calls", [(c["config"], c["spatial_curve"]) for c in cs],
-                      "charged calls", "coverage")]
+    figs = [fg.hbars("success", "Success rate (Wilson 95% interval)",
+                     [(c["config"], c["success_rate"], tuple(c["wilson95"])) for c in cs]),
+            fg.stacked("outcomes", "Outcome and failure stage per attempt", outcomes,
+                       ["Success"] + [LABELS[s] for s in STAGES]),
+            fg.stacked("claims", "Completion claims", [(c["config"], [c["claims"][k] for k in CLAIMS]) for c in cs],
+                       list(CLAIMS)),
+            fg.grouped_hbars("coverage", "Checkpoint coverage (task-weighted)",
+                             [(c["config"], [(c["subgoal_coverage"] or 0.0, None), (c["spatial_coverage"] or 0.0, None)])
+                              for c in cs], ["subgoal checkpoints", "spatial checkpoints"]),
+            fg.lines("coverage_curve", "Spatial checkpoint coverage over charged calls",
+                     [(c["config"], c["spatial_curve"]) for c in cs], "charged calls", "coverage")]
     with_cost = [(c["config"], c["cost_total"], c["success_rate"]) for c in cs if c["cost_total"] is not None]
     if with_cost:
-        figs.append(svg.scatter("Success rate against total cost", with_cost, "total cost (USD)", "success rate"))
+        figs.append(fg.scatter("success_cost", "Success rate against total cost", with_cost, "total cost (USD)",
+                               "success rate", xfmt=usd))
     with_wall = [(c["config"], c["wall_seconds_median"], c["success_rate"]) for c in cs if c["wall_seconds_median"] is not None]
     if with_wall:
-        figs.append(svg.scatter("Success rate against median wall time", with_wall, "median wall time (s)", "success rate"))
+        figs.append(fg.scatter("success_wall", "Success rate against median wall time", with_wall,
+                               "median wall time (s)", "success rate", xfmt=lambda x: f"{x:.1f} s"))
     if r.get("recoverability"):
         figs.append(recoverability.figure(r["recoverability"]))
     return figs
-
-
-def html_table(header: list[str], rows: list[list[str]], cell_class=None) -> str:
-    head = "".join(f"<th>{escape(h)}</th>" for h in header)
-    body = []
-    for row in rows:
-        cells = []
-        for j, v in enumerate(row):
-            cls = cell_class(v) if cell_class and j else None
-            cells.append(f'<td{f" class={cls!r}" if cls else ""}>{escape(str(v))}</td>')
-        body.append("<tr>" + "".join(cells) + "</tr>")
-    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
 
 
 def _matrix_class(v: str) -> str | None:
@@ -358,40 +360,37 @@ def margin_text(m: dict) -> str:
     return f"{'borderline ' if m['borderline'] else ''}{pct(m['margin'])} ({m['margin_predicate']})"
 
 
-def html(r: dict, view_links: dict[str, str]) -> str:
-    ts = tables(r)
-    parts = ["<h1>cab report</h1>"] + [f"<p>{escape(line)}</p>" for line in notes(r)]
-    unfinished = [f'<li><a href="{escape(view_links[d])}">{escape(d)}</a></li>' for d in r["in_flight"] if d in view_links]
-    if unfinished:
-        parts.append(f"<p>Unfinished attempts, their records so far:</p><ul>{''.join(unfinished)}</ul>")
-    parts.append("<h2>Figures</h2>" + "".join(f"<figure>{f}</figure>" for f in figures(r)))
-    for title, header, rows in ts:
+def html(r: dict, view_links: dict[str, str], figs: list | None = None) -> str:
+    """The report page (``templates/report.html.j2``): the notes, the figures as inline SVG (``figs``,
+    default :func:`figures`), the tables, every attempt linked to its page (``view_links``)."""
+    from cab_core.analysis import figures as fg
+    from cab_core.analysis.pages import Markup, render
+
+    tabs = []
+    for title, header, rows in tables(r):
         cc = _matrix_class if title.startswith("Task x") else None
-        parts.append(f"<h2>{escape(title)}</h2>{html_table(header, rows, cc)}")
-    rows = []
-    for m in r["attempt_rows"]:
-        link = view_links.get(m["rel"])
-        name = f'<a href="{escape(link)}">{escape(m["rel"])}</a>' if link else escape(m["rel"])
-        rows.append(f"<tr><td>{name}</td><td>{escape(m['config'])}</td><td>{'yes' if m['success'] else 'no'}</td>"
-                    f"<td>{escape(m['termination'])}</td><td>{escape(m['claim'])}</td><td>{m['charged_calls']}</td>"
-                    f"<td>{escape(LABELS.get(m['failure_stage'], '') if m['failure_stage'] else '')}</td>"
-                    f"<td>{escape(m['failure_detail'])}</td><td{' class=part' if m['borderline'] else ''}>"
-                    f"{escape(margin_text(m))}</td></tr>")
-    parts.append("<h2>Attempts</h2><table><tr><th>Attempt</th><th>Configuration</th><th>Success</th><th>Termination</th>"
-                 "<th>Claim</th><th>Calls</th><th>Failure stage</th><th>Why</th><th>Verdict margin</th></tr>"
-                 + "".join(rows) + "</table>")
-    if r.get("recoverability"):
-        parts.append(recoverability.html_cases(r["recoverability"], view_links))
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>cab report</title><style>{CSS}</style></head>"
-            f"<body>{''.join(parts)}</body></html>\n")
+        tabs.append({"title": title, "header": header,
+                     "rows": [[(str(v), cc(str(v)) if cc and j else None) for j, v in enumerate(row)] for row in rows]})
+    attempts = [{"rel": m["rel"], "link": view_links.get(m["rel"]), "config": m["config"],
+                 "success": "yes" if m["success"] else "no", "termination": m["termination"], "claim": m["claim"],
+                 "calls": m["charged_calls"], "stage": LABELS.get(m["failure_stage"], "") if m["failure_stage"] else "",
+                 "why": m["failure_detail"], "borderline": m["borderline"], "margin": margin_text(m)}
+                for m in r["attempt_rows"]]
+    figs = figures(r) if figs is None else figs
+    return render("report.html.j2", notes=notes(r), tables=tabs, attempts=attempts,
+                  unfinished=[(d, view_links[d]) for d in r["in_flight"] if d in view_links],
+                  figures=[Markup(fg.inline_svg(f)) for f in figs],
+                  cases=recoverability.page_cases(r["recoverability"], view_links) if r.get("recoverability") else None)
 
 
-def write(root: Path, out: Path | None = None, views: bool = True, recover: dict | None = None, **extra) -> dict:
+def write(root: Path, out: Path | None = None, views: bool = True, recover: dict | None = None,
+          figure_files: bool = True, **extra) -> dict:
     """Build the report for ``root`` and write report.json, report.md and report.html into ``out``
     (default: ``root``); with ``views``, also each attempt's view.html, linked from the page.
     ``recover``: fork the failed attempts (:func:`recoverability.run`'s ``repeats``, ``jobs`` and
     ``folder``, default ``<out>/recoverability``). ``extra``: what :func:`build` adds (``compare``,
-    ``plan``, ``bootstrap``)."""
+    ``plan``, ``bootstrap``). ``figure_files``: also write each figure as PDF, SVG and PNG into
+    ``<out>/figures/`` (listed in report.md); the page has them inline either way."""
     from cab_core.analysis.viewer import write_view
 
     root = Path(root)
@@ -411,9 +410,14 @@ def write(root: Path, out: Path | None = None, views: bool = True, recover: dict
         for rel in [m["rel"] for m in r["attempt_rows"]] + r["in_flight"]:
             page = write_view(root / rel)
             links[rel] = os.path.relpath(page, out).replace(os.sep, "/")
+    from cab_core.analysis import figures as fg
+
+    figs = figures(r)
+    if figure_files:
+        fg.write_files(figs, out / FIGURES_FOLDER)
     (out / "report.json").write_text(json.dumps(r, indent=1))
-    (out / "report.md").write_text(markdown(r))
-    (out / "report.html").write_text(html(r, links))
+    (out / "report.md").write_text(markdown(r, [(f.cab_name, f.cab_title) for f in figs] if figure_files else None))
+    (out / "report.html").write_text(html(r, links, figs))
     return r
 
 
@@ -429,6 +433,9 @@ def main(argv: list[str] | None = None) -> None:
                                            "may be left out with --plan-difference (the plan alone)")
     ap.add_argument("--out", help="where report.md/.html/.json go (default: the directory itself)")
     ap.add_argument("--no-views", action="store_true", help="do not write each attempt's view.html")
+    ap.add_argument("--no-figure-files", action="store_true",
+                    help=f"do not write {FIGURES_FOLDER}/ (each figure as PDF, SVG and PNG, for papers); the page "
+                         "shows the figures either way")
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"),
                     help="compare two configurations on their shared task instances (names as the report writes "
                          "them, or a prefix of exactly one: 'oracle')")
@@ -495,7 +502,8 @@ def main(argv: list[str] | None = None) -> None:
         recover = {"repeats": a.recoverability_model_repeats, "jobs": a.recoverability_jobs,
                    "folder": Path(a.recoverability_dir) if a.recoverability_dir else None}
     try:
-        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, recover=recover, **extra)
+        r = write(Path(a.dir), Path(a.out) if a.out else None, views=not a.no_views, recover=recover,
+                  figure_files=not a.no_figure_files, **extra)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
         sys.exit(2)
@@ -510,7 +518,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)
     if r["in_flight"]:
         print(f"cab-report: {len(r['in_flight'])} unfinished attempt(s) not counted", file=sys.stderr)
-    print(f"cab-report: wrote report.md, report.html, report.json to {a.out or a.dir}", file=sys.stderr)
+    files = "" if a.no_figure_files else f" and {FIGURES_FOLDER}/ (PDF, SVG, PNG of each figure)"
+    print(f"cab-report: wrote report.md, report.html, report.json{files} to {a.out or a.dir}", file=sys.stderr)
     if not r["attempts"]:  # only unfinished, unreadable or excluded attempts: the tables are empty
         print(f"cab-report: no finished attempt to measure under {a.dir}", file=sys.stderr)
         sys.exit(1)

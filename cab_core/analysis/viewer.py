@@ -1,6 +1,6 @@
 """``cab-view <attempt dir>``: one HTML page per attempt, from its records.
 
-The page (``view.html`` in the attempt directory) shows the instruction, the verdict beside the
+The page (``view.html`` in the attempt directory; the template ``templates/attempt.html.j2``) shows the instruction, the verdict beside the
 agent's claim, the budget, the checkpoints, the head-camera video, and the timeline: every model
 turn, every charged call with its arguments, status, physics steps and the result the agent saw,
 every program with the calls it made, and the images the agent was shown. It is self-contained
@@ -16,86 +16,51 @@ from __future__ import annotations
 
 import json
 import sys
-from html import escape
 from pathlib import Path
 
 from cab_core.analysis.records import Attempt, attempt_dirs, read_jsonl
 from cab_core.errors import CabError, RecordError
 
-CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}table{border-collapse:collapse;margin:.5em 0}
-td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}th{background:#f3f3f3}
-.call{border-left:4px solid #4e79a7;margin:.6em 0;padding:.2em .8em}.internal{border-left-color:#bab0ac;margin-left:2em}
-.turn{border-left:4px solid #b07aa1;margin:.6em 0;padding:.2em .8em;background:#faf6fa}
-.bad{color:#b00}.good{color:#070}.mark{color:#070;font-weight:bold;margin:.2em 0 .2em 1em}
-pre{background:#f6f6f6;padding:.5em;overflow-x:auto;max-height:24em}
-img.obs{max-width:320px;margin:2px;border:1px solid #ccc}summary{cursor:pointer;color:#333}"""
-
-
 def _json(obj) -> str:
-    return escape(json.dumps(obj, indent=1))
+    return json.dumps(obj, indent=1)
 
 
-def _fold(label: str, body: str) -> str:
-    return f"<details><summary>{escape(label)}</summary>{body}</details>"
+def _images(d: Path, obs_ids) -> list[str]:
+    """The observations the agent was shown that the attempt directory holds (``observations/<id>.png``)."""
+    return [str(o) for o in obs_ids or [] if (d / f"observations/{o}.png").exists()]
 
 
-def _images(d: Path, obs_ids) -> str:
-    out = []
-    for o in obs_ids or []:
-        rel = f"observations/{o}.png"
-        if (d / rel).exists():
-            out.append(f'<a href="{escape(rel)}"><img class="obs" src="{escape(rel)}" alt="{escape(o)}" title="{escape(o)}"></a>')
-    return "".join(out)
-
-
-def _status(ev: dict) -> str:
+def _status(ev: dict) -> tuple[str, str]:
+    """A call's status and its class (good, bad)."""
     r = ev.get("result") or {}
     s = ev.get("status") or r.get("status")
     if ev.get("tool") == "run_code":
         s = "ok" if r.get("ok") else ("ABORTED" if r.get("status") == "ABORTED" else "error")
     elif s is None:
         s = "error" if "error" in r else "ok"
-    cls = "good" if s in ("SUCCESS", "ok") else "bad"
-    return f'<span class="{cls}">{escape(str(s))}</span>'
+    return str(s), "good" if s in ("SUCCESS", "ok") else "bad"
 
 
-def _call(d: Path, ev: dict, internal: bool, charged_index: int | None) -> str:
+def _call(d: Path, ev: dict, internal: bool, charged_index: int | None) -> dict:
     r = ev.get("result") or {}
-    head = (f"<b>{'↳ ' if internal else ''}{escape(str(ev.get('tool')))}</b> {_status(ev)}"
-            + (f" · charged call {charged_index}" if charged_index else "")
-            + f" · #{ev.get('seq')} · t={ev.get('t_wall', 0):.1f}s")
-    if ev.get("physics_steps"):
-        head += f" · {ev['physics_steps']} physics steps"
-    if ev.get("charged") is False:
-        head += " · not charged"
-    body = [f"<div>{head}</div>"]
     args = dict(ev.get("arguments") or {})
     code = args.pop("code", None) if ev.get("tool") == "run_code" else None
-    if code is not None:
-        body.append(f"<div>program <code>{escape(str(r.get('program', '')))}</code></div><pre>{escape(code)}</pre>")
-        for key in ("error", "stdout"):
-            if r.get(key):
-                body.append(f"<div>{key}:</div><pre>{escape(str(r[key]))}</pre>")
-    if args:
-        body.append(_fold("arguments", f"<pre>{_json(args)}</pre>"))
-    body.append(_fold("result the agent saw", f"<pre>{_json(r)}</pre>"))
-    body.append(_images(d, ev.get("obs_ids")))
-    return f'<div class="call{" internal" if internal else ""}">{"".join(body)}</div>'
+    status, cls = _status(ev)
+    return {"kind": "call", "tool": str(ev.get("tool")), "status": status, "status_class": cls, "internal": internal,
+            "charged_index": charged_index, "seq": ev.get("seq"), "t_wall": f"{ev.get('t_wall', 0):.1f}",
+            "physics_steps": ev.get("physics_steps"), "not_charged": ev.get("charged") is False,
+            "code": None if code is None else str(code), "program": str(r.get("program", "")),
+            "outputs": [(k, str(r[k])) for k in ("error", "stdout") if code is not None and r.get(k)],
+            "arguments": _json(args) if args else None, "result": _json(r), "images": _images(d, ev.get("obs_ids"))}
 
 
-def _turn(ev: dict) -> str:
+def _turn(ev: dict) -> dict:
     u = ev.get("usage") or {}
     cost = (ev.get("cost") or {}).get("usd")
-    head = (f"<b>model turn {ev.get('turn')}</b> · {escape(str(ev.get('model', '')))} · "
-            f"{u.get('input_tokens', 0)} in / {u.get('output_tokens', 0)} out tokens"
-            + (f" · ${cost:.4f}" if isinstance(cost, (int, float)) else "")
-            + f" · latency {ev.get('latency_s', 0)}s, waited {ev.get('waited_s', 0)}s")
-    body = [f"<div>{head}</div>"]
-    if ev.get("thinking"):
-        body.append(_fold("thinking", f"<pre>{escape(ev['thinking'])}</pre>"))
-    if ev.get("text"):
-        body.append(f"<pre>{escape(ev['text'])}</pre>")
-    return f'<div class="turn">{"".join(body)}</div>'
+    return {"kind": "turn", "turn": ev.get("turn"), "model": str(ev.get("model", "")),
+            "input_tokens": u.get("input_tokens", 0), "output_tokens": u.get("output_tokens", 0),
+            "cost": f"{cost:.4f}" if isinstance(cost, (int, float)) else None, "latency": ev.get("latency_s", 0),
+            "waited": ev.get("waited_s", 0), "thinking": ev.get("thinking"), "text": ev.get("text")}
 
 
 def matched_at(ck) -> dict[int, list[str]]:
@@ -113,10 +78,11 @@ def matched_at(ck) -> dict[int, list[str]]:
     return out
 
 
-def timeline(d: Path, events: list[dict], ck=None) -> str:
-    """The events in order, each checkpoint marked after the charged call that first matched it.
-    A program's internal calls are shown just before its run_code entry (they are logged as they
-    happen, the program's own entry when it returns)."""
+def timeline(d: Path, events: list[dict], ck=None) -> list[dict]:
+    """The events in order (what the page's timeline shows of each: ``kind`` call, turn, mark or
+    other), each checkpoint marked after the charged call that first matched it. A program's
+    internal calls are shown just before its run_code entry (they are logged as they happen, the
+    program's own entry when it returns)."""
     out = []
     marks = matched_at(ck)
     charged = 0
@@ -128,31 +94,28 @@ def timeline(d: Path, events: list[dict], ck=None) -> str:
                 charged += 1
                 index = charged
             out.append(_call(d, ev, internal=(kind == "internal_call"), charged_index=index))
-            out += [f'<div class="mark">✓ checkpoint {escape(m)}</div>' for m in marks.get(index, [])]
+            out += [{"kind": "mark", "label": m} for m in marks.get(index, [])]
         elif kind == "model_turn":
             out.append(_turn(ev))
         elif kind not in ("attempt_start",):
             rest = {k: v for k, v in ev.items() if k not in ("seq", "kind", "t_wall")}
-            out.append(f'<div class="call"><b>{escape(str(kind))}</b> #{ev.get("seq")}'
-                       f'{_fold("details", f"<pre>{_json(rest)}</pre>") if rest else ""}</div>')
-    return "".join(out)
+            out.append({"kind": "other", "name": str(kind), "seq": ev.get("seq"), "details": _json(rest) if rest else None})
+    return out
 
 
-def _checkpoints(ck) -> str:
+def _checkpoints(ck) -> dict:
     if not isinstance(ck, dict) or "error" in ck:
-        return f"<p>checkpoints unavailable{': ' + escape(str(ck.get('error'))) if isinstance(ck, dict) else ''}</p>"
+        return {"unavailable": True, "error": str(ck.get("error")) if isinstance(ck, dict) else None}
     rows = []
     for kind in ("subgoals", "spatial"):
         for c in ck.get(kind, []):
             first = c.get("first") or {}
-            rows.append(f"<tr><td>{kind[:-1] if kind == 'subgoals' else 'spatial'} {c['index']}</td>"
-                        f"<td>{escape(c.get('text') or c.get('name', ''))}</td>"
-                        f"<td class=\"{'good' if c['attained'] else 'bad'}\">{'attained' if c['attained'] else 'not attained'}</td>"
-                        f"<td>{escape(str(first.get('calls', '')) if first else '')}</td>"
-                        f"<td>{escape(str(first.get('arm', '')) if first else '')}</td></tr>")
-    return (f"<p>subgoal coverage {ck.get('subgoal_coverage', 0):.0%}, spatial coverage {ck.get('spatial_coverage', 0):.0%}</p>"
-            "<table><tr><th>checkpoint</th><th>what</th><th>outcome</th><th>first at call</th><th>arm</th></tr>"
-            + "".join(rows) + "</table>")
+            rows.append({"name": f"{kind[:-1] if kind == 'subgoals' else 'spatial'} {c['index']}",
+                         "what": c.get("text") or c.get("name", ""), "attained": bool(c["attained"]),
+                         "first_calls": str(first.get("calls", "")) if first else "",
+                         "arm": str(first.get("arm", "")) if first else ""})
+    return {"unavailable": False, "subgoal_coverage": f"{ck.get('subgoal_coverage', 0):.0%}",
+            "spatial_coverage": f"{ck.get('spatial_coverage', 0):.0%}", "rows": rows}
 
 
 def _margin_line(m: dict) -> str:
@@ -162,72 +125,60 @@ def _margin_line(m: dict) -> str:
             f"borderline below {m['threshold']:.0%})")
 
 
-def _margins(v: dict) -> str:
+def _margins(v: dict) -> dict | None:
     """Each predicate's margin: how far inside (+) or outside (-) its threshold, in its unit and as
     a fraction of its tolerance."""
     ms = v.get("margins")
     if not isinstance(ms, dict) or not ms:
-        return ""
+        return None
 
     def g(x) -> str:
         return "" if x is None else f"{x:.4g}"
 
-    rows = "".join(f"<tr><td>{escape(k)}</td><td class=\"{'good' if m['slack'] > 0 else 'bad'}\">{m['slack']:+.4g} "
-                   f"{escape(m['unit'])}</td><td>{m['fraction']:+.1%}</td><td>{g(m.get('measured'))}</td>"
-                   f"<td>{g(m.get('threshold'))}</td></tr>" for k, m in ms.items())
-    return (f"<p>margins measured at the {escape(str(v.get('margins_at', 'end')))}</p><table><tr><th>predicate</th>"
-            "<th>margin</th><th>of tolerance</th><th>measured</th><th>threshold</th></tr>" + rows + "</table>")
+    return {"at": str(v.get("margins_at", "end")),
+            "rows": [{"name": k, "cls": "good" if m["slack"] > 0 else "bad", "slack": f"{m['slack']:+.4g} {m['unit']}",
+                      "fraction": f"{m['fraction']:+.1%}", "measured": g(m.get("measured")),
+                      "threshold": g(m.get("threshold"))} for k, m in ms.items()]}
 
 
-def _rows(summary: list[tuple[str, object]]) -> str:
-    return "".join(f"<tr><th>{escape(k)}</th><td>{escape(str(x))}</td></tr>" for k, x in summary)
-
-
-def _page_link(rel: str) -> str:
-    """The page of the attempt folder ``rel`` (relative to this one), as a link target."""
-    return escape(rel.rstrip("/") + "/view.html")
-
-
-def fork_rows(d: Path, fork: dict | None) -> str:
-    """Table rows linking an attempt to the attempt it was forked from (``fork``: its ``result.json``
-    or configuration's ``{parent, at}``) and to the forks made of it (its ``forks.jsonl``)."""
+def fork_links(d: Path, fork: dict | None) -> dict:
+    """The attempt an attempt was forked from (``fork``: its ``result.json`` or configuration's
+    ``{parent, at}``) and the forks made of it (its ``forks.jsonl``), for the page's links:
+    ``parent`` ({rel, at} or None) and ``children`` ([{rel, at, outcome}], by fork point)."""
     from cab_core.attempt.fork import forks_of
 
-    out = ""
+    parent = None
     if isinstance(fork, dict) and isinstance(fork.get("parent"), str):
-        at = fork.get("at")
-        out += (f'<tr><th>fork of</th><td><a class="fork-parent" href="{_page_link(fork["parent"])}">'
-                f'{escape(fork["parent"])}</a> · fork at call {escape(str(at))}</td></tr>')
+        parent = {"rel": fork["parent"], "at": str(fork.get("at"))}
     children = {f["child"]: f for f in forks_of(d)}  # a fork made again into the same folder: once
-    if children:
-        items = "".join(f'<li><a class="fork-child" href="{_page_link(c)}">{escape(c)}</a> · fork at call '
-                        f'{escape(str(f.get("at")))}{_fork_outcome(d / c)}</li>'
-                        for c, f in sorted(children.items(), key=lambda kv: (
-                            kv[1].get("at") if isinstance(kv[1].get("at"), int) else -1, kv[0])))
-        out += f"<tr><th>forks</th><td><ul>{items}</ul></td></tr>"
-    return out
+    kids = [{"rel": c, "at": str(f.get("at")), "outcome": _fork_outcome(d / c)}
+            for c, f in sorted(children.items(), key=lambda kv: (
+                kv[1].get("at") if isinstance(kv[1].get("at"), int) else -1, kv[0]))]
+    return {"parent": parent, "children": kids}
 
 
 def _fork_outcome(child: Path) -> str:
     """`` · <model> · success`` (or failure, or unfinished) for a fork's folder."""
     try:
         r = json.loads((child / "result.json").read_text())
-        return f" · {escape(str(r.get('model')))} · {'success' if (r.get('verdict') or {}).get('success') else 'failure'}"
+        return f" · {r.get('model')} · {'success' if (r.get('verdict') or {}).get('success') else 'failure'}"
     except (OSError, ValueError, AttributeError):
         return " · unfinished"
 
 
-def _events(d: Path) -> tuple[list[dict], str]:
-    """The event log, and a table row saying what is wrong with it when it cannot be read."""
+def _events(d: Path) -> tuple[list[dict], str | None]:
+    """The event log, and what is wrong with it when it cannot be read."""
     try:
-        return read_jsonl(d / "events.jsonl"), ""
+        return read_jsonl(d / "events.jsonl"), None
     except CabError as e:
-        return [], f"<tr><th>events</th><td class='bad'>{escape(str(e))}</td></tr>"
+        return [], str(e)
 
 
-def _page(title: str, heading: str, rows: str, sections: str) -> str:
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(title)}</title><style>{CSS}</style>"
-            f"</head><body><h1>{escape(heading)}</h1><table>{rows}</table>{sections}</body></html>\n")
+def _page(**ctx) -> str:
+    """The page: ``templates/attempt.html.j2`` with ``ctx``."""
+    from cab_core.analysis.pages import render
+
+    return render("attempt.html.j2", **ctx)
 
 
 def render(a: Attempt) -> str:
@@ -236,7 +187,7 @@ def render(a: Attempt) -> str:
     v, claim, b = r["verdict"], r["claim"], r["budget"]
     claimed = claim.get("success_claim")
     events, bad = _events(a.dir)
-    rows = _rows([
+    summary = [
         ("task", f"{r['task']} (seed {r['seed']}, attempt {r['attempt']})"),
         ("configuration", a.config), ("instruction", r.get("instruction", "")),
         ("verdict", "success" if v["success"] else "failure"),
@@ -247,13 +198,11 @@ def render(a: Attempt) -> str:
         ("tool calls", f"{b.get('tool_calls_used')}/{b.get('tool_calls_limit')}"),
         ("simulated s", f"{b.get('sim_seconds_used')}/{b.get('sim_seconds_limit')}"),
         ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
-    ]) + fork_rows(a.dir, r.get("fork")) + bad
-    video = ('<video src="video.mp4" controls width="480"></video>' if (a.dir / "video.mp4").exists()
-             else "<p>no video recorded</p>")
-    return _page(a.rel, f"{r['task']} · {a.config} · attempt {r['attempt']}", rows,
-                 f"<h2>Verdict details</h2>{_margins(v)}{_fold('verifier record', f'<pre>{_json(v)}</pre>')}"
-                 f"<h2>Checkpoints</h2>{_checkpoints(r.get('checkpoints'))}<h2>Video</h2>{video}"
-                 f"<h2>Timeline</h2>{timeline(a.dir, events, r.get('checkpoints'))}")
+    ]
+    return _page(title=a.rel, heading=f"{r['task']} · {a.config} · attempt {r['attempt']}", finished=True,
+                 summary=[(k, str(x)) for k, x in summary], **fork_links(a.dir, r.get("fork")), events_error=bad,
+                 margins=_margins(v), verifier=_json(v), checkpoints=_checkpoints(r.get("checkpoints")),
+                 video=(a.dir / "video.mp4").exists(), timeline=timeline(a.dir, events, r.get("checkpoints")))
 
 
 def render_unfinished(d: Path) -> str:
@@ -264,14 +213,15 @@ def render_unfinished(d: Path) -> str:
     c = start.get("config") or {}
     config = f"{c.get('model', '?')} ({c.get('harness', '?')}, {c.get('sim', '?')})"
     charged = sum(1 for e in events if e.get("kind") == "call" and e.get("charged", True))
-    rows = _rows([
+    summary = [
         ("task", f"{start.get('task', '?')} (seed {start.get('seed', '?')}, attempt {start.get('attempt', '?')})"),
         ("configuration", config), ("instruction", start.get("instruction", "")),
         ("state", "unfinished: no result.json (still running, or interrupted)"),
         ("tool calls so far", charged), ("last event at wall s", events[-1].get("t_wall") if events else "–"),
-    ]) + fork_rows(d, c.get("fork")) + bad
-    return _page(d.name, f"{start.get('task', d.name)} · {config} · unfinished", rows,
-                 f"<h2>Timeline so far</h2>{timeline(d, events)}")
+    ]
+    return _page(title=d.name, heading=f"{start.get('task', d.name)} · {config} · unfinished", finished=False,
+                 summary=[(k, str(x)) for k, x in summary], **fork_links(d, c.get("fork")), events_error=bad,
+                 timeline=timeline(d, events))
 
 
 def attempts_below(root: Path) -> list[str]:

@@ -28,6 +28,8 @@ from html import escape
 from pathlib import Path
 from urllib.parse import quote, urlsplit
 
+from jinja2 import FileSystemLoader
+from markupsafe import Markup
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import (FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, RedirectResponse,
@@ -36,7 +38,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
-from cab_core.analysis import viewer
+from cab_core.analysis import pages, viewer
 from cab_core.analysis.records import Attempt
 from cab_core.apps.studio import tree
 from cab_core.apps.studio.play import PLAYED, Plays, installed
@@ -123,7 +125,8 @@ class Studio:
         self.state_dir = Path(state_dir) if state_dir else default_state_dir(self.root)
         self.plays = Plays(self.root, run_attempt)
         self._report_locks: dict[str, threading.Lock] = {}
-        self.templates = Jinja2Templates(directory=str(HERE / "templates"))
+        # the studio's templates extend the pages' shared base (cab_core/analysis/templates/base.html.j2)
+        self.templates = Jinja2Templates(env=pages.environment(FileSystemLoader(str(HERE / "templates"))))
 
     # -- paths -------------------------------------------------------------------------------
     def inside(self, rel: str) -> Path | None:
@@ -160,7 +163,7 @@ class Studio:
                 out.mkdir(parents=True, exist_ok=True)
                 # cab-report itself, in its own process: the report exactly as it writes it
                 r = subprocess.run([sys.executable, "-c", "from cab_core.analysis.report import main; main()",
-                                    str(folder), "--out", str(out), "--no-views"],
+                                    str(folder), "--out", str(out), "--no-views", "--no-figure-files"],
                                    capture_output=True, text=True, timeout=600)
                 if r.returncode == 2 or not (out / "report.html").is_file():
                     return f"<p>cab-report wrote no report for {escape(rel)}:</p><pre>{escape(r.stderr)}</pre>", 200
@@ -169,26 +172,21 @@ class Studio:
             data = json.loads((out / "report.json").read_text())
         base = "" if rel == "." else rel + "/"
         for a in [m["rel"] for m in data.get("attempt_rows", [])] + list(data.get("in_flight", [])):
-            link = f'<a class="attempt-link" href="/attempt/{quote(base + a)}/">{escape(a)}</a>'
-            page = page.replace(f"<tr><td>{escape(a)}</td>", f"<tr><td>{link}</td>")
+            link = f'<a class="attempt-link" href="/attempt/{quote(base + a)}/">{Markup.escape(a)}</a>'
+            page = page.replace(f"<tr><td>{Markup.escape(a)}</td>", f"<tr><td>{link}</td>")  # escaped as the template does
         nav = self.nav([("report", None)], rel)
         return page.replace("<body>", f"<body>{nav}", 1), 200
 
     def nav(self, trail: list[tuple[str, str | None]], group: str | None = None) -> str:
-        items = ['<a href="/">cab-studio</a>']
-        if group is not None:
-            items.append(f'<a href="/group?rel={quote(group)}">{escape(group)}</a>')
-        items += [f'<a href="{escape(u)}">{escape(t)}</a>' if u else escape(t) for t, u in trail]
-        return ('<nav class="studio" style="font:14px sans-serif;margin-bottom:1em">'
-                + " › ".join(items) + ' · <a href="/play">play an attempt</a></nav>')
+        items = [("cab-studio", "/")] + ([(group, f"/group?rel={quote(group)}")] if group is not None else []) + trail
+        return self.templates.env.get_template("nav.html").render(items=items)
 
     # -- an attempt's page ----------------------------------------------------------------------
     def attempt_page(self, d: Path) -> str:
         rel = tree._rel(d, self.root)
         if self.plays.playing(d):
-            body = ("<p class='playing'>This attempt is being played; its records are shown once it has ended.</p>")
-            return (f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(rel)}</title></head><body>"
-                    f"{self.nav([(rel, None)])}{body}{self._live(d, rel, False)}</body></html>")
+            return self.templates.env.get_template("playing.html").render(
+                rel=rel, nav=Markup(self.nav([(rel, None)])), live=Markup(self._live(d, rel, False)))
         finished = (d / "result.json").exists()
         live = self._live(d, rel, finished)  # stamped before the records are read: a change meanwhile shows
         note = ""

@@ -1,0 +1,270 @@
+"""The report's figures, drawn with matplotlib: inline SVG for the pages, PDF/SVG/PNG files for papers.
+
+Every figure is a :class:`matplotlib.figure.Figure` made without pyplot (no global state, no GUI
+backend: the Agg canvas), inside :func:`style` (fixed fonts and sizes, the SVG id salt), so that
+the same data draws the same bytes every time: the files carry no date and no software version.
+
+* :func:`inline_svg` gives the ``<svg>`` element a page embeds: no XML prolog, no metadata, and
+  every ``id`` prefixed with the figure's name, so that several figures coexist on one page; the
+  root carries ``role="img"``, an ``aria-label`` and a ``<title>`` (the figure's title), and
+  ``data-figure`` (its name).
+* :func:`write_files` writes ``<folder>/<name>.pdf``, ``.svg`` and ``.png`` of each figure.
+
+The marks a reader (or a test) may look for carry ids (matplotlib's ``gid``): ``<name>-bar-<i>``,
+``<name>-seg-<i>-<j>`` (row ``i``, part ``j`` of stacked bars), ``<name>-line-<i>``,
+``<name>-point-<i>``; each such group holds a ``<title>`` saying what it shows (a tooltip in a
+browser). Bars and points are numbered in the order the rows are given (top to bottom).
+
+This module imports matplotlib when it is imported: the report imports it only when it draws.
+"""
+from __future__ import annotations
+
+import io
+import re
+from contextlib import contextmanager
+from html import escape
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg", force=False)  # noqa: E402  (no GUI backend, ever; pyplot is never imported here)
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.layout_engine import ConstrainedLayoutEngine  # noqa: E402
+
+PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f",
+           "#bab0ac")
+FORMATS = ("pdf", "svg", "png")
+PNG_DPI = 200
+WIDTH = 6.4  # inches: one column of a two-column paper page is ~3.3, a full width ~6.5-7
+# matplotlib's bundled DejaVu Sans (no font search, no download); text stays text in SVG (the
+# browser draws it, the page stays small), fonts are embedded as TrueType in PDF
+STYLE = {"font.family": "DejaVu Sans", "font.size": 9, "axes.titlesize": 10, "axes.titleweight": "bold",
+         "svg.fonttype": "none", "pdf.fonttype": 42, "svg.hashsalt": "cab", "axes.spines.top": False,
+         "axes.spines.right": False, "legend.frameon": False, "figure.dpi": 100, "path.simplify": False}
+# no date, no software version: the files of the same report are the same bytes
+METADATA = {"svg": {"Date": None, "Creator": None, "Format": None, "Type": None},
+            "pdf": {"CreationDate": None, "ModDate": None, "Creator": None, "Producer": None},
+            "png": {"Software": None}}
+NO_DATA = "no data"
+
+
+@contextmanager
+def style(name: str = ""):
+    """matplotlib's settings for drawing figure ``name`` (its SVG ids salted with the name)."""
+    with matplotlib.rc_context({**STYLE, "svg.hashsalt": f"cab-{name}"}):
+        yield
+
+
+def _figure(name: str, title: str, rows: int, extra: float = 0.0) -> tuple[Figure, object]:
+    fig = Figure(figsize=(WIDTH, 1.0 + 0.32 * max(rows, 1) + extra), layout="constrained")
+    fig.cab_name, fig.cab_title, fig.cab_titles = name, title, {}
+    ax = fig.add_subplot()
+    ax.set_title(title, loc="left")
+    return fig, ax
+
+
+def _tip(fig: Figure, artist, gid: str, text: str) -> None:
+    artist.set_gid(gid)
+    fig.cab_titles[gid] = text
+
+
+def _pct_axis(ax, axis: str = "x") -> None:
+    from matplotlib.ticker import PercentFormatter
+
+    (ax.xaxis if axis == "x" else ax.yaxis).set_major_formatter(PercentFormatter(1.0, decimals=0))
+    (ax.set_xlim if axis == "x" else ax.set_ylim)(0, 1)
+
+
+def _labels(ax, labels: list[str]) -> None:
+    ax.set_yticks(range(len(labels)), labels)
+    ax.set_ylim(max(len(labels), 1) - 0.5, -0.5)  # the first row on top
+    if not labels:
+        ax.text(0.5, 0.5, NO_DATA, transform=ax.transAxes, ha="center", va="center", color="#777")
+
+
+def pct(v: float) -> str:
+    return f"{100 * v:.1f}%"
+
+
+def hbars(name: str, title: str, rows: list[tuple[str, float, tuple[float, float] | None]]) -> Figure:
+    """Horizontal bars of shares (label, value in 0..1, optional interval drawn as a whisker)."""
+    with style(name):
+        fig, ax = _figure(name, title, len(rows))
+        for i, (label, v, ci) in enumerate(rows):
+            (bar,) = ax.barh(i, v, height=0.6, color=PALETTE[0])
+            _tip(fig, bar, f"{name}-bar-{i}",
+                 f"{label}: {pct(v)}" + (f" (interval {pct(ci[0])}–{pct(ci[1])})" if ci else ""))
+            if ci is not None:
+                ax.errorbar(v, i, xerr=[[max(v - ci[0], 0)], [max(ci[1] - v, 0)]], fmt="none", ecolor="#222",
+                            capsize=3, lw=1)
+            ax.text(max(v, ci[1] if ci else 0) + 0.01, i, pct(v), va="center", fontsize=8)
+        _labels(ax, [r[0] for r in rows])
+        _pct_axis(ax)
+        ax.set_xlim(0, 1.12)
+    return fig
+
+
+def stacked(name: str, title: str, rows: list[tuple[str, list[float]]], parts: list[str]) -> Figure:
+    """Horizontal stacked bars of counts (each row its own total), with a legend of ``parts``."""
+    with style(name):
+        fig, ax = _figure(name, title, len(rows), extra=0.25 * ((len(parts) + 2) // 3))
+        for i, (label, vals) in enumerate(rows):
+            left = 0.0
+            for j, v in enumerate(vals):
+                if v:
+                    (seg,) = ax.barh(i, v, left=left, height=0.6, color=PALETTE[j % len(PALETTE)])
+                    _tip(fig, seg, f"{name}-seg-{i}-{j}", f"{label}, {parts[j]}: {v:g}")
+                    ax.text(left + v / 2, i, f"{v:g}", ha="center", va="center", color="white", fontsize=8)
+                left += v
+        _labels(ax, [r[0] for r in rows])
+        from matplotlib.ticker import MaxNLocator
+
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlabel("attempts")
+        from matplotlib.patches import Patch
+
+        fig.legend([Patch(color=PALETTE[j % len(PALETTE)]) for j in range(len(parts))], parts, loc="outside lower left",
+                   ncols=3, fontsize=8)
+    return fig
+
+
+def grouped_hbars(name: str, title: str, rows: list[tuple[str, list[tuple[float | None, tuple[float, float] | None]]]],
+                  series: list[str]) -> Figure:
+    """Horizontal bars in groups: one group per row label, one bar per series (value in 0..1,
+    optional interval drawn as a whisker; a None value draws no bar and writes "–"), with a legend
+    of ``series``. Bars are numbered in order over the bars drawn: ``<name>-bar-<k>``."""
+    n = max(len(series), 1)
+    h = 0.8 / n
+    with style(name):
+        fig, ax = _figure(name, title, len(rows) * max(1, n // 2), extra=0.25 * ((len(series) + 1) // 2))
+        k = 0
+        for i, (label, vals) in enumerate(rows):
+            for j, (v, ci) in enumerate(vals):
+                y = i - 0.4 + h * (j + 0.5)
+                if v is None:
+                    ax.text(0.01, y, "–", va="center", fontsize=8)
+                    continue
+                (bar,) = ax.barh(y, v, height=h * 0.9, color=PALETTE[j % len(PALETTE)])
+                _tip(fig, bar, f"{name}-bar-{k}", f"{label}, {series[j] if j < len(series) else ''}: {pct(v)}")
+                k += 1
+                if ci is not None:
+                    ax.errorbar(v, y, xerr=[[max(v - ci[0], 0)], [max(ci[1] - v, 0)]], fmt="none", ecolor="#222",
+                                capsize=2, lw=0.8)
+                ax.text(max(v, ci[1] if ci else 0) + 0.01, y, pct(v), va="center", fontsize=7)
+        _labels(ax, [r[0] for r in rows])
+        _pct_axis(ax)
+        ax.set_xlim(0, 1.12)
+        from matplotlib.patches import Patch
+
+        fig.legend([Patch(color=PALETTE[j % len(PALETTE)]) for j in range(len(series))], series,
+                   loc="outside lower left", ncols=2, fontsize=8)
+    return fig
+
+
+def lines(name: str, title: str, series: list[tuple[str, list[float | None]]], xlabel: str, ylabel: str) -> Figure:
+    """Line chart of shares (0..1) over x = 0, 1, 2, ..., one line per series, with a legend."""
+    with style(name):
+        fig, ax = _figure(name, title, 8)
+        for i, (label, vals) in enumerate(series):
+            pts = [(k, v) for k, v in enumerate(vals) if v is not None]
+            (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], color=PALETTE[i % len(PALETTE)], lw=1.6,
+                              label=label, drawstyle="steps-post")  # the value after call k holds until call k+1
+            _tip(fig, line, f"{name}-line-{i}", f"{label}: {pct(pts[-1][1]) if pts else '–'} at the last call")
+        _pct_axis(ax, "y")
+        ax.set_ylim(-0.02, 1.02)  # a line at 0% or 100% stays in view
+        ax.set_xlim(left=0)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(axis="y", color="#ddd", lw=0.6)
+        if series:
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+        else:
+            ax.text(0.5, 0.5, NO_DATA, transform=ax.transAxes, ha="center", va="center", color="#777")
+    return fig
+
+
+def scatter(name: str, title: str, points: list[tuple[str, float, float]], xlabel: str, ylabel: str,
+            xfmt=lambda x: f"{x:.3g}") -> Figure:
+    """Labelled points (label, x, y in 0..1); the x axis spans 0..max x."""
+    with style(name):
+        fig, ax = _figure(name, title, 8)
+        for i, (label, x, y) in enumerate(points):
+            (pt,) = ax.plot([x], [y], "o", ms=6, color=PALETTE[i % len(PALETTE)])
+            _tip(fig, pt, f"{name}-point-{i}", f"{label}: {xlabel} {xfmt(x)}, {ylabel} {pct(y)}")
+            ax.annotate(label, (x, y), xytext=(5, 4), textcoords="offset points", fontsize=7)
+        _pct_axis(ax, "y")
+        ax.set_ylim(-0.02, 1.05)
+        ax.set_xlim(0, max([p[1] for p in points] + [1e-9]) * 1.25)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(color="#eee", lw=0.6)
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------
+# output
+# ---------------------------------------------------------------------------------------------
+def _save(fig: Figure, fmt: str) -> bytes:
+    """The figure in ``fmt``. The first save lays it out (constrained layout, measured by the
+    format's renderer); the SVG is always the first, so the page and every file share one layout."""
+    if fmt != "svg" and getattr(fig, "cab_svg", None) is None:
+        svg_file(fig)
+    buf = io.BytesIO()
+    meta = dict(METADATA[fmt])
+    if fmt in ("svg", "pdf"):
+        meta["Title"] = fig.cab_title
+    with style(fig.cab_name):
+        fig.savefig(buf, format=fmt, metadata=meta, **({"dpi": PNG_DPI} if fmt == "png" else {}))
+        if isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine):
+            fig.set_layout_engine("none")  # laid out once (the first save): the other formats keep it
+    return buf.getvalue()
+
+
+def _with_titles(fig: Figure, text: str) -> str:
+    """The SVG with a ``<title>`` in each marked group (the tooltip saying what the mark shows)."""
+    for gid, tip in fig.cab_titles.items():
+        text = text.replace(f'<g id="{gid}">', f'<g id="{gid}"><title>{escape(tip)}</title>', 1)
+    return text
+
+
+def svg_file(fig: Figure) -> str:
+    """The figure as a standalone SVG document (the file beside the report); drawn once per figure."""
+    if getattr(fig, "cab_svg", None) is None:
+        fig.cab_svg = _with_titles(fig, _save(fig, "svg").decode())
+    return fig.cab_svg
+
+
+def inline_svg(fig: Figure) -> str:
+    """The figure as one ``<svg>`` element to embed in a page: no prolog, doctype or metadata; ids
+    prefixed with the figure's name (those matplotlib gives, the marks' gids already have it)."""
+    text = svg_file(fig)
+    text = text[text.index("<svg"):]
+    text = re.sub(r"\s*<metadata>.*?</metadata>", "", text, flags=re.S)
+    prefix = f"{fig.cab_name}-"
+
+    def fix(m: re.Match) -> str:
+        ref = m.group(2)
+        return m.group(0) if ref.startswith(prefix) else f"{m.group(1)}{prefix}{ref}"
+
+    text = re.sub(r'(\bid=")([^"]+)', fix, text)
+    text = re.sub(r'(href="#)([^"]+)', fix, text)
+    text = re.sub(r"(url\(#)([^)]+)", fix, text)
+    head = (f'<svg role="img" aria-label="{escape(fig.cab_title)}" data-figure="{escape(fig.cab_name)}"'
+            f' class="figure"')
+    return head + text[len("<svg"):].rstrip() + "\n"  # its <title> is matplotlib's (the metadata's Title)
+
+
+def write_files(figs: list[Figure], folder: Path) -> list[Path]:
+    """``<folder>/<name>.{pdf,svg,png}`` of every figure; the paths written, in order."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for fig in figs:
+        for fmt in FORMATS:
+            p = folder / f"{fig.cab_name}.{fmt}"
+            if fmt == "svg":
+                p.write_text(svg_file(fig))
+            else:
+                p.write_bytes(_save(fig, fmt))
+            out.append(p)
+    return out
