@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from browser import chromium
 
 from cab_core.analysis import recoverability as rc
 from cab_core.analysis.figures import inline_svg
@@ -287,22 +288,6 @@ def test_finished_forks_are_not_run_again(sweep, tmp_path):
     assert again["ran"] == 1 and again["configs"] == sweep["report"]["recoverability"]["configs"]
 
 
-def chromium(tmp_path):
-    """Debian's chromium, headless, driven by Selenium through Debian's chromedriver."""
-    if not (shutil.which("chromium") and shutil.which("chromedriver")):
-        pytest.skip("chromium and chromedriver are not installed (scripts/install-browser.sh)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = shutil.which("chromium")
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-              "--disable-background-networking", "--disable-component-update", "--disable-sync",
-              f"--user-data-dir={tmp_path / 'chromium'}", "--window-size=1300,2000"):
-        opts.add_argument(a)
-    return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=opts)
-
-
 def table_after(driver, heading: str) -> list[list[str]]:
     """The rendered cells of the table that follows the h2 starting with ``heading``."""
     return driver.execute_script(
@@ -316,7 +301,7 @@ def test_page_shows_the_table_and_the_figure_in_a_browser(sweep, tmp_path):
     from selenium.webdriver.common.by import By
 
     root = sweep["root"]
-    driver = chromium(tmp_path)
+    driver = chromium(tmp_path, "1300,2000")
     try:
         driver.get((root / "report.html").as_uri())
         rows = table_after(driver, "Recoverability of failures")

@@ -22,6 +22,7 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+from browser import chromium
 
 from cab_core.apps.studio import tree
 
@@ -171,23 +172,6 @@ def test_loopback_needs_no_token_but_refuses_other_hosts_and_sites(tmp_path):
 # ---------------------------------------------------------------------------------------------
 # in a browser: a tiny MuJoCo sweep, a person playing click_bell
 # ---------------------------------------------------------------------------------------------
-def chromium(tmp_path):
-    """Debian's chromium, headless, driven by Selenium through Debian's chromedriver."""
-    if not (shutil.which("chromium") and shutil.which("chromedriver")):
-        pytest.skip("chromium and chromedriver are not installed (scripts/install-browser.sh)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = shutil.which("chromium")
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-              "--disable-background-networking", "--disable-component-update", "--disable-sync",
-              "--autoplay-policy=no-user-gesture-required",
-              f"--user-data-dir={tmp_path / 'chromium'}", "--window-size=1400,1100"):
-        opts.add_argument(a)
-    return webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=opts)
-
-
 def sweep_cmd(root: Path) -> list[str]:
     return [os.path.join(BIN, "cab"), "-m", f"task={TASK}", "model=idle,oracle", "sim=mujoco", "attempt=1,2",
             f"hydra.sweep.dir={root}"]
@@ -222,7 +206,7 @@ def site(tmp_path_factory):
     assert r.returncode == 0, r.stderr[-3000:]
     shutil.rmtree(sweep / TASK / "idle" / "mujoco" / "seed-0" / "attempt-2")
     server = Server(root, base / "state")
-    driver = chromium(base)
+    driver = chromium(base, "1400,1100", "--autoplay-policy=no-user-gesture-required")
     try:
         yield {"base": base, "root": root, "sweep": sweep, "server": server, "driver": driver}
     finally:
