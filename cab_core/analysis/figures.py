@@ -94,14 +94,19 @@ def hbars(name: str, title: str, rows: list[tuple[str, float, tuple[float, float
             (bar,) = ax.barh(i, v, height=0.6, color=PALETTE[0])
             _tip(fig, bar, f"{name}-bar-{i}",
                  f"{label}: {pct(v)}" + (f" (interval {pct(ci[0])}–{pct(ci[1])})" if ci else ""))
-            if ci is not None:
-                ax.errorbar(v, i, xerr=[[max(v - ci[0], 0)], [max(ci[1] - v, 0)]], fmt="none", ecolor="#222",
-                            capsize=3, lw=1)
-            ax.text(max(v, ci[1] if ci else 0) + 0.01, i, pct(v), va="center", fontsize=8)
+            _whisker_and_value(ax, v, i, ci, capsize=3, lw=1, fontsize=8)
         _labels(ax, [r[0] for r in rows])
         _pct_axis(ax)
         ax.set_xlim(0, 1.12)
     return fig
+
+
+def _whisker_and_value(ax, v: float, y: float, ci, capsize: float, lw: float, fontsize: float) -> None:
+    """A share's interval as a whisker (when given) and its value written just past the bar."""
+    if ci is not None:
+        ax.errorbar(v, y, xerr=[[max(v - ci[0], 0)], [max(ci[1] - v, 0)]], fmt="none", ecolor="#222",
+                    capsize=capsize, lw=lw)
+    ax.text(max(v, ci[1] if ci else 0) + 0.01, y, pct(v), va="center", fontsize=fontsize)
 
 
 def stacked(name: str, title: str, rows: list[tuple[str, list[float]]], parts: list[str]) -> Figure:
@@ -147,10 +152,7 @@ def grouped_hbars(name: str, title: str, rows: list[tuple[str, list[tuple[float 
                 (bar,) = ax.barh(y, v, height=h * 0.9, color=PALETTE[j % len(PALETTE)])
                 _tip(fig, bar, f"{name}-bar-{k}", f"{label}, {series[j] if j < len(series) else ''}: {pct(v)}")
                 k += 1
-                if ci is not None:
-                    ax.errorbar(v, y, xerr=[[max(v - ci[0], 0)], [max(ci[1] - v, 0)]], fmt="none", ecolor="#222",
-                                capsize=2, lw=0.8)
-                ax.text(max(v, ci[1] if ci else 0) + 0.01, y, pct(v), va="center", fontsize=7)
+                _whisker_and_value(ax, v, y, ci, capsize=2, lw=0.8, fontsize=7)
         _labels(ax, [r[0] for r in rows])
         _pct_axis(ax)
         ax.set_xlim(0, 1.12)

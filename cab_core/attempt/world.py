@@ -38,7 +38,7 @@ class BuiltWorld:
             self.perturbation = {**p.as_record(), "objects": perturb_scene(scene, p, spec.seed)}
         self.randomization: dict | None = None
         built_emb = embodiment  # what the simulator builds: its fixed cameras jittered by randomisation
-        if getattr(spec, "randomize", None):
+        if spec.randomize:
             r = Randomization(**spec.randomize)
             built_emb, self.randomization = randomize_instance(
                 scene, embodiment, r, spec.seed, spec.task, task.info.instruction,
