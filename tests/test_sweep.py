@@ -26,13 +26,28 @@ CAB = os.path.join(os.path.dirname(sys.executable), "cab")
 ATTEMPTS = (1, 2, 3, 4)
 
 
+# The attempts of these sweeps must stay in flight long enough to be caught there: an idle attempt
+# ends in a few tenths of a second, so each runs one program that computes for a couple of seconds
+# (longer on a loaded machine, which only widens the window) and then gives up.
+BUSY_SCRIPT = [{"tool": "run_code", "args": {"code": "s = 0\nfor i in range(40_000_000):\n    s += i\nprint(s)"}},
+               {"tool": "done", "args": {"report": "computed, then gave up", "success_claim": False}}]
+
+
+def busy_script(where: Path) -> Path:
+    p = where / "busy.jsonl"
+    p.write_text("".join(json.dumps(item) + "\n" for item in BUSY_SCRIPT))
+    return p
+
+
 def sweep_cmd(sweep_dir: Path, *extra: str, attempts=ATTEMPTS, workers: int = 2) -> list[str]:
-    return [CAB, "-m", "task=beat_block_hammer", "model=idle", f"attempt={','.join(map(str, attempts))}",
-            "record.video=false", f"hydra.sweep.dir={sweep_dir}", f"hydra.launcher.n_jobs={workers}", *extra]
+    """The sweep of these tests; its scripted agent's file lies beside the sweep directory."""
+    return [CAB, "-m", "task=beat_block_hammer", "model=scripted", f"model.script={busy_script(sweep_dir.parent)}",
+            f"attempt={','.join(map(str, attempts))}", "record.video=false", f"hydra.sweep.dir={sweep_dir}",
+            f"hydra.launcher.n_jobs={workers}", *extra]
 
 
 def attempt_dirs(sweep_dir: Path) -> dict[int, Path]:
-    return {a: sweep_dir / "beat_block_hammer" / "idle" / "sapien" / "seed-0" / f"attempt-{a}" for a in ATTEMPTS}
+    return {a: sweep_dir / "beat_block_hammer" / "scripted" / "sapien" / "seed-0" / f"attempt-{a}" for a in ATTEMPTS}
 
 
 def fingerprints(d: Path) -> dict:
@@ -92,7 +107,7 @@ def test_resumed_sweep_redoes_no_finished_attempt(killed_and_resumed):
         assert fingerprints(k["dirs"][a]) == fp, f"attempt {a} was redone"
         assert not (k["dirs"][a] / "set_aside").exists()
     for a, d in k["dirs"].items():
-        check = check_attempt(d, {"task": "beat_block_hammer", "attempt": a, "model": "idle"}, "cli.log")
+        check = check_attempt(d, {"task": "beat_block_hammer", "attempt": a, "model": "scripted"}, "cli.log")
         assert check.state == "complete", (a, check.problems)
         if a not in k["done"]:  # (the kill may fall between a result and the supervisor's note on it)
             assert check.result["infrastructure"] == {"failed": False, "failures": []}
@@ -208,8 +223,8 @@ def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     sweep = tmp_path / "sw"
     proc = subprocess.Popen([CAB, "-m", "hydra/launcher=ray_local", "hydra.launcher.ray.init.num_cpus=2",
-                             "task=beat_block_hammer", "model=idle", "attempt=1,2,3", "record.video=false",
-                             f"hydra.sweep.dir={sweep}"], cwd=tmp_path, stdout=subprocess.PIPE,
+                             "task=beat_block_hammer", "model=scripted", f"model.script={busy_script(tmp_path)}",
+                             "attempt=1,2,3", "record.video=false", f"hydra.sweep.dir={sweep}"], cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline, hit = time.monotonic() + 300, None
@@ -227,7 +242,7 @@ def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
     for a, d in attempt_dirs(sweep).items():
         if a > 3:
             continue
-        assert check_attempt(d, {"attempt": a, "model": "idle"}, "cli.log").state == "complete"
+        assert check_attempt(d, {"attempt": a, "model": "scripted"}, "cli.log").state == "complete"
         aside = sorted(p.name for p in (d / "set_aside").iterdir()) if (d / "set_aside").exists() else []
         assert aside == (["01-interrupted"] if d.resolve() == hit[0] else [])
     m = json.loads((sweep / MANIFEST).read_text())
