@@ -138,6 +138,20 @@ def test_the_oracle_says_why_when_the_budget_is_too_small(tmp_path):
                                            "reason": "tool-call budget of 8 is spent"}
 
 
+def test_the_verdict_decides_a_recovery_and_a_mistaken_refusal_is_kept(tmp_path):
+    said = {"kind": "oracle_not_recoverable", "reason_kind": "off_table", "reason": "the block is on the floor"}
+    for name, success in (("solved", True), ("failed", False)):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "result.json").write_text(json.dumps({"verdict": {"success": success},
+                                                   "termination": {"reason": "done", "detail": None}}))
+        (d / "events.jsonl").write_text(json.dumps(said) + "\n")
+    assert recovery(tmp_path / "solved") == {"outcome": "recovered", "kind": None, "reason": None, "oracle_said": {
+        "kind": "off_table", "reason": "the block is on the floor"}}
+    assert recovery(tmp_path / "failed") == {"outcome": "not_recoverable", "kind": "off_table",
+                                             "reason": "the block is on the floor"}
+
+
 def test_fork_arguments_are_checked_in_one_line(parent, tmp_path):
     n = charged_calls(events(parent))
     for at, message in ((n + 1, f"the parent made {n} charged call"), (-1, "non-negative integer"),

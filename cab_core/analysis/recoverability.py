@@ -252,7 +252,8 @@ def _outcome(f: dict | None) -> str:
     if f is None:
         return "–"
     if f["outcome"] == "recovered":
-        return "recovered"
+        said = f.get("oracle_said")
+        return f"recovered, though the solution said not recoverable ({said['kind']})" if said else "recovered"
     if f["outcome"] == "not_recoverable":
         return f"not recoverable ({f['kind']}): {f.get('reason') or ''}".rstrip(": ")
     if f["outcome"] == "unexplained":

@@ -161,6 +161,9 @@ def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int) -> dic
             c["errors"] += 1
         elif r.get("outcome") == "recovered":
             c["recovered"] += 1
+            if r.get("oracle_said"):  # solved, yet the solution's stage check said it could not be
+                c["unexplained"].append(f"at {r['fork_at']}: succeeded though the solution said "
+                                        f"not recoverable ({r['oracle_said']['kind']})")
         elif r.get("outcome") == "not_recoverable":
             c["not_recoverable"][r["kind"]] = c["not_recoverable"].get(r["kind"], 0) + 1
         else:
