@@ -1,5 +1,6 @@
 """cab-studio: the groups and progress it reads from records (hand-made folders), the token and the
-request guards (a real server, an HTTP client), the human agent refused outside the studio; then, in
+request guards (a real server, an HTTP client), the human agent refused outside the studio, a play
+whose process is killed ending that play only (the studio's plays, without a browser); then, in
 headless Chromium, a tiny MuJoCo sweep listed and updated live while an attempt of it runs, a person
 playing ``click_bell`` to success through the play page's forms (a pixel filled by clicking an image,
 a run_code program, done), the result on its attempt page (images, video) and in the sweep's
@@ -25,6 +26,7 @@ import pytest
 from browser import chromium
 
 from cab_core.apps.studio import tree
+from cab_core.errors import AttemptEnded
 
 BIN = os.path.dirname(sys.executable)
 TASK = "click_bell"
@@ -84,6 +86,91 @@ def test_the_human_agent_is_refused_outside_the_studio():
 
     with pytest.raises(ConfigError, match="cab-studio"):
         create("agents", "human", {"name": "human", "agent": "human", "handle": "ada", "session": None})
+
+
+# ---------------------------------------------------------------------------------------------
+# each play in a process of its own: a crash ends that play only
+# ---------------------------------------------------------------------------------------------
+def _until(cond, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+
+
+def _ready(play, timeout: float = 300.0) -> None:
+    _until(lambda: play.bridge.ready.is_set() or play.state == "failed", timeout, "the attempt to be ready")
+    assert play.bridge.ready.is_set(), play.status()
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` is a process not yet reaped (a zombie is dead)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.sim
+def test_a_crashed_plays_process_ends_only_that_play(tmp_path):
+    """A play's process killed (as a simulator's segfault would end it) after a call: the call it was
+    sent and not yet answered, and every later one, are answered that its process ended unexpectedly,
+    and the play is failed; the studio's next play runs to done and writes its records; stopping the
+    studio ends a play still running as interrupted."""
+    from cab_core.apps.studio.play import Plays
+
+    plays = Plays(tmp_path)
+    first = plays.start(TASK, "mujoco", None, "crash-test")
+    try:
+        assert first.pid is not None and first.pid != os.getpid() and _alive(first.pid)
+        _ready(first)
+        head = first.bridge.submit("capture_head", {}).result(120)
+        assert not head.ended and "error" not in head.payload and head.images, head.payload
+        os.kill(first.pid, signal.SIGSTOP)  # a call sent while the process cannot answer it is waiting when it dies
+        waiting = first.bridge.submit("capture_head", {})
+        assert not waiting.done()
+        os.kill(first.pid, signal.SIGKILL)
+        answer = waiting.result(60)
+        error = ("the simulator process ended unexpectedly (exit code -9, killed by SIGKILL); the attempt has ended, "
+                 "its records stop where the process died")
+        assert (answer.tool, answer.payload, answer.ended, answer.images) == (
+            "capture_head", {"error": error, "attempt_ended": True}, True, [])
+        first.thread.join(60)
+        assert not first.thread.is_alive() and first.exit_code == -signal.SIGKILL
+        status = first.status()
+        assert (status["state"], status["error"], status["ended"], status["calls"]) == ("failed", error, True, 1)
+        again = first.bridge.submit("done", {"report": "x", "success_claim": False}).result(5)  # later calls too
+        assert again.payload == {"error": error, "attempt_ended": True} and again.ended
+        assert not (first.folder / "result.json").exists() and not plays.playing(first.folder)
+
+        second = plays.start(TASK, "mujoco", None, "after-the-crash")
+        assert second.pid != first.pid and second.folder.name == "attempt-2"
+        _ready(second)
+        head = second.bridge.submit("capture_head", {}).result(120)
+        assert not head.ended and "error" not in head.payload and [oid for oid, _ in head.images] == [
+            head.payload["obs_id"]] and head.images[0][1].startswith(b"\x89PNG"), head.payload
+        end = second.bridge.submit("done", {"report": "looked once", "success_claim": False}).result(120)
+        assert end.ended and "error" not in end.payload, end.payload
+        second.thread.join(60)
+        assert (second.state, second.error, second.exit_code) == ("finished", None, 0)
+        r = json.loads((second.folder / "result.json").read_text())
+        assert (r["model"], r["harness"], r["sim"], r["termination"]["reason"]) == ("human", "direct", "mujoco", "done")
+        assert r["agent"]["client"] == {"name": "after-the-crash", "version": "cab-studio", "session": 1}
+        assert r["budget"]["tool_calls_used"] == 1 and r["verdict"]["success"] is False  # done is not charged
+        with pytest.raises(AttemptEnded):  # the attempt ended normally: no more calls
+            second.bridge.submit("capture_head", {})
+
+        third = plays.start(TASK, "mujoco", None, "left-playing")
+        _ready(third)
+        plays.stop()
+        assert not third.thread.is_alive() and third.exit_code == 0 and not _alive(third.pid)
+        r = json.loads((third.folder / "result.json").read_text())
+        assert (third.state, r["termination"]["reason"]) == ("finished", "interrupted")
+    finally:
+        plays.stop(5)
 
 
 # ---------------------------------------------------------------------------------------------

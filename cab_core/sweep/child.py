@@ -20,27 +20,12 @@ writing into an attempt directory that a resumed sweep is about to reuse.
 """
 from __future__ import annotations
 
-import ctypes
 import json
 import os
-import signal
 import sys
 from pathlib import Path
 
-from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_FAULT, EXIT_RENDERER, PARENT_ENV
-_PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent() -> None:
-    """Ask Linux to SIGKILL this process when its parent dies; exit if it already has."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):  # not Linux: the supervisor's kill on hang still applies
-        pass
-    expected = os.environ.get(PARENT_ENV)
-    if expected and os.getppid() != int(expected):
-        os._exit(EXIT_FAULT)
+from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_FAULT, EXIT_RENDERER, die_with_parent
 
 
 def run(job: dict) -> int:
@@ -101,7 +86,7 @@ def serve() -> int:
 
 
 def main() -> int:
-    _die_with_parent()
+    die_with_parent()
     if sys.argv[1:] == ["--worker"]:
         return serve()
     return run(json.loads(sys.stdin.read()))

@@ -5,7 +5,8 @@ group's attempts, a group's report (the page ``cab-report`` writes, generated on
 studio's state folder and served with links to the studio's attempt pages), an attempt's page (the
 page ``cab-view`` writes, re-rendered as a running attempt grows), and the play page, where a person
 plays an attempt through the same tools, prompt and budgets a model gets (:mod:`.play`,
-:mod:`cab_core.attempt.human`). Docs: docs/studio.md.
+:mod:`cab_core.attempt.human`); each played attempt runs in a child process of its own, so a
+simulator's crash ends that play only, never the studio or its other plays. Docs: docs/studio.md.
 
 It listens on loopback by default. Bound to any other address it requires a token, generated at
 start and printed once: ``?token=`` on the first request (then a cookie), or the header
@@ -42,7 +43,6 @@ from cab_core.analysis import pages, viewer
 from cab_core.analysis.records import Attempt
 from cab_core.apps.studio import tree
 from cab_core.apps.studio.play import PLAYED, Plays, installed
-from cab_core.attempt.runner import run_attempt
 from cab_core.errors import AttemptEnded, CabError
 
 HERE = Path(__file__).resolve().parent  # the real folder (an editable install links each file)
@@ -123,7 +123,7 @@ class Studio:
     def __init__(self, root: Path, state_dir: Path | None = None):
         self.root = Path(root).resolve()
         self.state_dir = Path(state_dir) if state_dir else default_state_dir(self.root)
-        self.plays = Plays(self.root, run_attempt)
+        self.plays = Plays(self.root)
         self._report_locks: dict[str, threading.Lock] = {}
         # the studio's templates extend the pages' shared base (cab_core/analysis/templates/base.html.j2)
         self.templates = Jinja2Templates(env=pages.environment(FileSystemLoader(str(HERE / "templates"))))

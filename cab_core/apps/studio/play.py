@@ -1,6 +1,16 @@
 """Attempts a person plays from cab-studio: each one composed as ``cab task=<t> sim=<s> seed=<n>
-model=human`` would compose it, and run by the normal runner in a thread of the studio (the thread
-that builds the world owns it), its calls handed over by a :class:`cab_core.attempt.human.PlayBridge`.
+model=human`` would compose it, and run by the normal runner in a child process of its own
+(:mod:`cab_core.apps.studio.child`, started as a sweep starts its children: the plain resolved config
+on stdin, dying with the studio), its calls handed over by a :class:`cab_core.attempt.human.PlayBridge`
+over a connection only the two of them hold (a socket pair). A thread of the studio per play starts
+that process, reads what it sends and waits for it.
+
+A crash loses at most the attempt in flight: when a play's process dies before its attempt ended (a
+segfault in a simulator's native code, ``os._exit``, the kernel's OOM killer, a kill), the studio and
+its other plays go on; that play's waiting and later calls are answered that the simulator process
+ended unexpectedly (:func:`cab_core.attempt.human.crash_error`), and it is ``failed`` with that
+error, or ``finished`` if its ``result.json`` was written. Stopping the studio abandons every play
+(recorded as ``interrupted``) and waits for their processes, killing one that does not end in time.
 
 A played attempt is written where a sweep would write it, below the group the person chose (the
 studio's ``played`` folder by default): ``<group>/<task>/human/<sim>/seed-<S>/attempt-<N>``, ``N``
@@ -9,16 +19,22 @@ the first attempt number not yet taken there, so a sweep's report counts it as t
 """
 from __future__ import annotations
 
+import json
 import logging
+import os
 import re
+import signal
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from multiprocessing import Pipe
 from pathlib import Path
-from typing import Callable
 
-from cab_core.attempt.human import PlayBridge, SESSIONS, register
+from cab_core.attempt.human import PlayBridge, crash_error
 from cab_core.errors import ConfigError
+from cab_core.sweep.protocol import PARENT_ENV
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +57,10 @@ class Play:
     started: float = field(default_factory=time.time)
     state: str = "building"  # building | playing | finished | failed
     error: str | None = None
-    thread: threading.Thread | None = None
+    thread: threading.Thread | None = None  # starts the play's process, reads from it, waits for it
+    proc: subprocess.Popen | None = None  # the play's process
+    pid: int | None = None
+    exit_code: int | None = None  # the process's exit status once it ended (negative: the signal)
     images: dict[str, bytes] = field(default_factory=dict)  # the images the person was shown, by obs_id
 
     def status(self) -> dict:
@@ -73,11 +92,10 @@ def next_attempt(folder: Path) -> int:
 
 
 class Plays:
-    """The play sessions of one studio. ``run``: the runner (``run_attempt``), given by the app."""
+    """The play sessions of one studio, each attempt in a process of its own."""
 
-    def __init__(self, root: Path, run: Callable[[object], dict]):
+    def __init__(self, root: Path):
         self.root = Path(root)
-        self.run = run
         self.plays: dict[str, Play] = {}
         self._lock = threading.Lock()
 
@@ -90,7 +108,10 @@ class Plays:
         return any(p.folder.resolve() == f and p.state in ("building", "playing") for p in self.plays.values())
 
     def start(self, task: str, sim: str, seed: int | None, handle: str, into: str = PLAYED) -> Play:
-        """Compose and start one attempt; ConfigError, in one line, for a choice that is not valid."""
+        """Compose and start one attempt; ConfigError, in one line, for a choice that is not valid.
+        Returns once its process is started (``play.pid``)."""
+        from omegaconf import OmegaConf
+
         from cab_core.attempt.spec import attempt_spec
         from cab_core.config import composed
         from cab_core.plugins import task_info
@@ -120,36 +141,95 @@ class Plays:
                      f"model.session={bridge.id}"]
         try:
             with _COMPOSE:
-                cfg = composed(overrides)
-            spec = attempt_spec(cfg, folder)
+                config = OmegaConf.to_container(composed(overrides), resolve=True)
+            config["model"]["handle"] = handle  # recorded with the model's configuration
+            attempt_spec(config, folder)  # a choice that is not valid is refused here, not in the process
         except Exception:
             folder.rmdir()
             raise
-        spec.model_cfg["handle"] = handle  # recorded with the model's configuration
-        register(bridge)
         rel = folder.relative_to(self.root.resolve()).as_posix()
         play = Play(bridge.id, handle, task, sim, seed, n, folder, rel, bridge)
-        play.thread = threading.Thread(target=self._run, args=(play, spec), name=f"cab-play-{play.id}", daemon=True)
+        job = {"config": config, "output_dir": str(folder), "session": bridge.id, "handle": handle}
+        started = threading.Event()
+        # the process is started by the thread that waits for it: PR_SET_PDEATHSIG fires when the
+        # thread that started a process ends, so not by the request's (pooled) thread
+        play.thread = threading.Thread(target=self._run, args=(play, job, started), name=f"cab-play-{play.id}",
+                                       daemon=True)
         self.plays[play.id] = play
         play.thread.start()
+        started.wait()
         return play
 
-    def _run(self, play: Play, spec) -> None:
+    def _run(self, play: Play, job: dict, started: threading.Event) -> None:
+        bridge = play.bridge
+        ours = None
         try:
-            self.run(spec)
-            play.state = "finished"
-        except Exception as e:  # shown on the play page; the records say what they hold
-            log.exception("played attempt %s failed", play.rel)
+            try:
+                ours, theirs = Pipe()  # a socket pair: the studio's end, the play's end
+                try:
+                    play.proc = subprocess.Popen(
+                        [sys.executable, "-m", "cab_core.apps.studio.child", str(theirs.fileno())],
+                        stdin=subprocess.PIPE, pass_fds=(theirs.fileno(),), start_new_session=True,
+                        env={**os.environ, PARENT_ENV: str(os.getpid())})  # its output: the studio's
+                finally:
+                    theirs.close()  # only the play's process holds it now: it closes when that exits
+                play.pid = play.proc.pid
+                bridge.attach(ours)
+            finally:
+                started.set()
+            try:
+                play.proc.stdin.write(json.dumps(job).encode())
+                play.proc.stdin.close()
+            except BrokenPipeError:  # it died at once; its exit status says so
+                pass
+            bridge.serve()  # until the process's end of the connection closes
+            play.exit_code = play.proc.wait()
+        except Exception as e:  # noqa: BLE001 (it could not be started, or the studio lost it: it is ended)
+            log.exception("played attempt %s: the studio lost its process", play.rel)
             play.error = f"{type(e).__name__}: {e}"
-            play.state = "finished" if (play.folder / "result.json").exists() else "failed"
+            if play.proc is not None:
+                kill(play.proc)
+                play.exit_code = play.proc.wait()
         finally:
-            play.bridge.close()
-            SESSIONS.pop(play.id, None)
+            if ours is not None:
+                bridge.disconnect()
+            self._ended(play)
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """End every play still running (the studio is stopping): their records are written."""
+    def _ended(self, play: Play) -> None:
+        """The play's process is gone: what the play, its page and its calls say now."""
+        bridge, code = play.bridge, play.exit_code
+        if play.error is None and bridge.failure is not None:  # the attempt's run raised: the process said what
+            play.error = bridge.failure
+        elif play.error is None and code != 0:  # it died: a crash, a kill, the OOM killer
+            play.error = crash_error(code)
+            log.error("played attempt %s: %s", play.rel, play.error)
+        if bridge.failure is None and play.error is not None:
+            bridge.fail(play.error)  # the calls waiting, and later ones, are told (unless the attempt had ended)
+        else:
+            bridge.close()
+        play.state = "finished" if (play.folder / "result.json").exists() else "failed"
+        if play.state == "failed" and play.error is None:
+            play.error = "the attempt's process ended without writing result.json"
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """End every play still running (the studio is stopping): their records are written. A play's
+        process that has not ended ``timeout`` s later is killed."""
         for p in list(self.plays.values()):
             p.bridge.abandon("interrupted", "cab-studio stopped while the attempt was played")
+        deadline = time.monotonic() + timeout
         for p in list(self.plays.values()):
-            if p.thread is not None:
-                p.thread.join(timeout)
+            if p.thread is None:
+                continue
+            p.thread.join(max(0.0, deadline - time.monotonic()))
+            if p.thread.is_alive() and p.proc is not None:
+                log.warning("played attempt %s did not end in %g s; killed", p.rel, timeout)
+                kill(p.proc)
+                p.thread.join(10)
+
+
+def kill(proc: subprocess.Popen) -> None:
+    """SIGKILL a play's process and whatever it started (it leads its own process group)."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
