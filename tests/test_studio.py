@@ -182,9 +182,11 @@ class Server:
     def __init__(self, root: Path, state: Path, *args: str):
         self.log = state / "studio.log"
         state.mkdir(parents=True, exist_ok=True)
-        self.proc = subprocess.Popen([os.path.join(BIN, "cab-studio"), str(root), "--port", "0", "--state-dir",
-                                      str(state), *args], stdout=subprocess.DEVNULL, stderr=open(self.log, "w"),
-                                     start_new_session=True)
+        # started beside the root and given its name, as a person types ``cab-studio runs``: the pages
+        # (and the screenshots in the docs) show that name, not the test's temporary folder
+        self.proc = subprocess.Popen([os.path.join(BIN, "cab-studio"), root.name, "--port", "0", "--state-dir",
+                                      str(state), *args], cwd=root.parent, stdout=subprocess.DEVNULL,
+                                     stderr=open(self.log, "w"), start_new_session=True)
         deadline = time.time() + 60
         while time.time() < deadline:
             m = re.search(r"at (http://\S+)", self.log.read_text())

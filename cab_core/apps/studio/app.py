@@ -122,6 +122,7 @@ class Studio:
 
     def __init__(self, root: Path, state_dir: Path | None = None):
         self.root = Path(root).resolve()
+        self.shown = os.path.normpath(str(root))  # the root as the person named it, shown on every page
         self.state_dir = Path(state_dir) if state_dir else default_state_dir(self.root)
         self.plays = Plays(self.root)
         self._report_locks: dict[str, threading.Lock] = {}
@@ -219,7 +220,7 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
     T = studio.templates
 
     def page(request: Request, name: str, **ctx) -> Response:
-        return T.TemplateResponse(request, name, {"root": str(studio.root), **ctx})
+        return T.TemplateResponse(request, name, {"root": studio.shown, **ctx})
 
     def home(request: Request):
         return page(request, "tree.html")
@@ -227,7 +228,7 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
     def api_tree(request: Request):
         gs = tree.groups(studio.root)
         plays = [p.status() for p in studio.plays.plays.values()]
-        return JSONResponse({"root": str(studio.root), "groups": [g.as_dict(attempts=False) for g in gs],
+        return JSONResponse({"root": studio.shown, "groups": [g.as_dict(attempts=False) for g in gs],
                              "plays": plays})
 
     def group_page(request: Request):
