@@ -70,13 +70,15 @@ def test_bench_prints_its_figures(tmp_path):
 
 @pytest.mark.sim
 def test_gallery_renders_initial_scenes(tmp_path):
-    r = run(["cab-gallery", "--out", str(tmp_path), "--tasks", "stack_blocks_three"], tmp_path)
+    r = run(["cab-gallery", "--out", "gal", "--tasks", "stack_blocks_three"], tmp_path)
     assert r.returncode == 0, r.stderr
     from PIL import Image
 
-    img = Image.open(tmp_path / "stack_blocks_three.png")
+    img = Image.open(tmp_path / "gal" / "stack_blocks_three.png")
     assert img.size == (640, 480)
-    assert "stack_blocks_three.png" in (tmp_path / "README.md").read_text()
+    page = (tmp_path / "gal" / "README.md").read_text()
+    assert "![stack_blocks_three](stack_blocks_three.png)" in page
+    assert "Regenerate with `cab-gallery --out gal`." in page and str(tmp_path) not in page
 
 
 @pytest.mark.parametrize("model,var", [("opus5", "ANTHROPIC_API_KEY"), ("gpt56", "OPENAI_API_KEY")])

@@ -61,13 +61,17 @@ def render_all(out: Path, tasks: list[str] | None = None, sim_name: str | None =
     return done
 
 
-def write_page(out: Path, items: list[tuple[str, str]], randomize: str | None = None, seed: int | None = None) -> None:
+def write_page(out: Path, items: list[tuple[str, str]], randomize: str | None = None, seed: int | None = None,
+               sim: str | None = None) -> None:
+    """The page; its command to regenerate names ``out`` as given when relative (a page under docs/
+    never names a machine path), by its folder name otherwise."""
     at = "its catalog seed" if seed is None else f"seed {seed}"
+    shown = out.as_posix() if not out.is_absolute() else out.name
     lines = ["# The task gallery", "",
              f"The head-camera view (640x480) of every task's initial scene at {at}, as the agent "
              "first sees it" + (f", and beside it the same scene under `randomize={randomize}` (appearance "
                                 "randomisation drawn from the seed)" if randomize else "")
-             + ". Regenerate with `cab-gallery --out docs/gallery"
+             + f". Regenerate with `cab-gallery --out {shown}" + (f" --sim {sim}" if sim else "")
              + (f" --randomize {randomize}" if randomize else "") + (f" --seed {seed}" if seed is not None else "") + "`.",
              ""]
     for name, instruction in items:
@@ -91,5 +95,5 @@ def main() -> None:
     except Exception:
         ap.error(f"unknown --randomize option {a.randomize!r}")
     items = render_all(out, a.tasks.split(",") if a.tasks else None, a.sim, a.randomize, a.seed)
-    write_page(out, items, a.randomize, a.seed)
+    write_page(out, items, a.randomize, a.seed, a.sim)
     print(f"wrote {len(items)} images and README.md to {out}")
