@@ -81,6 +81,17 @@ def test_gallery_renders_initial_scenes(tmp_path):
     assert "Regenerate with `cab-gallery --out gal`." in page and str(tmp_path) not in page
 
 
+@pytest.mark.sim
+@pytest.mark.parametrize("sim", ["sapien", "mujoco", "pybullet"])
+def test_an_attempt_prints_one_line_on_every_simulator(sim, tmp_path):
+    """No banner of a simulator's C code (PyBullet's build time and ``argv[0]=``) nor a library's
+    INFO record (PyOpenGL's accelerator note, under MuJoCo) reaches the newcomer's terminal."""
+    r = run(["cab", "task=click_bell", f"sim={sim}", "model=idle", "record.video=false", "hydra.run.dir=out"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    out = (r.stdout + r.stderr).splitlines()
+    assert len(out) == 1 and out[0].startswith(f"cab: click_bell seed=0 attempt=1 model=idle sim={sim}: success=False"), out
+
+
 @pytest.mark.parametrize("model,var", [("opus5", "ANTHROPIC_API_KEY"), ("gpt56", "OPENAI_API_KEY")])
 def test_missing_key_is_one_line_before_any_simulator(model, var, tmp_path):
     env = {k: "" for k in ("ANTHROPIC_API_KEY", "OPENAI_API_KEY", "GEMINI_API_KEY", "GOOGLE_API_KEY")}

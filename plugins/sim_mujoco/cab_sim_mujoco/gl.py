@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import logging
 import os
 import threading
 from dataclasses import dataclass
@@ -105,7 +106,10 @@ def choose_backend(environ=os.environ) -> tuple[str, str]:
 
 
 def _context_class(backend: str):
-    """The GLContext class of ``backend``; setting PYOPENGL_PLATFORM first is what binds it."""
+    """The GLContext class of ``backend``; setting PYOPENGL_PLATFORM first is what binds it.
+    PyOpenGL's note that its optional C accelerator is not installed (an INFO record on first
+    import, printed by any application that logs INFO, as cab's command line does) is kept out."""
+    logging.getLogger("OpenGL.acceleratesupport").setLevel(logging.WARNING)
     platform = os.environ.get("PYOPENGL_PLATFORM")
     if backend in ("egl", "osmesa") and platform and platform.lower() != backend:
         raise RendererUnavailable(f"PYOPENGL_PLATFORM={platform} conflicts with the {backend} backend; "

@@ -55,7 +55,11 @@ import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import pybullet
+
+from ._quiet import c_output_silenced
+
+with c_output_silenced():  # its build-time banner
+    import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
 from cab_core.contracts.embodiment import EmbodimentSpec
@@ -222,7 +226,8 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._timestep = self._timestep_override or float(scene.timestep)
         self._scene_spec, self._emb = scene, embodiment
         check_object_names(scene)
-        self._c = BulletClient(connection_mode=pybullet.DIRECT)
+        with c_output_silenced():  # "argv[0]=" from the C side
+            self._c = BulletClient(connection_mode=pybullet.DIRECT)
         try:
             self._egl_plugin = None
             if self._renderer is not None and self._renderer.kind == "egl":
