@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+import subprocess
 
 EXIT_FAULT = 1  # the attempt's process failed (crash, unexpected exception): retried as infrastructure
 EXIT_CONFIG = 2  # the configuration is wrong: never retried
@@ -25,3 +26,12 @@ def die_with_parent() -> None:
     expected = os.environ.get(PARENT_ENV)
     if expected and os.getppid() != int(expected):
         os._exit(EXIT_FAULT)
+
+
+def kill_group(proc: subprocess.Popen) -> None:
+    """SIGKILL a child and anything in its process group (it leads its own), and reap it."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):  # gone already
+        pass
+    proc.wait()

@@ -25,7 +25,6 @@ import concurrent.futures as cf
 import json
 import os
 import select
-import signal
 import subprocess
 import sys
 import threading
@@ -35,7 +34,7 @@ from pathlib import Path
 from typing import Callable
 
 from cab_core.errors import ConfigError
-from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV
+from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV, kill_group
 from cab_core.sweep.records import (INFRA_TERMINATIONS, annotate_result, check_attempt, infrastructure_failures,
                                     is_infrastructure_failure, log_infrastructure_failure, set_aside,
                                     write_infrastructure_result)
@@ -101,15 +100,6 @@ def _progress_mark(d: Path) -> tuple:
     return tuple(mark)
 
 
-def _kill(proc: subprocess.Popen) -> None:
-    """SIGKILL the child and anything in its process group (it leads its own)."""
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait()
-
-
 def _rss_mb(pid: int) -> float:
     """Resident memory of a process now, in MiB (0 once it is gone)."""
     try:
@@ -168,7 +158,7 @@ class WarmWorker:
                 self.proc.stdin.close()
                 self.proc.wait(timeout=5)
             except (OSError, subprocess.TimeoutExpired):
-                _kill(self.proc)
+                kill_group(self.proc)
         for f in (self.proc.stdin, self.proc.stdout):
             try:
                 f.close()
@@ -253,7 +243,7 @@ class AttemptSupervisor:
             time.sleep(self.settings.poll_s)
             killed = watch.verdict()
             if killed:
-                _kill(proc)
+                kill_group(proc)
                 return None, killed
         return proc.returncode, None
 
@@ -277,7 +267,7 @@ class AttemptSupervisor:
             reply = worker.reply(self.settings.poll_s)
             killed = None if reply is not None else watch.verdict()
             if killed:
-                _kill(worker.proc)
+                kill_group(worker.proc)
                 worker.close()
                 _WORKERS.pop(key, None)
                 return None, killed

@@ -23,7 +23,6 @@ import json
 import logging
 import os
 import re
-import signal
 import subprocess
 import sys
 import threading
@@ -34,7 +33,7 @@ from pathlib import Path
 
 from cab_core.attempt.human import PlayBridge, crash_error
 from cab_core.errors import ConfigError
-from cab_core.sweep.protocol import PARENT_ENV
+from cab_core.sweep.protocol import PARENT_ENV, kill_group
 
 log = logging.getLogger(__name__)
 
@@ -188,8 +187,8 @@ class Plays:
             log.exception("played attempt %s: the studio lost its process", play.rel)
             play.error = f"{type(e).__name__}: {e}"
             if play.proc is not None:
-                kill(play.proc)
-                play.exit_code = play.proc.wait()
+                kill_group(play.proc)
+                play.exit_code = play.proc.returncode
         finally:
             if ours is not None:
                 bridge.disconnect()
@@ -223,13 +222,6 @@ class Plays:
             p.thread.join(max(0.0, deadline - time.monotonic()))
             if p.thread.is_alive() and p.proc is not None:
                 log.warning("played attempt %s did not end in %g s; killed", p.rel, timeout)
-                kill(p.proc)
+                kill_group(p.proc)
                 p.thread.join(10)
 
-
-def kill(proc: subprocess.Popen) -> None:
-    """SIGKILL a play's process and whatever it started (it leads its own process group)."""
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        pass
