@@ -21,7 +21,8 @@ registry, :mod:`cab_core.plugins`):
   (``test_task_determinism[<task>-<sim>]``, about a second each, in this process).
 
 Options: ``--cab-conformance[=GROUPS]`` (comma-separated: ``sims``, ``tasks``, ``determinism``;
-``all``, the default, is every group), ``--cab-sims=A,B`` and ``--cab-tasks=X,Y`` (restrict to these; default: every installed
+``all`` is every group; the bare option is every group, or with ``--cab-tasks`` the groups over
+tasks only, ``tasks`` and ``determinism``), ``--cab-sims=A,B`` and ``--cab-tasks=X,Y`` (restrict to these; default: every installed
 one; an unknown name is a usage error listing the installed ones), ``--cab-jobs=N`` (parallel
 attempts of the task checks; default: the number of cores). The items carry the marker
 ``cab_conformance``; ``-k`` selects among them as usual.
@@ -35,11 +36,18 @@ import pytest
 
 from cab_core.testing.selection import GROUPS, NODE, SELECTION, Selection, selection  # noqa: F401
 
+#: the bare ``--cab-conformance`` (no ``=GROUPS``): every group, or the task groups with ``--cab-tasks``
+BARE = "(default)"
+#: the groups whose items are parametrised over tasks: what the bare option runs with ``--cab-tasks``
+TASK_GROUPS = ("tasks", "determinism")
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     g = parser.getgroup("cab", "cab conformance suites (cab_core.testing)")
-    g.addoption("--cab-conformance", nargs="?", const="all", default=None, metavar="GROUPS",
+    g.addoption("--cab-conformance", nargs="?", const=BARE, default=None, metavar="GROUPS",
                 help="add cab's conformance checks over the installed plugins: sims, tasks, determinism "
-                     "or all (comma-separated; default all)")
+                     "or all (comma-separated; bare: all, or with --cab-tasks the task groups "
+                     f"{', '.join(TASK_GROUPS)})")
     g.addoption("--cab-sims", default=None, metavar="A,B",
                 help="only these simulators (default: every installed one)")
     g.addoption("--cab-tasks", default=None, metavar="X,Y",
@@ -70,6 +78,8 @@ def pytest_configure(config: pytest.Config) -> None:
             if config.getoption(opt) is not None:
                 raise pytest.UsageError(f"--{opt.replace('_', '-')} needs --cab-conformance")
         return
+    if value == BARE:  # naming tasks asks about those tasks: not every simulator check as well
+        value = ",".join(TASK_GROUPS) if config.getoption("cab_tasks") is not None else "all"
     groups = _names(value) or []
     unknown = [g for g in groups if g not in (*GROUPS, "all")]
     if unknown or not groups:
