@@ -251,6 +251,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._bodies: dict[str, _MultiBody] = {}
         self._ghosts: list[tuple[_MultiBody, int]] = []  # (body, collision-free body of extra visuals)
         self._texture_ids: dict[str, int] = {}  # image file -> texture id (resetSimulation drops them)
+        self._blank_visual: int | None = None  # the invisible visual shape of links without one
         self._arts: dict[str, _MultiBody] = {}
         self._build_ground(scene)
         for body in scene.bodies:
@@ -354,7 +355,8 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         body still, with each link's mass properties computed from its own shapes. The link structure
         comes from the collision shapes alone, so the physics is the same whether the world renders or
         not; visual shapes beyond 16 per link go to a collision-free ghost body that follows the body
-        when a picture is taken."""
+        when a picture is taken, and a link left without visual shapes shows nothing (never its
+        collision shapes: :meth:`_no_visual`)."""
         if body.kind not in ("static", "dynamic", "kinematic"):
             raise BadCommand(f"body {body.name!r}: unknown kind {body.kind!r}")
         c = self._c
@@ -376,7 +378,8 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             if chunk and cols[-1] < 0:
                 raise SimulatorError(f"body {body.name!r}: a collision shape failed to build (bad mesh?)")
         for chunk in vis_chunks:
-            viss.append(c.createVisualShapeArray(**self._shape_arrays(body, chunk, False)) if chunk else -1)
+            viss.append(c.createVisualShapeArray(**self._shape_arrays(body, chunk, False)) if chunk
+                        else self._no_visual())
         dynamic = body.kind == "dynamic"
         props = self._chunk_props(body, col_chunks) if dynamic else [None] * n
         masses, frames, moments = [], [], []
@@ -425,6 +428,22 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
                 raise SimulatorError(f"body {body.name!r}: PyBullet refused its extra visual shapes")
             self._apply_textures(body, ghost, -1, chunk)
             self._ghosts.append((mb, ghost))
+
+    def _no_visual(self) -> int:
+        """The visual shape index of a link that shows nothing. PyBullet's renderers (TinyRenderer and
+        EGL alike) draw a link given no visual shape (index -1) as its collision shapes, in white: a
+        body's links beyond its first (collision shapes past 16) had their collision boxes drawn over
+        the body's own visual shapes, white, in the same places (white pot handles and wall bands,
+        flickering with the depth order). Such a link gets instead a mesh of one degenerate
+        triangle, which no rasteriser fills. Physics-only worlds render nothing: -1 there."""
+        if not self._render_enabled:
+            return -1
+        if self._blank_visual is None:
+            self._blank_visual = self._c.createVisualShape(pybullet.GEOM_MESH, vertices=[[0.0, 0.0, 0.0]] * 3,
+                                                           indices=[0, 1, 2])
+            if self._blank_visual < 0:
+                raise SimulatorError("PyBullet refused the empty visual shape of a link without visual shapes")
+        return self._blank_visual
 
     def _apply_textures(self, body, uid: int, link: int, shapes: list) -> None:
         """Put each textured shape's image on its visual shape (``shapes``: the link's visual shapes
