@@ -854,6 +854,8 @@ def check_textures(factory: SimFactory) -> None:
             sim.close()
 
 
+from cab_core.testing.appearance_conformance import check_appearance  # noqa: E402 (tasks' colours)
+
 CHECKS: list[Callable[[SimFactory], None]] = [
     check_build_and_names,
     check_seeded_reset_identical,
@@ -868,13 +870,15 @@ CHECKS: list[Callable[[SimFactory], None]] = [
     check_object_api,
     check_render_samples,
     check_textures,
+    check_appearance,
 ]
 
 
 # Checks that render images; the others also run on a physics-only build.
 NEEDS_RENDERER: tuple[Callable[[SimFactory], None], ...] = (check_seeded_reset_identical,
                                                             check_sequential_builds_identical, check_cameras,
-                                                            check_render_samples, check_textures)
+                                                            check_render_samples, check_textures,
+                                                            check_appearance)
 
 
 def check_id(check: Callable) -> str:
