@@ -18,7 +18,7 @@ from typing import Any, Callable, Mapping, NamedTuple
 import pluggy
 
 from cab_core.contracts import hookspecs
-from cab_core.errors import ConfigError, PluginError, closest
+from cab_core.errors import CabError, ConfigError, PluginError, closest
 
 GROUP = "cab"
 KINDS = ("simulators", "planners", "embodiments", "task_suites", "harnesses", "agents",
@@ -149,32 +149,98 @@ def create(kind: str, name: str, cfg: dict | None = None, pm: pluggy.PluginManag
     return reg[name](dict(cfg or {}))
 
 
-def all_tasks(pm: pluggy.PluginManager | None = None) -> dict[str, Any]:
+class _Tasks(NamedTuple):
+    """The installed suites' tasks: ``tasks`` by name (in the suites' order), ``suites`` the names
+    each suite defines (``{suite: [task, ...]}``), ``conflicts`` the one line of each name defined by
+    more than one suite (that name is disabled: in neither ``tasks`` nor a command's choices)."""
+    tasks: dict[str, Any]
+    suites: dict[str, list[str]]
+    conflicts: dict[str, str]
+
+
+def _plugin_label(pm: pluggy.PluginManager, owner: str) -> str:
+    """``plugin P, distribution D`` of a registered plugin (its entry point's distribution)."""
+    dist = next((_dist_name(ep) for ep in metadata.entry_points(group=GROUP) if ep.name == owner), None)
+    return f"plugin {owner}, distribution {dist}" if dist else f"plugin {owner}"
+
+
+def _load_suite(suite: str, loader: Callable, owner: str, pm: pluggy.PluginManager) -> dict[str, Any]:
+    """A suite's ``{task_name: Task}``; a loader that fails is a :class:`PluginError` of one line
+    naming the suite, its plugin and distribution, the error and how to leave it out."""
+    try:
+        tasks = loader()
+    except Exception as e:
+        error = " ".join((str(e) if isinstance(e, CabError) else f"{type(e).__name__}: {e}").split())
+        raise PluginError(f"task suite {suite!r} ({_plugin_label(pm, owner)}) failed to load its tasks: {error}; "
+                          f"fix it, or disable the plugin with {DISABLE_ENV}={owner}") from e
+    if not isinstance(tasks, Mapping):
+        raise PluginError(f"task suite {suite!r} ({_plugin_label(pm, owner)}): its loader must return "
+                          f"{{task_name: Task}}, got {type(tasks).__name__}")
+    return dict(tasks)
+
+
+def load_suites(pm: pluggy.PluginManager | None = None) -> _Tasks:
+    """Every installed suite's tasks (:class:`_Tasks`). A task name defined by two suites (or more)
+    is disabled, and its one line names the name and each suite with its plugin and distribution;
+    every other task stays available."""
+    pm = pm or plugin_manager()
     tasks: dict[str, Any] = {}
-    for suite, loader in registry("task_suites", pm).items():
-        for name, task in loader().items():
-            if name in tasks:
-                raise PluginError(f"task {name!r} is defined by two suites")
-            tasks[name] = task
-    return tasks
+    suites: dict[str, list[str]] = {}
+    where: dict[str, list[str]] = {}
+    for suite, (loader, owner) in _merged("task_suites", pm).items():
+        loaded = _load_suite(suite, loader, owner, pm)
+        suites[suite] = list(loaded)
+        for name, task in loaded.items():
+            where.setdefault(name, []).append(f"{suite!r} ({_plugin_label(pm, owner)})")
+            tasks.setdefault(name, task)
+    conflicts = {}
+    for name, by in where.items():
+        if len(by) > 1:
+            del tasks[name]
+            count = "two" if len(by) == 2 else str(len(by))
+            conflicts[name] = (f"task {name!r} is defined by {count} suites, {' and '.join(sorted(by))}: it is disabled "
+                               f"until one of them is uninstalled or disabled ({DISABLE_ENV}=<plugin>); "
+                               "every other task works")
+    return _Tasks(tasks, suites, conflicts)
+
+
+def all_tasks(pm: pluggy.PluginManager | None = None) -> dict[str, Any]:
+    """``{name: Task}`` of every installed suite, in the suites' order; a name two suites define
+    is left out (:func:`load_suites`)."""
+    return load_suites(pm).tasks
 
 
 @lru_cache(maxsize=1)
-def _installed_tasks() -> dict[str, Any]:
-    return all_tasks()
+def _installed_tasks() -> _Tasks:
+    """The installed suites' tasks, loaded once per process (``cache_clear`` reloads them)."""
+    return load_suites()
 
 
 def task_names() -> list[str]:
-    """Names of the installed suites' tasks, in the suites' order (loaded once per process)."""
-    return list(_installed_tasks())
+    """Names of the installed suites' tasks, in the suites' order (loaded once per process); a name
+    two suites define is not among them (:func:`task_conflict`)."""
+    return list(_installed_tasks().tasks)
+
+
+def task_conflict(name: str) -> PluginError | None:
+    """The error of task ``name`` when two installed suites define it (it is disabled), else None."""
+    line = _installed_tasks().conflicts.get(name)
+    return None if line is None else PluginError(line)
+
+
+def unknown_task(name: str, choices: str) -> CabError:
+    """The one line for a task name that is not among the installed tasks: the conflict when two
+    suites define it (:func:`task_conflict`), else ``unknown task ...`` followed by ``choices``."""
+    return task_conflict(name) or ConfigError(f"unknown task {name!r}; {choices}")
 
 
 def task_info(name: str):
     """The :class:`~cab_core.contracts.task.TaskInfo` of installed task ``name`` (its suite's ``Task.info``).
-    An unknown name raises :class:`ConfigError` listing the choices."""
-    tasks = _installed_tasks()
+    An unknown name raises :class:`ConfigError` listing the choices; a name two suites define, the
+    :class:`PluginError` naming both."""
+    tasks = _installed_tasks().tasks
     if name not in tasks:
-        raise ConfigError(f"unknown task {name!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")
+        raise unknown_task(name, f"choices: {', '.join(sorted(tasks)) or '(none installed)'}")
     return tasks[name].info
 
 
@@ -195,8 +261,11 @@ def config_dirs(pm: pluggy.PluginManager | None = None) -> list[str]:
 
 def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
     """Installed plugins, their distribution versions and what each provides; a plugin disabled
-    with ``CAB_DISABLE_PLUGINS`` is listed with ``disabled: True`` and provides nothing."""
+    with ``CAB_DISABLE_PLUGINS`` is listed with ``disabled: True`` and provides nothing. A plugin
+    with task suites lists each suite's tasks (``tasks``: ``{suite: [task, ...]}``) and the one line
+    of each of those names another suite defines too (``task_conflicts``: ``{task: line}``)."""
     pm = pm or plugin_manager()
+    suites = load_suites(pm)
     dists = {}
     disabled = []
     for ep in metadata.entry_points(group=GROUP):
@@ -216,8 +285,13 @@ def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
                     provides[kind] = sorted((impl.function() or {}).keys())
         hooks = sorted(h.name for h in pm.get_hookcallers(plugin) or [])
         dist, ver = dists.get(name, ("(registered in code)", ""))
-        rows.append({"plugin": name, "distribution": dist, "version": ver, "provides": provides, "hooks": hooks,
-                     "disabled": False})
+        row = {"plugin": name, "distribution": dist, "version": ver, "provides": provides, "hooks": hooks,
+               "disabled": False}
+        if provides.get("task_suites"):
+            row["tasks"] = {s: suites.suites.get(s, []) for s in provides["task_suites"]}
+            row["task_conflicts"] = {t: suites.conflicts[t] for ts in row["tasks"].values() for t in ts
+                                     if t in suites.conflicts}
+        rows.append(row)
     for name in disabled:
         dist, ver = dists[name]
         rows.append({"plugin": name, "distribution": dist, "version": ver, "provides": {}, "hooks": [],

@@ -204,11 +204,22 @@ def plugins_main() -> None:
     if a.json:
         print(json.dumps(rows, indent=2))
         return
+    import textwrap
+
+    conflicts: dict[str, str] = {}
     for r in rows:
         print(f"{r['plugin']:<22} {r['distribution']} {r['version']}" + ("  (disabled)" if r["disabled"] else ""))
         for kind, names in r["provides"].items():
             if names:
                 print(f"    {kind:<18} {', '.join(names)}")
+        for suite, tasks in (r.get("tasks") or {}).items():  # each suite's tasks; a name two suites define: disabled
+            conflicts.update(r.get("task_conflicts") or {})
+            listed = [f"{t} (disabled)" if t in conflicts else t for t in tasks]
+            label = f"    {'tasks of ' + suite:<18} "
+            print(textwrap.fill(", ".join(listed) or "(none)", width=100, initial_indent=label,
+                                subsequent_indent=" " * len(label), break_on_hyphens=False))
+    for line in conflicts.values():
+        print(f"disabled: {line}")
 
 
 def schemas_main() -> None:

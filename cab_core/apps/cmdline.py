@@ -180,6 +180,11 @@ def check_command_line(argv: list[str]):
                 continue
             for v in values:
                 if v not in options:
+                    if key == "task":  # a name two suites define: say so, not "unknown"
+                        from cab_core.plugins import task_conflict
+
+                        if (conflict := task_conflict(v)) is not None:
+                            raise conflict
                     near = closest(v, options)
                     hint = f"did you mean {' or '.join(near)}?" if near else f"valid: {', '.join(options)}"
                     raise ConfigError(f"unknown {key} {v!r}; {hint}")

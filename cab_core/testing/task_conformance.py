@@ -80,6 +80,50 @@ def recorded_margins_agree(row: dict) -> None:
         assert row["margin"] == d["fraction"], (row["margin"], d)
 
 
+def _number(v: float) -> str:
+    return f"{v:.4g}"
+
+
+def _predicate_line(name: str, m: dict | None) -> str:
+    """``name false: measured M unit, threshold T unit, margin S unit (F of its tolerance)``; without
+    a threshold (an event: a contact exists), ``name false (no threshold)``."""
+    if not m:
+        return f"{name} false (no threshold)"
+    unit = f" {m['unit']}" if m.get("unit") else ""
+    parts = []
+    if m.get("measured") is not None:
+        parts.append(f"measured {_number(m['measured'])}{unit}")
+    if m.get("threshold") is not None:
+        parts.append(f"threshold {_number(m['threshold'])}{unit}")
+    parts.append(f"margin {m['slack']:+.4g}{unit} ({m['fraction']:+.0%} of its tolerance)")
+    return f"{name} false: {', '.join(parts)}"
+
+
+def failing_predicates(verdict: dict) -> str:
+    """What made a verdict fail, in one line: each failing predicate (the task's, its final
+    requirements, its guard) with its measured value, threshold and margin as the verdict records
+    them; a latch task whose event never latched says so first. Empty when no predicate failed."""
+    parts = []
+    if verdict.get("error"):
+        parts.append(f"scoring failed: {verdict['error']}")
+    latch = verdict.get("latch") or {}
+    if verdict.get("scoring") == "latch" and not latch.get("latched"):
+        parts.append("the event never latched")
+    margins = verdict.get("margins") or {}
+    for group in ("predicates", "final_requirements", "guard"):
+        for name, ok in (verdict.get(group) or {}).items():
+            if not ok:
+                parts.append(_predicate_line(name, margins.get(name)))
+    return "; ".join(parts)
+
+
+def _verdict(row: dict) -> dict:
+    try:
+        return json.loads((Path(row["dir"]) / "result.json").read_text())["verdict"] or {}
+    except (OSError, ValueError, KeyError, TypeError):  # no record to read: the row's own words only
+        return {}
+
+
 def _ran(res: PairResult, agent: str) -> dict:
     row = res.rows.get(agent)
     assert row is not None, f"{res.task} on {res.sim}: the {agent} attempt did not run"
@@ -92,7 +136,10 @@ def check_pair(res: PairResult) -> None:
     subgoal satisfied at the start; both record consistent margins."""
     where = f"{res.task} on {res.sim}"
     o = _ran(res, "oracle")
-    assert o["success"], f"{where}: the oracle failed ({o['termination']}); records in {o['dir']}"
+    if not o["success"]:
+        why = failing_predicates(_verdict(o))
+        raise AssertionError(f"{where}: the oracle failed ({o['termination']})" + (f": {why}" if why else "")
+                             + f"; records in {o['dir']}")
     assert o["calls"] <= o["calls_limit"], f"{where}: the oracle used {o['calls']} calls of {o['calls_limit']}"
     assert o["sim_s"] <= o["sim_s_limit"], f"{where}: the oracle used {o['sim_s']} simulated s of {o['sim_s_limit']}"
     assert all(o["subgoals"]), f"{where}: subgoals attained by the oracle: {o['subgoals']}"

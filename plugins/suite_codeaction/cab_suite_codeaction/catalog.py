@@ -51,6 +51,11 @@ def task_names() -> list[str]:
     return [t["name"] for t in _load()["tasks"]]
 
 
+def has_catalog_entry(name: str) -> bool:
+    """Whether the catalog has an entry ``name``."""
+    return any(t["name"] == name for t in _load()["tasks"])
+
+
 def task_info(name: str) -> TaskInfo:
     """The catalog entry of task ``name`` (a fresh object each call). Unknown names raise
     :class:`ConfigError` listing the choices."""

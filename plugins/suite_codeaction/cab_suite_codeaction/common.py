@@ -16,13 +16,13 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule
-from cab_core.errors import CabError
+from cab_core.errors import CabError, PluginError
 from cab_core.geometry import euler_quat, quat_mul, quat_normalize, quat_to_mat
 from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Lighting, Material, Mesh, SceneSpec, Shape, Sphere, cache_dir
 from cab_core.contracts.task import SceneInstance, Task, TaskInfo, ToolCaller, rng_for
 from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_all
 
-from .catalog import task_info
+from .catalog import has_catalog_entry, task_info
 
 # --- world constants (FACTS B.2) ---------------------------------------------------------------
 TABLE_TOP_Z = 0.74
@@ -388,7 +388,10 @@ def _body_radius(body: Body) -> float:
 class CodeActionTask(Task):
     """A catalog task of this suite: ``name`` selects the catalog entry (instruction, seed,
     scoring, budgets); unless a subclass sets it, it is the name of the subclass's module (the
-    suite's task modules are named after their catalog entries). A task lays out its objects on
+    suite's task modules are named after their catalog entries). A task of another package that
+    reuses this class declares its own metadata, ``info = TaskInfo(...)`` on its class (or
+    ``self.info`` set in its own ``__init__``); one that does neither, and whose name is not in
+    the catalog, is refused in one line saying so. A task lays out its objects on
     the base scene (``lay_out``), names its verifier (``verifier_class``) and its subgoals'
     predicates (``subgoal_predicates``), and writes its reference solution (``oracle``)."""
 
@@ -411,6 +414,18 @@ class CodeActionTask(Task):
             cls.name = cls.__module__.rsplit(".", 1)[-1]
 
     def __init__(self) -> None:
+        declared = getattr(type(self), "info", None)
+        if isinstance(declared, TaskInfo):  # a task outside the catalog declares its own metadata
+            self.info = declared
+            return
+        if not has_catalog_entry(self.name):
+            cls = type(self)
+            raise PluginError(
+                f"task {self.name!r} ({cls.__module__}.{cls.__qualname__}, a CodeActionTask) has no metadata: "
+                "the suite's catalog, which gives its own tasks theirs, has no entry of that name; declare it "
+                "on the class as info = TaskInfo(name=..., instruction=..., seed=..., scoring=..., "
+                "budget_tool_calls=..., budget_sim_s=...) (cab_core.contracts.task; or set self.info in "
+                "__init__, as examples/block_on_pad does)")
         self.info: TaskInfo = task_info(self.name)
 
     def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
