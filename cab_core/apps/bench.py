@@ -116,7 +116,7 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
     raw = {"step_rate_hz": 1.0 / raw_step, "realtime_factor_physics_only": (1.0 / raw_step) * dt,
            "render_head_p50_ms": 1e3 * _pct(rs, 50)}
     versions = ep.versions()
-    video = ep.finish().get("video") or {}  # the attempt's video: rendered now, from the motion's samples
+    video = ep.finish_video().get("video") or {}  # the attempt's video: rendered now, from the motion's samples
     ep.close()
     if video.get("render_seconds") is not None:
         motion["video_after_attempt_s_per_sim_s"] = video["render_seconds"] / max(sim_s, 1e-9)

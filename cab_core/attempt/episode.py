@@ -11,8 +11,8 @@
 see only tool results."""
 from __future__ import annotations
 
+import logging
 import time
-import traceback
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,8 @@ from cab_core.tools import build_registry
 from cab_core.tools.context import ObservationStore, RobotContext
 
 __all__ = ["AttemptSpec", "Episode", "RECORD_CAMERA", "ToolResponse"]
+
+log = logging.getLogger("cab")
 
 
 class Episode:
@@ -96,6 +98,8 @@ class Episode:
             self.clock.callbacks.append(self.verdict.poll)
         self._video_samples: list | None = None
         self._video_render_seconds: float | None = None
+        self._video_error: str | None = None
+        self._records_complete = False  # finish_video() has run
         if self._video_every:
             self.recorder.open_video(1.0 / (self.sim.timestep * self._video_every), video_size)
             first = self.sim.render_sample()
@@ -126,19 +130,36 @@ class Episode:
         if step % self._video_every == 0 and self._video_samples is not None:
             self._video_samples.append(self.sim.render_sample())
 
-    def _render_video(self) -> None:
+    def _render_video(self) -> str | None:
         """The frames of the samples taken during the attempt, rendered and encoded now that its
         physics is over: the same frames the loop would have rendered, bit for bit
-        (:meth:`Simulator.render_samples`), and the world is left as it was."""
+        (:meth:`Simulator.render_samples`), and the world is left as it was. Returns what went
+        wrong (the frames rendered until then are kept), None when nothing did."""
         samples, self._video_samples = self._video_samples, None
         if not samples or self.recorder.video is None:
-            return
+            return None
         t0 = time.monotonic()
         try:
             self.sim.render_samples(RECORD_CAMERA, samples, self.recorder.video.add)
         except Exception as e:  # never lose the attempt because its video failed
-            self.recorder.event("video_error", error=repr(e), traceback=traceback.format_exc())
-        self._video_render_seconds = time.monotonic() - t0
+            log.warning("the video could not be rendered: %r", e)
+            return f"rendering failed: {e!r}"
+        finally:
+            self._video_render_seconds = time.monotonic() - t0
+        return None
+
+    def _video_block(self, error: str | None = None) -> dict | None:
+        """``result.json``'s ``video``: the file once it is complete under its name, else None."""
+        video = self.recorder.video
+        if video is None or not video.closed:
+            return None
+        block = {"file": "video.mp4", "frames": video.frames, "every_steps": self._video_every,
+                 "rendered": "in the loop" if self._video_render_seconds is None else "after the attempt",
+                 "render_seconds": None if self._video_render_seconds is None
+                 else round(self._video_render_seconds, 3)}
+        if error is not None:
+            block["error"] = error
+        return block
 
     def _snapshot(self, label: str) -> None:
         """A privileged snapshot of the world for the record (never for the agent)."""
@@ -183,7 +204,10 @@ class Episode:
         self._end(reason, detail)
 
     def finish(self) -> dict:
-        """Score and write ``result.json`` (atomically). Idempotent."""
+        """Score and write ``result.json`` (atomically): the verdict is recorded when this returns,
+        so a harness answers ``done`` right after it. A video rendered from the attempt's samples
+        is not written yet (``video`` is null until then): :meth:`finish_video` renders it, after
+        the answer, and writes ``result.json`` again with it; :meth:`close` calls it. Idempotent."""
         if self.result is not None:
             return self.result
         if not self.ended:
@@ -193,10 +217,11 @@ class Episode:
         except Exception as e:  # never lose the attempt because scoring failed
             verdict = {"success": False, "error": repr(e)}
         self._snapshot("end")
-        self._render_video()
         checkpoints = attempt_checkpoints(self.built, self.out, verdict)
         self.server.close()
-        s, video = self.spec, self.recorder.video
+        if self.recorder.video is not None and not self._video_samples:
+            self._close_video()  # frames rendered in the loop: the video is complete now
+        s = self.spec
         fields = dict(
             record_version=RECORD_VERSION,
             task=s.task, seed=s.seed, attempt=s.attempt, sim=s.sim, embodiment=s.embodiment,
@@ -219,10 +244,7 @@ class Episode:
                      "note": getattr(self.sandbox, "confinement_note", None)},
             versions=self.versions(),
             checkpoints=checkpoints,
-            video={"file": "video.mp4", "frames": video.frames, "every_steps": self._video_every,
-                   "rendered": "in the loop" if self._video_render_seconds is None else "after the attempt",
-                   "render_seconds": None if self._video_render_seconds is None
-                   else round(self._video_render_seconds, 3)} if video else None,
+            video=self._video_block(self._video_error),
         )
         try:
             self.record = AttemptRecord.build(**fields)
@@ -231,16 +253,50 @@ class Episode:
             self.recorder.event("record_invalid", problems=e.problems)
             self.result = {k: v for k, v in fields.items() if not (v is None and k in AttemptRecord.omit_if_none)}
         self.recorder.event("attempt_end", termination=self.termination, claim=self.claim)
-        self.recorder.finish(self.result)
+        self.recorder.write_result(self.result)
         return self.result
+
+    def _close_video(self, error: str | None = None) -> None:
+        try:
+            self.recorder.video.close()
+        except Exception as e:  # the encoder failed: no video is listed, the record is kept
+            log.warning("the video could not be written: %r", e)
+            error = error or f"encoding failed: {e!r}"
+        self._video_error = error
+
+    def finish_video(self) -> dict:
+        """What may wait until ``done`` is answered: the video rendered from the attempt's samples,
+        then ``result.json`` written again (atomically) with it listed, and the record observers'
+        ``on_result``. An interruption or a failure while rendering keeps the verdict: the frames
+        rendered until then are listed with the error. Idempotent; :meth:`finish` first if needed."""
+        result = self.finish()
+        if self._records_complete:
+            return result
+        self._records_complete = True
+        error = "interrupted"
+        try:
+            error = self._render_video()
+        finally:
+            if self.recorder.video is not None and not self.recorder.video.closed:
+                self._close_video(error)
+            block = self._video_block(self._video_error)
+            if block is not None and block["render_seconds"] is None:
+                del block["render_seconds"]  # as the record writes it (Video.omit_if_none)
+            result["video"] = block  # in place: the dict finish() returned is the record's
+            if self.record is not None:
+                try:
+                    self.record = AttemptRecord.build(**result)
+                except MalformedRecord as e:  # cannot be from the video block alone; kept as written
+                    log.warning("result.json with its video is not a valid record: %s", e)
+            self.recorder.finish(result)
+        return result
 
     def versions(self) -> dict:
         return versions(self.sim, self.planner)
 
     def close(self) -> None:
         try:
-            if self.result is None:
-                self.finish()
+            self.finish_video()
         finally:
             close_quietly(self.sim)
 

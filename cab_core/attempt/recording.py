@@ -22,14 +22,18 @@ from cab_core.attempt.observers import Observers
 from cab_core.attempt.record import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
 
 class VideoWriter:
-    """H.264 MP4 through imageio-ffmpeg, frames pushed as they are rendered."""
+    """H.264 MP4 through imageio-ffmpeg, frames pushed as they are rendered. The frames go to
+    ``<stem>.partial.mp4`` until :meth:`close`, which renames it to ``path``: a video file under its
+    own name is always complete (a process that dies while rendering leaves only the partial one)."""
 
     def __init__(self, path: Path, fps: float, size_wh: tuple[int, int]):
         import imageio_ffmpeg
 
         self.path = path
+        self.part = path.with_suffix(".partial" + path.suffix)
         self.frames = 0
-        self._gen = imageio_ffmpeg.write_frames(str(path), size_wh, fps=fps, codec="libx264",
+        self.closed = False
+        self._gen = imageio_ffmpeg.write_frames(str(self.part), size_wh, fps=fps, codec="libx264",
                                                 quality=None, bitrate=None, macro_block_size=8,
                                                 output_params=["-crf", "23", "-preset", "veryfast"],
                                                 ffmpeg_log_level="error")
@@ -40,11 +44,14 @@ class VideoWriter:
         self.frames += 1
 
     def close(self) -> None:
+        """Finish the file and give it its name (idempotent)."""
         if self._gen is not None:
             try:
                 self._gen.close()
             finally:
                 self._gen = None
+            self.part.replace(self.path)
+            self.closed = True
 
 
 class Recorder:
@@ -112,18 +119,29 @@ class Recorder:
         self.video = VideoWriter(self.root / "video.mp4", fps, size_wh)
 
     # -- end ----------------------------------------------------------------------------------
+    def write_result(self, result: dict) -> None:
+        """The verdict's record: ``result.json`` (atomically) and the end of the event and snapshot
+        logs. The video and the observers may follow (:meth:`finish`)."""
+        write_json_atomic(self.root / "result.json", result)
+        self._close_logs()
+
     def finish(self, result: dict) -> None:
+        """The complete record: the video closed, ``result.json`` written again (atomically) when
+        :meth:`write_result` wrote it before, the observers' ``on_result``; everything closed."""
         if self.video is not None:
             self.video.close()
         write_json_atomic(self.root / "result.json", result)
         self.observers.dispatch("on_result", dumps(result))  # a fault is logged (the record is complete)
         self.close()
 
-    def close(self) -> None:
+    def _close_logs(self) -> None:
         for f in (self._events, self._snap):
             try:
                 f.close()
             except Exception:
                 pass
+
+    def close(self) -> None:
+        self._close_logs()
         if self.video is not None:
             self.video.close()

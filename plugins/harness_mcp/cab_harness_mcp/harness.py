@@ -9,9 +9,12 @@ budgets, which the episode itself enforces:
 - the wall-clock budget runs out while the client is thinking (``wall_budget``);
 - the operator interrupts cab (``interrupted``).
 
-Whatever the ending, ``result.json`` is written at once; the server then keeps answering for
-``linger_s`` (every call gets "the attempt has ended") so the client can read the last result, and
-stops. The attempt's records are the same as under the reference harness, plus ``mcp_*`` events.
+Whatever the ending, ``result.json`` is written at once (the verdict: ``done`` is answered right
+after it); then the video is rendered from the attempt's samples, while the server keeps answering
+(every call gets "the attempt has ended" at once), and ``result.json`` is written again with the
+video. The server stops when its client has gone: stdio closed, or over HTTP every MCP session ended
+by its client (the DELETE of session termination); at the latest ``linger_s`` after the last
+answer (and the video). The attempt's records are the same as under the reference harness, plus ``mcp_*`` events.
 
 Who played: every client identity of the MCP handshake (``clientInfo`` name and version, per MCP
 session) is recorded as an ``mcp_client`` event when first seen and in ``result.json``'s ``agent``
@@ -247,7 +250,8 @@ class McpHarness:
     def _serve(self, episode: AttemptSession, bridge: CallBridge, transport: ServerThread) -> None:
         s = self.settings
         ended_at: float | None = None
-        finished_at = 0.0
+        answered_at = 0.0  # when the last call was answered after the record was written
+        video_done = False
         while True:
             job = bridge.next(timeout=0.05)
             self._note_clients(episode)  # before the call: a client is recorded before its first call
@@ -256,6 +260,7 @@ class McpHarness:
                 reason = self._ending(episode, bridge, transport)
                 if reason is not None:
                     episode.end(*reason)
+            late: list[Job] = []
             if episode.ended:
                 now = time.monotonic()
                 if ended_at is None:
@@ -265,12 +270,30 @@ class McpHarness:
                 if episode.result is None and self.ready_to_finish(now - ended_at):
                     self.before_finish(episode)
                     episode.finish()  # result.json now, not when the client finally lets go; closes the records
-                    finished_at = now
+                    late = bridge.close(tool_result({"error": f"the attempt has ended ({episode.termination['reason']})",
+                                                     "attempt_ended": True}))
             if job is not None:  # answered after the record is written, when the call ended the attempt
                 job.future.set_result(answer)
-            if episode.result is not None and (transport.finished or (
-                    time.monotonic() - finished_at >= s.linger_s and bridge.pending() == 0)):
+            for queued in late:  # calls that came before the record was written
+                queued.future.set_result(self._execute(episode, queued))
+            if episode.result is None:
+                continue
+            if job is not None or late or not answered_at:
+                answered_at = time.monotonic()
+            if not video_done:
+                video_done = True
+                finish_video = getattr(episode, "finish_video", None)  # an AttemptSession may have none
+                if finish_video is not None:
+                    finish_video()  # the video, after the answer; the server answers later calls meanwhile
+                    answered_at = time.monotonic()
+            if transport.finished or self._client_gone(transport) or time.monotonic() - answered_at >= s.linger_s:
                 break
+
+    @staticmethod
+    def _client_gone(transport: ServerThread) -> bool:
+        """Over HTTP: every MCP session opened has been ended by its client (DELETE), so nobody
+        waits for an answer. On stdio the client is gone when the transport has finished."""
+        return isinstance(transport, HttpServerThread) and transport.open_sessions == 0
 
     def _ending(self, episode: AttemptSession, bridge: CallBridge, transport: ServerThread) -> tuple[str, str] | None:
         s = self.settings

@@ -8,6 +8,14 @@ nothing but protocol frames reaches stdout). The framing (newline-delimited JSON
 package's own rather than the SDK's ``stdio_server`` for one reason: a line that is not JSON, or not
 a JSON-RPC message, is answered with a JSON-RPC error (-32700 parse error, -32600 invalid request)
 instead of being dropped silently, and the session goes on.
+
+Ids. MCP allows a string or an integer as the id of a request or a response, never null (JSON-RPC
+2.0 also allows null and fractions). The SDK's message types take a message whose id is anything
+else (``null``, ``true``, an object, ``1.5``, ``1e308``, ``NaN``, which its JSON parser accepts) for
+a notification with an extra key: over HTTP it answers 202 and nothing else, on stdio nothing at
+all. Both transports check the id first (:func:`malformed_id`) and answer such a message with
+-32600 (Invalid Request) and id null, as JSON-RPC 2.0 asks when the id cannot be taken; over HTTP
+in :class:`JsonRpcGate`, an ASGI layer in front of the SDK's transport (status 400).
 """
 from __future__ import annotations
 
@@ -15,6 +23,7 @@ import asyncio
 import hmac
 import json
 import logging
+import math
 import os
 import secrets
 import socket
@@ -22,6 +31,7 @@ import threading
 
 import anyio
 import mcp_types as types
+import pydantic_core
 from mcp.shared.message import SessionMessage
 
 from cab_core.errors import ConfigError, SimulatorError
@@ -45,6 +55,104 @@ def framing_error(line: str, exc: Exception) -> types.JSONRPCError:
         rid = None
     return types.JSONRPCError(jsonrpc="2.0", id=rid, error=types.ErrorData(
         code=types.INVALID_REQUEST, message=f"Invalid request: not a JSON-RPC 2.0 message ({str(exc)[:200]})"))
+
+
+def _json_kind(v) -> str:
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, float):
+        return "a non-finite number" if not math.isfinite(v) else "a number written with a fraction or an exponent"
+    return {dict: "an object", list: "an array", str: "a string", int: "an integer"}.get(type(v), type(v).__name__)
+
+
+def malformed_id(obj) -> types.JSONRPCError | None:
+    """The -32600 error (id null) for a message whose id MCP does not allow, None for any other
+    message (whatever else is wrong with it is the SDK's to answer). ``obj``: the parsed message."""
+    if not isinstance(obj, dict):
+        what = "a batch (an array)" if isinstance(obj, list) else _json_kind(obj)
+        return types.JSONRPCError(jsonrpc="2.0", id=None, error=types.ErrorData(
+            code=types.INVALID_REQUEST, message=f"Invalid request: a message is a JSON object, not {what}"))
+    if "id" not in obj:
+        return None
+    rid = obj["id"]
+    if isinstance(rid, str) or (isinstance(rid, int) and not isinstance(rid, bool)):
+        return None
+    if rid is None and "error" in obj and "method" not in obj:
+        return None  # JSON-RPC 2.0: an error response whose request's id could not be read
+    kind = _json_kind(rid)
+    return types.JSONRPCError(jsonrpc="2.0", id=None, error=types.ErrorData(
+        code=types.INVALID_REQUEST, message=f"Invalid request: an id must be a string or an integer, not {kind}"))
+
+
+class JsonRpcGate:
+    """ASGI middleware in front of the SDK's streamable HTTP transport: a POST whose message has an
+    id MCP does not allow (:func:`malformed_id`) is answered here with HTTP 400 and the JSON-RPC
+    error; every other request goes on untouched (its body replayed as it came). It also keeps
+    the MCP sessions the SDK opened and those its client ended with DELETE (:attr:`open_sessions`),
+    so that an ended attempt's server can wait for its client to say goodbye."""
+
+    def __init__(self, app, max_body: int = MAX_LINE):
+        self.app = app
+        self.max_body = max_body
+        self._opened: set[str] = set()
+        self._ended: set[str] = set()
+
+    @property
+    def open_sessions(self) -> int:
+        """Sessions opened and not (yet) ended by their client's DELETE."""
+        return len(self._opened - self._ended)
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        method = scope.get("method")
+        if method == "POST":
+            chunks, size, more = [], 0, True
+            while more and size <= self.max_body:
+                message = await receive()
+                if message["type"] != "http.request":  # the client went away
+                    chunks.append(message)
+                    break
+                chunks.append(message)
+                size += len(message.get("body", b""))
+                more = message.get("more_body", False)
+            if not more and chunks and chunks[-1]["type"] == "http.request":
+                try:
+                    obj = pydantic_core.from_json(b"".join(c.get("body", b"") for c in chunks))
+                except ValueError:
+                    obj = {}  # not JSON: the SDK answers -32700
+                error = malformed_id(obj)
+                if error is not None:
+                    log.warning("malformed MCP message over HTTP: %s", error.error.message)
+                    await send({"type": "http.response.start", "status": 400,
+                                "headers": [(b"content-type", b"application/json")]})
+                    await send({"type": "http.response.body",
+                                "body": error.model_dump_json(by_alias=True, exclude_unset=True).encode()})
+                    return
+            receive = self._replay(chunks, receive)
+        session = dict(scope.get("headers") or []).get(b"mcp-session-id", b"").decode("latin-1")
+
+        async def watch(message):
+            if message["type"] == "http.response.start" and message["status"] < 300:
+                if method == "DELETE" and session:
+                    self._ended.add(session)
+                for k, v in message.get("headers") or []:
+                    if k.lower() == b"mcp-session-id":
+                        self._opened.add(v.decode("latin-1"))
+            await send(message)
+
+        await self.app(scope, receive, watch)
+
+    @staticmethod
+    def _replay(chunks: list, receive):
+        pending = list(chunks)
+
+        async def replay():
+            return pending.pop(0) if pending else await receive()
+        return replay
 
 
 class BearerGate:
@@ -150,6 +258,14 @@ class StdioServerThread(ServerThread):
                         await emit(framing_error("", ValueError("line too long")))
                         continue
                     try:
+                        bad_id = malformed_id(pydantic_core.from_json(line))
+                    except ValueError:
+                        bad_id = None  # not JSON: answered -32700 below
+                    if bad_id is not None:
+                        log.warning("malformed MCP frame: %s", bad_id.error.message)
+                        await emit(bad_id)
+                        continue
+                    try:
                         message = types.jsonrpc_message_adapter.validate_json(line, by_name=False)
                     except Exception as e:  # answered, never fatal
                         log.warning("malformed MCP frame: %s", str(e)[:200])
@@ -198,6 +314,7 @@ class HttpServerThread(ServerThread):
         self.port = self._sock.getsockname()[1]
         self._idle = session_idle_timeout
         self._uvicorn = None
+        self.gate: JsonRpcGate | None = None
 
     @property
     def url(self) -> str:
@@ -207,7 +324,7 @@ class HttpServerThread(ServerThread):
     async def _serve(self) -> None:
         import uvicorn
 
-        app = self.server.streamable_http_app(host=self.host, session_idle_timeout=self._idle)
+        app = self.gate = JsonRpcGate(self.server.streamable_http_app(host=self.host, session_idle_timeout=self._idle))
         if self.token is not None:
             app = BearerGate(app, self.token)
         config = uvicorn.Config(app, log_config=None, access_log=False, lifespan="on", timeout_graceful_shutdown=2)
@@ -221,6 +338,11 @@ class HttpServerThread(ServerThread):
         async with anyio.create_task_group() as tg:
             tg.start_soon(mark_ready)
             await self._uvicorn.serve(sockets=[self._sock])
+
+    @property
+    def open_sessions(self) -> int:
+        """MCP sessions opened and not ended by their client (DELETE)."""
+        return self.gate.open_sessions if self.gate is not None else 0
 
     def _request_stop(self) -> None:
         if self._uvicorn is not None:
