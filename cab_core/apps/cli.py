@@ -52,9 +52,31 @@ def _before_task(e: Exception) -> str | None:
 
     if isinstance(e, OSError) and e.filename:
         return f"cannot create the output folder {e.filename} (hydra.run.dir): {e.strerror or e}"
+    cause = e.__cause__ or e.__context__  # Hydra's job log could not be opened (logging.config's ValueError)
+    if isinstance(e, ValueError) and isinstance(cause, OSError) and cause.filename and _RUN_FOLDER is not None:
+        return f"cannot write in the output folder {_RUN_FOLDER[0]} (hydra.run.dir): {cause.strerror or cause}"
     if isinstance(e, (HydraException, OmegaConfBaseException)):
         return one_line(e)
     return None
+
+
+def version_lines() -> list[str]:
+    """``cab --version``: cab's version, then each installed plugin's distribution and version
+    (importlib.metadata, through the plugin registry's entry points)."""
+    from importlib import metadata
+
+    from cab_core.plugins import distribution_versions
+
+    dists = metadata.packages_distributions().get(__package__.split(".")[0], [])
+    core = next(iter(dists), None)
+    try:
+        lines = [f"cab {metadata.version(core)}" if core else "cab (version unknown: not installed)"]
+    except metadata.PackageNotFoundError:
+        lines = ["cab (version unknown: not installed)"]
+    plugins = {d: v for d, v in distribution_versions().items() if d not in dists}
+    lines.append("plugins:" if plugins else "plugins: none installed")
+    lines += [f"  {d} {v}" for d, v in plugins.items()]
+    return lines
 
 
 def main() -> None:
@@ -66,6 +88,9 @@ def main() -> None:
     from cab_core.apps.cmdline import check_command_line, expand_seed_set
     from cab_core.errors import ConfigError, PluginError
 
+    if "--version" in sys.argv[1:]:  # cab's, not Hydra's
+        print("\n".join(version_lines()))
+        return
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
     try:
         sys.argv = [sys.argv[0]] + expand_seed_set(sys.argv[1:])
@@ -134,6 +159,7 @@ def _hydra_entry() -> None:
             print(f"cab: renderer unavailable: {e}", file=sys.stderr)
             sys.exit(3)
         except (ConfigError, MissingDependency) as e:
+            _remove_refused_run_folder(out)
             print(f"cab: {e}", file=sys.stderr)
             sys.exit(2)
         except CabError as e:
@@ -161,6 +187,72 @@ def _sweep_job(cfg, hc) -> None:
     sys.stderr.flush()
 
 
+# The run's output folder as on_run_start found it: (the folder, the deepest of it and its parents
+# that existed then). A refused attempt removes what Hydra created for it (_remove_refused_run_folder).
+_RUN_FOLDER: tuple[str, str] | None = None
+
+
+class RunFolderCallback(Callback):
+    """Hydra callback (``hydra.callbacks.run_folder``): before Hydra creates a single run's output
+    folder, note which of its parents exist (a refused command leaves no folder behind) and refuse,
+    in one line, an existing folder in which no file can be created."""
+
+    def on_run_start(self, config, **kwargs) -> None:
+        global _RUN_FOLDER
+        import os
+        import tempfile
+
+        from omegaconf import OmegaConf
+
+        try:
+            folder = os.path.abspath(str(OmegaConf.select(config, "hydra.run.dir")))
+        except Exception:  # noqa: BLE001  (Hydra says what is wrong with it when it creates the folder)
+            return
+        existing = folder
+        while not os.path.lexists(existing) and os.path.dirname(existing) != existing:
+            existing = os.path.dirname(existing)
+        _RUN_FOLDER = (folder, existing)
+        if existing == folder and os.path.isdir(folder):
+            try:
+                with tempfile.TemporaryFile(dir=folder):
+                    pass
+            except OSError as e:
+                _restore_hydra_full_error()
+                _refuse(f"cannot write in the output folder {folder} (hydra.run.dir): {e.strerror or e}")
+
+
+def _remove_refused_run_folder(out: str) -> None:
+    """After a refusal before the attempt's record began: remove what Hydra created for the run
+    (its job log, its ``.hydra`` folder, the folder and the parents it made), nothing else."""
+    import os
+    import shutil
+    from pathlib import Path
+
+    from hydra.core.hydra_config import HydraConfig
+
+    root = Path(os.path.abspath(out))
+    stop = Path(_RUN_FOLDER[1]) if _RUN_FOLDER is not None else root
+    if stop not in root.parents:
+        return  # the folder existed before this run: it is the user's
+    hc = HydraConfig.get()
+    ours = {f"{hc.job.name}.log", hc.output_subdir or ""} - {""}
+    if any(p.name not in ours for p in root.iterdir()):
+        return  # the attempt's record began
+    for name in ours:  # the job log's handler keeps writing to the removed file, which nothing sees
+
+        p = root / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        elif p.exists():
+            p.unlink(missing_ok=True)
+    while root != stop and stop in root.parents:
+        try:
+            root.rmdir()  # only an empty folder
+        except OSError:
+            return
+        root = root.parent
+
+
 class SweepManifestCallback(Callback):
     """Hydra callback (``hydra.callbacks.sweep_manifest``): before a sweep launches, write its
     manifest or check it against the one already in the sweep directory. Hydra turns callback
@@ -174,6 +266,10 @@ class SweepManifestCallback(Callback):
             SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
         except (SweepConfigChanged, SweepJobsCollide) as e:
             print(f"cab: refused: {e}", file=sys.stderr)
+            sys.exit(2)
+        except OSError as e:  # the sweep folder cannot be created or written: a mistake in the command
+            print(f"cab: cannot write in the sweep folder {config.hydra.sweep.dir} (hydra.sweep.dir): "
+                  f"{e.strerror or e}", file=sys.stderr)
             sys.exit(2)
         except Exception as e:  # a sweep without its manifest cannot be resumed safely: stop
             print(f"cab: cannot write the sweep manifest: {type(e).__name__}: {e}", file=sys.stderr)

@@ -234,6 +234,7 @@ def check_command_line(argv: list[str]):
                 section = cfg[top]
                 option = section.get("name") if top in OPTION_SECTIONS and isinstance(section, dict) else None
                 _check_path(section, parts, option)
+        _check_settings(o, parts)
         if top == "budget" and len(parts) == 2 and parts[1] in BUDGET_KEYS:
             for v in _values(o):
                 if not _interpolated(v):
@@ -243,6 +244,33 @@ def check_command_line(argv: list[str]):
 
             select({"observers": o.value()})  # an observer no plugin registers: refused here
     return args
+
+
+def _override_values(o) -> list:
+    """Every value an override gives, a list value whole (``record.video_size=[320,240]``)."""
+    from hydra.core.override_parser.types import ValueType
+
+    if o.is_delete() or o.value_type == ValueType.GLOB_CHOICE_SWEEP:
+        return []
+    values = list(o.sweep_iterator()) if o.is_sweep_override() else [o.value()]
+    return [v for v in values if not _interpolated(v)]
+
+
+def _check_settings(o, parts: list[str]) -> None:
+    """``seed``, ``attempt``, ``sandbox.*``, ``record.*``: each value of the override against its
+    declared valid values (cab_core.attempt.spec.SETTINGS); one line naming the key and the range."""
+    from cab_core.attempt.spec import SETTINGS
+
+    if len(parts) == 1 and parts[0] in SETTINGS[""].model_fields:
+        for v in _override_values(o):
+            SETTINGS[""].check_value(parts[0], v)
+    elif parts[0] in SETTINGS and parts[0]:
+        model = SETTINGS[parts[0]]
+        for v in _override_values(o):
+            if len(parts) == 2:
+                model.check_value(parts[1], v)
+            elif len(parts) == 1 and isinstance(v, dict):
+                model.check(v)
 
 
 #: what a fork keeps from its parent: groups compared by option name, keys by value
@@ -255,15 +283,20 @@ def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
     perturbation and sandbox: a command line that asks for other ones is refused, naming the
     parent's (the same ones are accepted)."""
     fork_from = next((o for o in keys if o.key_or_group == "fork.from"), None)
+    fork_at = next((o for o in keys if o.key_or_group == "fork.at"), None)
+    if fork_at is not None and fork_at.value() is not None and (fork_from is None or fork_from.value() is None):
+        raise ConfigError("fork.at needs fork.from=<the folder of the attempt to fork>")
     if fork_from is None or fork_from.is_sweep_override() or fork_from.value() is None:
         return
+    if fork_at is None or fork_at.value() is None:
+        raise ConfigError("fork.from needs fork.at=<K>: the charged call of the parent after which the fork starts")
     from cab_core.attempt.fork import ForkPoint
 
-    at = next((o.value() for o in keys if o.key_or_group == "fork.at" and not o.is_sweep_override()), 0)
-    try:
-        parent = ForkPoint.load(fork_from.value(), at if isinstance(at, int) and at >= 0 else 0).config
-    except CabError:
-        return  # the fork itself says what is wrong with its parent, in one line
+    at = fork_at.value() if not fork_at.is_sweep_override() else 0
+    try:  # the parent must be forkable at K (a sweep of K: at its start)
+        parent = ForkPoint.load(fork_from.value(), at).config
+    except CabError as e:  # a parent that cannot be forked: a mistake in the command, one line
+        raise ConfigError(str(e)) from None
     kept = {g: parent.get(g) for g in _FORK_KEPT_GROUPS}
     kept["randomize"] = (parent.get("randomize") or {}).get("name", "none")
     for g, theirs in kept.items():

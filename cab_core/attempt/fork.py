@@ -78,6 +78,11 @@ class ForkPoint:
         d = Path(parent).expanduser()
         if not (d / "events.jsonl").is_file():
             raise ConfigError(f"fork.from={parent}: no attempt there (events.jsonl is missing)")
+        torn = torn_last_line(d / "events.jsonl")
+        if torn:
+            raise RecordError(f"fork.from={parent}: events.jsonl line {torn} is torn (not valid JSON: the attempt was "
+                              "cut off while writing it); the parent's records are incomplete, so it is not forked "
+                              "(remove that line to fork the calls before it)")
         events = read_jsonl(d / "events.jsonl")
         start = next((e for e in events if e.get("kind") == "attempt_start"), None)
         if start is None or not isinstance(start.get("config"), dict):
@@ -113,6 +118,21 @@ class ForkPoint:
     def as_record(self, child: Path) -> dict:
         """``fork`` in the child's config and ``result.json``: the parent relative to the child."""
         return {"parent": relative(self.parent, child), "at": self.at}
+
+
+def torn_last_line(path: Path) -> int:
+    """The number of the last line of an append-only log when it is not valid JSON (a process
+    killed mid-write; :func:`~cab_core.attempt.record.read_jsonl` drops it), else 0."""
+    lines = Path(path).read_text(errors="replace").splitlines()  # a torn multi-byte character included
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        return 0
+    try:
+        json.loads(lines[-1])
+    except ValueError:
+        return len(lines)
+    return 0
 
 
 def relative(path: Path, start: Path) -> str:
