@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationErr
 from pydantic_core import PydanticCustomError
 
 from cab_core.errors import RecordError
+from cab_core.sandbox.truncate import NON_FINITE_KEY, finite_json, non_finite_note
 
 RECORD_VERSION = "cab-record/1"  # what this cab writes
 READABLE_VERSIONS = (RECORD_VERSION,)  # what it reads
@@ -58,7 +59,16 @@ def _json_default(o: Any):
 
 
 def dumps(obj: Any, **kw) -> str:
-    return json.dumps(obj, default=_json_default, **kw)
+    """Strict JSON (what ``jq`` and ``JSON.parse`` read): a NaN or infinity is written as null, and an
+    object gets ``non_finite_as_null`` listing where that happened."""
+    try:
+        return json.dumps(obj, default=_json_default, allow_nan=False, **kw)
+    except ValueError:  # a non-finite number somewhere (or a circular structure, which stays an error)
+        found: list[str] = []
+        clean = finite_json(obj, "", found)
+        if found and isinstance(clean, dict):
+            clean[NON_FINITE_KEY] = non_finite_note(found, clean.get(NON_FINITE_KEY))
+        return json.dumps(clean, default=_json_default, allow_nan=False, **kw)
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:

@@ -52,7 +52,9 @@ import ast
 import json
 import linecache
 import math
+import operator
 import os
+import re
 import resource
 import struct
 import sys
@@ -60,6 +62,10 @@ import traceback
 import types
 
 _HEADER = struct.Struct(">II")
+# The guest's own references for what it sends: bound before any program runs, and in no namespace a
+# program reaches (a program's ``math`` and ``numpy`` are read-only copies, see ``_filtered_module``).
+_json_dumps = json.dumps
+_isfinite = math.isfinite
 _MAX_FRAME = 256 * 1024 * 1024  # the host never sends more than one image plus a JSON reply
 
 
@@ -89,7 +95,8 @@ class _Wire:
         return msg, blob
 
     def send(self, msg: dict) -> None:
-        data = json.dumps(msg, separators=(",", ":")).encode("utf-8")
+        # strict JSON: ``to_jsonable`` already turned every non-finite float into a string
+        data = _json_dumps(msg, separators=(",", ":"), allow_nan=False).encode("utf-8")
         frame = _HEADER.pack(len(data), 0) + data
         view = memoryview(frame)
         while view:
@@ -113,7 +120,13 @@ BANNED_ATTRS = {
     "mro", "ctypes", "ctypeslib", "tofile", "dump", "dumps", "load", "loads", "loadtxt", "fromfile",
     "fromregex", "genfromtxt", "save", "savez", "savez_compressed", "savetxt", "memmap", "DataSource",
     "lib", "core", "testing", "distutils", "f2py", "os", "sys", "modules", "builtins",
+    "byte_bounds", "from_dlpack", "cffi", "capsule", "set_numeric_ops",
 }
+# ndarray attributes that hand out raw bytes or can free memory a view still uses: every load of one
+# goes through the run-time hook (like ``format``), which checks the object it is taken from.
+ARRAY_ATTRS = ("resize", "tobytes", "tostring", "data")
+# Attributes no program assigns or deletes: they re-point an array at other memory or reinterpret it.
+FROZEN_ATTRS = {"data", "strides", "dtype"}
 _BANNED_NODES = {
     ast.ImportFrom: "from-imports are not allowed; use `import numpy` or `import math`",
     ast.ClassDef: "class definitions are not allowed",
@@ -133,6 +146,7 @@ def attr_refused(name: str) -> bool:
 # the AST's sight; every load of an attribute with one of these names goes through this hook.
 FORMAT_METHODS = ("format", "format_map")
 FORMAT_HOOK = "__cab_format_attr__"  # a name the program cannot write: it starts with "__"
+HOOKED_ATTRS = FORMAT_METHODS + ARRAY_ATTRS  # every load of one of these goes through the hook
 # str.format expands a spec's fields two levels deep and refuses ("Max string recursion exceeded")
 # before parsing a third; the check looks one level further and no deeper.
 _FORMAT_LEVELS = 3
@@ -221,6 +235,9 @@ def check_tree(tree: ast.AST) -> list[str]:
         elif isinstance(node, ast.Attribute):
             if attr_refused(node.attr):
                 problems.append(f"line {line}: access to attribute '.{node.attr}' is not allowed")
+            elif node.attr in FROZEN_ATTRS and isinstance(node.ctx, (ast.Store, ast.Del)):
+                problems.append(f"line {line}: assigning or deleting '.{node.attr}' is not allowed (it would "
+                                "re-point or reinterpret an array's memory); use .astype(), .view() or np.array()")
         elif isinstance(node, ast.Name):
             if node.id in BANNED_NAMES or node.id.startswith("__"):
                 problems.append(f"line {line}: name '{node.id}' is not allowed")
@@ -232,8 +249,11 @@ def check_tree(tree: ast.AST) -> list[str]:
                 elif attr in FORMAT_METHODS:  # would bind the raw method, past the format hook
                     problems.append(f"line {line}: class pattern keyword '{attr}' is not allowed; "
                                     f"call .{attr}() on the string instead")
+                elif attr in ARRAY_ATTRS:  # would bind the raw attribute, past the hook
+                    problems.append(f"line {line}: class pattern keyword '{attr}' is not allowed; "
+                                    f"use .{attr} on the array instead")
         elif (isinstance(node, ast.AugAssign) and isinstance(node.target, ast.Attribute)
-              and node.target.attr in FORMAT_METHODS):  # loads the raw method, past the hook
+              and node.target.attr in HOOKED_ATTRS):  # loads the raw attribute, past the hook
             problems.append(f"line {line}: augmented assignment to '.{node.target.attr}' is not allowed")
         for name in _bound_identifiers(node):
             if name.startswith("__"):
@@ -281,9 +301,55 @@ def _checked_unbound(descriptor):
     return checked
 
 
+_real_np = None  # the guest's numpy, once the Runner imported it (the hook checks arrays against it)
+
+
+def _array_method(arr, name: str, value):
+    """``arr.resize`` that keeps numpy's reference check; ``tobytes``/``tostring``/``data`` of arrays
+    that hold no Python objects (those of an object array are the objects' addresses)."""
+    if name == "resize":
+        def resize(*args, **kwargs):
+            if not kwargs.pop("refcheck", True):
+                raise SandboxPolicyError("ndarray.resize(refcheck=False) is not allowed: a view of the array "
+                                         "would be left pointing at freed memory")
+            return value(*args, refcheck=True, **kwargs)
+
+        resize.__name__ = resize.__qualname__ = "resize"
+        resize.__doc__ = value.__doc__
+        return resize
+    if arr.dtype.hasobject:
+        raise SandboxPolicyError(f"'.{name}' of an array of Python objects is not allowed (its bytes are the "
+                                 "objects' addresses)")
+    return value
+
+
+def _array_attr(obj, name: str):
+    value = getattr(obj, name)
+    nd = _real_np.ndarray if _real_np is not None else None
+    if nd is None:
+        return value
+    if isinstance(obj, nd):
+        return _array_method(obj, name, value)
+    if isinstance(value, types.MethodDescriptorType) and issubclass(value.__objclass__, nd):
+        descriptor = value  # np.ndarray.resize, np.matrix.tobytes, ...: checked for the array it is given
+
+        def unbound(*args, **kwargs):
+            if not args or not isinstance(args[0], nd):
+                return descriptor(*args, **kwargs)  # numpy's own TypeError
+            return _array_method(args[0], name, getattr(args[0], name))(*args[1:], **kwargs)
+
+        unbound.__name__ = unbound.__qualname__ = name
+        unbound.__doc__ = descriptor.__doc__
+        return unbound
+    return value
+
+
 def format_attr(obj, name: str):
-    """What the program gets for ``obj.format`` / ``obj.format_map`` (the AST is rewritten to call
-    this). String formatting methods come back checked; anything else is the attribute itself."""
+    """What the program gets for ``obj.format`` / ``obj.format_map`` and for the ndarray attributes of
+    ``ARRAY_ATTRS`` (the AST is rewritten to call this). String formatting methods come back checked,
+    array methods guarded (``_array_method``); anything else is the attribute itself."""
+    if name in ARRAY_ATTRS:
+        return _array_attr(obj, name)
     value = getattr(obj, name)
     if value is str.format or value is str.format_map:  # str.format, np.str_.format, ...
         return _checked_unbound(value)
@@ -304,7 +370,7 @@ class _FormatHook(ast.NodeTransformer):
 
     def visit_Attribute(self, node: ast.Attribute):
         self.generic_visit(node)
-        if node.attr not in FORMAT_METHODS or not isinstance(node.ctx, ast.Load):
+        if node.attr not in HOOKED_ATTRS or not isinstance(node.ctx, ast.Load):
             return node
         call = ast.Call(func=ast.Name(FORMAT_HOOK, ast.Load()), args=[node.value, ast.Constant(node.attr)],
                         keywords=[])
@@ -327,7 +393,7 @@ _NP_DENY = {
     "fromfile", "fromregex", "memmap", "DataSource", "recfromcsv", "recfromtxt", "ctypeslib", "info",
     "source", "lookfor", "who", "show_config", "show_runtime", "get_include", "test", "safe_eval",
     "deprecate", "deprecate_with_doc", "add_newdoc", "add_docstring", "add_newdoc_ufunc", "disp",
-    "set_string_function", "seterrcall", "geterrcall",
+    "set_string_function", "seterrcall", "geterrcall", "byte_bounds", "from_dlpack", "set_numeric_ops",
 }
 _NP_MODULES = {
     "numpy.linalg", "numpy.random", "numpy.fft", "numpy.polynomial", "numpy.lib.scimath",
@@ -336,20 +402,123 @@ _NP_MODULES = {
 }
 
 
+class ReadOnlyModule(types.ModuleType):
+    """The program's own ``math``, ``numpy`` and numpy submodules: copies it reads but cannot change,
+    so a program's patch (``math.isfinite = ...``) never reaches the modules the guest itself uses."""
+
+    def __setattr__(self, name, value):
+        raise SandboxPolicyError(f"module '{self.__name__}' is read-only in run_code; bind a name of your own "
+                                 "instead")
+
+    def __delattr__(self, name):
+        raise SandboxPolicyError(f"module '{self.__name__}' is read-only in run_code")
+
+
+class GuardedClass(type):
+    """What a program gets for an ndarray class (``np.ndarray``, ``np.recarray``, ``np.chararray``):
+    ``isinstance``, ``issubclass``, class patterns and the public attributes are the real class's;
+    calling it goes through a constructor that takes no raw buffer, negative offset or strides."""
+
+    def __instancecheck__(cls, obj):
+        return isinstance(obj, cls._cab_real)
+
+    def __subclasscheck__(cls, sub):
+        return issubclass(sub._cab_real if isinstance(sub, GuardedClass) else sub, cls._cab_real)
+
+    def __call__(cls, *args, **kwargs):
+        return cls._cab_new(*args, **kwargs)
+
+    def __getattr__(cls, name):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(cls._cab_real, name)
+
+    def __repr__(cls):
+        return repr(cls._cab_real)
+
+
+def _guarded(real, new):
+    return GuardedClass(real.__name__, (), {"_cab_real": real, "_cab_new": staticmethod(new),
+                                            "__doc__": real.__doc__, "__module__": real.__module__})
+
+
+def _object_bytes_refused(real):
+    def new(*args, **kwargs):
+        if args and _real_np is not None and isinstance(args[0], _real_np.ndarray) and args[0].dtype.hasobject:
+            raise SandboxPolicyError(f"{real.__name__}() of an array of Python objects is not allowed (its bytes are "
+                                     "the objects' addresses)")
+        return real(*args, **kwargs)
+
+    new.__name__ = new.__qualname__ = real.__name__
+    return new
+
+
+def _raw_memory(np) -> dict:
+    """numpy's names that take a raw buffer, an offset or strides, or hand out uninitialised memory,
+    replaced by checked versions: no array a program makes can see outside the bytes it was given."""
+    real_nd, real_frombuffer, real_rec, real_char = np.ndarray, np.frombuffer, np.recarray, np.chararray
+
+    def frombuffer(buffer, dtype=float, count=-1, offset=0, **kwargs):
+        if isinstance(buffer, real_nd) and buffer.dtype.hasobject:
+            raise SandboxPolicyError("np.frombuffer of an array of Python objects is not allowed (its bytes are "
+                                     "the objects' addresses)")
+        offset = operator.index(offset)
+        if offset < 0:
+            raise ValueError("offset must be non-negative and no greater than buffer length")
+        return real_frombuffer(buffer, dtype, count, offset, **kwargs)
+
+    def ndarray(shape, dtype=float, buffer=None, offset=0, strides=None, order=None):
+        if strides is not None:
+            raise SandboxPolicyError("np.ndarray(strides=...) is not allowed in run_code; use reshape, slicing "
+                                     "or transpose")
+        order = "F" if order == "F" else "C"
+        if buffer is None:
+            return np.zeros(shape, dtype, order)  # zeroed: no stale memory either
+        shape = tuple(shape) if isinstance(shape, (tuple, list)) else (operator.index(shape),)
+        count = 1
+        for n in shape:
+            count *= operator.index(n)
+        # frombuffer checks the offset and that count items fit in the buffer
+        return frombuffer(buffer, dtype, count, offset).reshape(shape, order=order)
+
+    def no_raw(real, label, buffer_key):
+        def new(*args, **kwargs):
+            names = real.__new__.__code__.co_varnames[1:real.__new__.__code__.co_argcount]
+            given = dict(zip(names, args), **kwargs)
+            if given.get(buffer_key) is not None or given.get("offset", 0) != 0 or given.get("strides") is not None:
+                raise SandboxPolicyError(f"{label}({buffer_key}=, offset=, strides=) is not allowed in run_code")
+            return np.zeros_like(real(*args, **kwargs))  # zeroed: no stale memory either
+
+        new.__name__ = new.__qualname__ = real.__name__
+        return new
+
+    return {
+        "ndarray": _guarded(real_nd, ndarray),
+        "recarray": _guarded(real_rec, no_raw(real_rec, "np.recarray", "buf")),
+        "chararray": _guarded(real_char, no_raw(real_char, "np.chararray", "buffer")),
+        "frombuffer": frombuffer,
+        "empty": np.zeros,  # np.empty hands out whatever the memory held before (addresses included)
+        "empty_like": np.zeros_like,
+    }
+
+
 def _filtered_module(mod, cache: dict):
-    """A plain module holding ``mod``'s public names minus file access and foreign modules."""
+    """A read-only module holding ``mod``'s public names minus file access, foreign modules and raw
+    memory (numpy's buffer, offset and stride constructors are replaced by checked ones)."""
     if mod.__name__ in cache:
         return cache[mod.__name__]
-    out = types.ModuleType(mod.__name__, getattr(mod, "__doc__", None))
+    out = ReadOnlyModule(mod.__name__, getattr(mod, "__doc__", None))
     cache[mod.__name__] = out
+    space = vars(out)  # filled directly: the module refuses setattr
+    replaced = _raw_memory(mod) if mod.__name__ == "numpy" else {}
     for key, value in list(vars(mod).items()):
         if key.startswith("_") or key in _NP_DENY:
             continue
         if isinstance(value, types.ModuleType):
             if value.__name__ in _NP_MODULES:
-                setattr(out, key, _filtered_module(value, cache))
+                space[key] = _filtered_module(value, cache)
             continue
-        setattr(out, key, value)
+        space[key] = replaced.get(key, value)
     return out
 
 
@@ -373,7 +542,7 @@ def to_jsonable(value, np, budget=None, depth=0):
     if isinstance(value, int):
         return value if abs(value) < 2**63 else str(value)
     if isinstance(value, float):
-        return value if math.isfinite(value) else repr(value)
+        return value if _isfinite(value) else repr(value)
     if isinstance(value, str):
         n = max(0, min(len(value), _MAX_STR, budget[1]))
         budget[1] -= n
@@ -593,6 +762,68 @@ def install_landlock(read_paths: list[str]) -> str:
     return f"ok (ABI {abi})"
 
 
+_ADDRESS = re.compile(r" at 0x[0-9a-fA-F]+")
+_REPR_KEEP = (str, bytes, bytearray, int, float, complex, bool, type(None), list, tuple, dict, set, frozenset)
+_repr_slots: dict = {}  # original slot -> (original, replacement): kept alive as long as the process
+
+
+def hide_addresses(keep: tuple = ()) -> str:
+    """Make ``repr`` of every type show no object address (``<function f>``, not ``<function f at 0x..>``).
+
+    An address is what turns a read of raw memory into a map of the process. Every route to a
+    repr (``repr``, ``str``, f-strings, ``%r``, ``format``, exceptions' messages, numpy's object
+    arrays and casts to strings) goes through the type's ``tp_repr`` slot, so the slot of each type
+    is replaced by a wrapper that calls the original and drops " at 0x...". Types whose repr is
+    their content (``str``, numbers, containers, ``keep``) are left alone. Run before seccomp; the
+    slot offset is checked against ``PyType_GetSlot`` for every type before anything is written."""
+    import ctypes
+
+    get_slot = ctypes.pythonapi.PyType_GetSlot
+    get_slot.restype, get_slot.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_int]
+    tp_repr = 66  # Py_tp_repr
+    word = ctypes.sizeof(ctypes.c_void_p)
+    offset = 3 * word + 8 * word  # PyObject_VAR_HEAD, then tp_name ... tp_as_async
+    reprfunc = ctypes.PYFUNCTYPE(ctypes.py_object, ctypes.py_object)
+    types_, stack, seen = [], [object], set()
+    while stack:
+        t = stack.pop()
+        if id(t) in seen:
+            continue
+        seen.add(id(t))
+        types_.append(t)
+        stack.extend(type.__subclasses__(t))
+    kept = _REPR_KEEP + tuple(keep)
+    plan = []
+    for t in types_:
+        if issubclass(t, kept):
+            continue
+        slot = ctypes.c_void_p.from_address(id(t) + offset)
+        current = get_slot(t, tp_repr)
+        if slot.value != current:
+            raise OSError(f"the type layout of this Python is not the expected one ({t.__name__})")
+        if current:
+            plan.append((slot, current))
+    for slot, current in plan:
+        if current not in _repr_slots:
+            original = reprfunc(current)
+
+            def wrapper(obj, original=original):
+                try:
+                    return _ADDRESS.sub("", original(obj))
+                except BaseException:  # noqa: BLE001 - a repr that fails (recursion) says what it is
+                    return f"<{type(obj).__name__} object>"
+
+            _repr_slots[current] = (original, reprfunc(wrapper))
+        slot.value = ctypes.cast(_repr_slots[current][1], ctypes.c_void_p).value
+
+    def probe():
+        pass
+
+    if _ADDRESS.search(repr(probe)) or _ADDRESS.search(repr([probe.__call__])):
+        raise OSError("repr still shows addresses")
+    return f"ok ({len(plan)} types)"
+
+
 def apply_rlimits(limits: dict) -> str:
     pairs = {
         "as_bytes": resource.RLIMIT_AS, "cpu_s": resource.RLIMIT_CPU, "fsize_bytes": resource.RLIMIT_FSIZE,
@@ -649,6 +880,23 @@ class _Out:
         pass
 
 
+_HASH_VALUES = (int, float, complex, str, bytes, type(None), range)
+
+
+def _value_hash(obj):
+    """``hash`` of values only: the default hash of other objects (functions, arrays' iterators,
+    classes) is their address."""
+    if isinstance(obj, (tuple, frozenset)):
+        for item in obj:
+            _value_hash(item)
+    elif not isinstance(obj, _HASH_VALUES) and not (_real_np is not None and isinstance(obj, _real_np.generic)):
+        raise TypeError(f"hash() of a {type(obj).__name__} is not available in run_code (it would be derived "
+                        "from the object's address)")
+    return hash(obj)
+
+
+_value_hash.__name__ = _value_hash.__qualname__ = "hash"
+
 _SAFE_BUILTIN_NAMES = (
     "abs", "min", "max", "sum", "round", "sorted", "reversed", "enumerate", "zip", "len", "range",
     "map", "filter", "any", "all", "isinstance", "repr", "list", "dict", "tuple", "set", "str", "int",
@@ -677,10 +925,12 @@ class Runner:
         self.run_id = 0
         import numpy
 
-        self.np = numpy
+        global _real_np
+        self.np = _real_np = numpy
         for name in ("linalg", "random", "fft", "polynomial"):
             __import__("numpy." + name)
         self.safe_np = _filtered_module(numpy, {})
+        self.safe_math = _filtered_module(math, {})
         self.ns = self._namespace()
 
     # -- the program's world
@@ -690,8 +940,8 @@ class Runner:
         # the builtins of the calling frame, i.e. through here: CPython's PyImport_Import passes an
         # empty list as fromlist and then reads the module from sys.modules, so the real submodule
         # goes back to numpy's C code, never to the program (which has no way to call this itself).
-        if level == 0 and name == "math":
-            return math
+        if level == 0 and name == "math" and fromlist is None:
+            return self.safe_math
         if level == 0 and fromlist is None and name in ALLOWED_IMPORTS:
             return self.safe_np
         if level == 0 and fromlist is not None and (name == "numpy" or name.startswith("numpy.")):
@@ -699,24 +949,37 @@ class Runner:
         raise ImportError(f"import of '{name}' is not allowed (only numpy and math can be imported)")
 
     def _namespace(self) -> dict:
+        # plain functions, not bound methods: nothing in their repr or attributes leads to the Runner
+        def print(*args, sep=" ", end="\n", file=None, flush=False):
+            self._print(*args, sep=sep, end=end)
+
+        def load_image(obs_id):
+            """load_image(obs_id) -> the observation's pixels, an HxWx3 uint8 array."""
+            return self._load_image(obs_id)
+
+        print.__qualname__, load_image.__qualname__ = "print", "load_image"
+        print_ = print
         if self.python_layer:
             import builtins
 
             safe = {k: getattr(builtins, k) for k in _SAFE_BUILTIN_NAMES}
             safe["__import__"] = self._restricted_import
-            safe["print"] = self._print
+            safe["print"] = print_
+            safe["hash"] = _value_hash
+            for name in ("bytes",):  # an object array's bytes are its objects' addresses
+                safe[name] = _guarded(safe[name], _object_bytes_refused(safe[name]))
             safe["None"] = None
             safe[FORMAT_HOOK] = format_attr
-            np_mod = self.safe_np
+            np_mod, math_mod = self.safe_np, self.safe_math
         else:  # test-only: the OS layer alone must hold
             import builtins
 
             safe = dict(vars(builtins))
-            safe["print"] = self._print
-            np_mod = self.np
+            safe["print"] = print_
+            np_mod, math_mod = self.np, math
         self.builtins = safe
-        ns = {"__builtins__": safe, "__name__": "__main__", "np": np_mod, "math": math,
-              "print": self._print, "load_image": self._load_image}
+        ns = {"__builtins__": safe, "__name__": "__main__", "np": np_mod, "math": math_mod,
+              "print": print_, "load_image": load_image}
         for name in self.tools:
             ns[name] = self._make_tool(name)
         return ns
@@ -793,17 +1056,26 @@ class Runner:
         self.ns.pop("result", None)
         filename = f"<run_code:{self.run_id}>"
         reply = {"op": "done", "ok": True, "error": None, "value": None, "result_assigned": False, "stopped": None}
-        try:
+        try:  # parsing, the policy, the hook and compiling: a program too deep for any is its error
             tree = ast.parse(code, filename, "exec")
+            if self.python_layer:
+                problems = check_tree(tree)
+                if problems:
+                    reply.update(ok=False, error="code rejected by the sandbox policy:\n" + "\n".join(problems[:20]))
+                    return reply
+                tree = hook_format(tree)
+            compiled = compile(tree, filename, "exec")
         except SyntaxError as exc:
             reply.update(ok=False, error=self._format_error(exc))
             return reply
+        except (RecursionError, MemoryError, ValueError, OverflowError) as exc:
+            why = str(exc) or "out of memory"
+            reply.update(ok=False, error=f"{type(exc).__name__}: the program could not be compiled ({why}); it is "
+                         "nested too deeply or too large. Split long expressions into several statements.")
+            return reply
+        finally:
+            tree = None  # a deep tree is freed here, not at the next program
         if self.python_layer:
-            problems = check_tree(tree)
-            if problems:
-                reply.update(ok=False, error="code rejected by the sandbox policy:\n" + "\n".join(problems[:20]))
-                return reply
-            tree = hook_format(tree)
             # The policy admits no way to rebind or delete __builtins__; were one found, exec would
             # fill a missing one with the real builtins, so every run starts from the safe ones.
             self.ns["__builtins__"] = self.builtins
@@ -814,7 +1086,7 @@ class Runner:
         saved = sys.stdout, sys.stderr
         sys.stdout = sys.stderr = self.out  # numpy warnings and library prints are captured too
         try:
-            exec(compile(tree, filename, "exec"), self.ns)
+            exec(compiled, self.ns)
         except ProgramStopped as exc:
             reply.update(ok=False, error=str(exc), stopped=exc.kind)
         except BaseException as exc:  # noqa: BLE001 - every program failure is reported, not raised
@@ -859,6 +1131,8 @@ def main(argv: list[str]) -> int:
     runner = Runner(wire, init)
     import numpy
 
+    if runner.python_layer:
+        attempt("repr_addresses", hide_addresses, (numpy.ndarray, numpy.generic, numpy.dtype))
     if init.get("landlock_read"):
         attempt("landlock", install_landlock, init["landlock_read"])
     if init.get("seccomp"):
@@ -873,10 +1147,15 @@ def main(argv: list[str]) -> int:
         if msg.get("op") == "run":
             try:
                 reply = runner.run(msg["code"])
-            except MemoryError:
-                reply = {"op": "done", "ok": False, "error": "MemoryError", "value": None,
+            except BaseException as exc:  # noqa: BLE001 - the child outlives whatever a program caused
+                reply = {"op": "done", "ok": False, "error": f"{type(exc).__name__}: {exc}"[:2000], "value": None,
                          "result_assigned": False, "stopped": None}
-            wire.send(reply)
+            try:
+                wire.send(reply)
+            except ValueError:  # not strict JSON: never expected, since to_jsonable made the value
+                reply.update(value=None, result_assigned=False, ok=False,
+                             error="the program's result could not be sent as JSON")
+                wire.send(reply)
         elif msg.get("op") == "exit":
             return 0
 

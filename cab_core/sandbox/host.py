@@ -28,7 +28,7 @@ import numpy as np
 
 from cab_core.errors import CabError, ConfigError, SandboxUnavailable, ToolArgumentError
 from cab_core.sandbox import confine
-from cab_core.sandbox.truncate import cap_result, json_size
+from cab_core.sandbox.truncate import NON_FINITE_KEY, cap_result, finite_json, json_size, non_finite_note
 
 log = logging.getLogger("cab.sandbox")
 
@@ -108,6 +108,10 @@ def _json_default(obj):
     raise TypeError(f"tool payload is not JSON-serialisable: {type(obj).__name__}")
 
 
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not JSON")
+
+
 class _Channel:
     """Length-prefixed frames over the child's pipes, with deadlines (poll, non-blocking fds)."""
 
@@ -151,8 +155,8 @@ class _Channel:
                 if len(self.buf) >= _HEADER.size + jl:
                     data = bytes(self.buf[_HEADER.size:_HEADER.size + jl])
                     del self.buf[:_HEADER.size + jl]
-                    try:
-                        msg = json.loads(data)
+                    try:  # strict: the guest never sends NaN or Infinity, so one is a broken frame
+                        msg = json.loads(data, parse_constant=_no_constant)
                     except ValueError as exc:
                         raise _ProtocolError(f"unreadable frame from the sandbox: {exc}") from None
                     if not isinstance(msg, dict) or not isinstance(msg.get("op"), str):
@@ -696,4 +700,8 @@ class Sandbox:
             result["namespace_reset_reason"] = st.reset_reason
             result["note"] = _RESET_TEXT
             result["error"] = f"{result['error']} {_RESET_TEXT}" if result["error"] else _RESET_TEXT
+        found: list[str] = []
+        result = finite_json(result, "", found)  # a tool's NaN in the trace: strict JSON for the agent too
+        if found:
+            result[NON_FINITE_KEY] = non_finite_note(found)
         return cap_result(result, self.config.result_cap_bytes)

@@ -21,6 +21,46 @@ def json_size(obj) -> int:
                .encode("utf-8", "surrogatepass"))
 
 
+NON_FINITE_KEY = "non_finite_as_null"  # where a strict JSON writer notes the numbers it wrote as null
+_NOTE_PATHS = 20
+
+
+def finite_json(obj, path: str = "", found: list | None = None, depth: int = 0):
+    """``obj`` with every NaN or infinity (Python or numpy floats, in arrays too) replaced by None,
+    so that strict JSON can hold it; the JSON paths of the replaced numbers are appended to ``found``.
+    Anything else is left as it is (a writer's ``default`` still converts it)."""
+    import math
+
+    import numpy as np
+
+    if found is None:
+        found = []
+    if isinstance(obj, np.ndarray):
+        obj = obj.tolist()
+    elif isinstance(obj, np.floating):
+        obj = float(obj)
+    if isinstance(obj, float):
+        if math.isfinite(obj):
+            return obj
+        found.append(path or "$")
+        return None
+    if depth > 200:  # deeper than any record; a circular structure stays as it is (the writer says so)
+        return obj
+    if isinstance(obj, dict):
+        return {k: finite_json(v, f"{path}.{k}" if path else str(k), found, depth + 1) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v, f"{path}[{i}]", found, depth + 1) for i, v in enumerate(obj)]
+    return obj
+
+
+def non_finite_note(found: list[str], earlier=None) -> list[str]:
+    """The note a strict writer adds beside the data: where numbers became null (the first 20)."""
+    paths = (list(earlier) if isinstance(earlier, list) else []) + found
+    if len(paths) > _NOTE_PATHS:
+        paths = paths[:_NOTE_PATHS] + [f"... and {len(paths) - _NOTE_PATHS} more"]
+    return paths
+
+
 def cut_str(s: str, n: int) -> str:
     if len(s) <= n:
         return s
