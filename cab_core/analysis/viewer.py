@@ -25,9 +25,27 @@ def _json(obj) -> str:
     return json.dumps(obj, indent=1)
 
 
+def shown_file(d: Path, rel: str) -> Path | None:
+    """The file ``rel`` (a path below the attempt directory ``d``) if an attempt's page may show it,
+    else None: the page shows the observation images and the video, nothing else (never
+    ``result.json``, ``privileged/`` or a log; docs/studio.md). Decided on the RESOLVED path: a
+    file below ``d/observations/`` or ``d/video.mp4`` itself, so that no ``..`` (however it was
+    encoded in a URL) and no symbolic link pointing out of ``observations/`` reaches anything else.
+    The studio serves exactly these files (:mod:`cab_core.apps.studio.app`); the page links only
+    these."""
+    d = Path(d).resolve()
+    try:
+        f = (d / rel).resolve()
+    except (OSError, RuntimeError, ValueError):  # a link loop, a NUL byte
+        return None
+    allowed = f == d / "video.mp4" or f.is_relative_to(d / "observations")
+    return f if allowed and f.is_file() else None
+
+
 def _images(d: Path, obs_ids) -> list[str]:
-    """The observations the agent was shown that the attempt directory holds (``observations/<id>.png``)."""
-    return [str(o) for o in obs_ids or [] if (d / f"observations/{o}.png").exists()]
+    """The observations the agent was shown that the attempt directory holds (``observations/<id>.png``,
+    as :func:`shown_file` allows: an id from the records never makes the page link another file)."""
+    return [str(o) for o in obs_ids or [] if shown_file(d, f"observations/{o}.png") is not None]
 
 
 def _status(ev: dict) -> tuple[str, str]:
@@ -202,7 +220,7 @@ def render(a: Attempt) -> str:
     return _page(title=a.rel, heading=f"{r['task']} · {a.config} · attempt {r['attempt']}", finished=True,
                  summary=[(k, str(x)) for k, x in summary], **fork_links(a.dir, r.get("fork")), events_error=bad,
                  margins=_margins(v), verifier=_json(v), checkpoints=_checkpoints(r.get("checkpoints")),
-                 video=(a.dir / "video.mp4").exists(), timeline=timeline(a.dir, events, r.get("checkpoints")))
+                 video=shown_file(a.dir, "video.mp4") is not None, timeline=timeline(a.dir, events, r.get("checkpoints")))
 
 
 def render_unfinished(d: Path) -> str:

@@ -17,16 +17,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import hashlib
 import ipaddress
 import json
 import os
 import secrets
+import socket
 import subprocess
 import sys
 import threading
 from html import escape
 from pathlib import Path
+from typing import NoReturn
 from urllib.parse import quote, urlsplit
 
 from jinja2 import FileSystemLoader
@@ -51,10 +54,6 @@ LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 #: images of only the most recent image-bearing results stay visible, as under the reference
 #: harness's context policy (``max_image_rounds``); older ones are named by id
 MAX_IMAGE_ROUNDS = 2
-#: files of an attempt folder the studio serves (what its page shows): nothing privileged
-SERVED = ("observations/", "video.mp4")
-
-
 def is_loopback(host: str) -> bool:
     if host in ("localhost",):
         return True
@@ -81,13 +80,18 @@ class Guard:
         if self.token is None:
             return True, False
         given = request.query_params.get("token")
-        if given is not None and secrets.compare_digest(given, self.token):
+        if given is not None and self._is_token(given):
             return True, True
         auth = request.headers.get("authorization", "")
-        if auth.lower().startswith("bearer ") and secrets.compare_digest(auth[7:].strip(), self.token):
+        if auth.lower().startswith("bearer ") and self._is_token(auth[7:].strip()):
             return True, False
         cookie = request.cookies.get(COOKIE)
-        return cookie is not None and secrets.compare_digest(cookie, self.token), False
+        return cookie is not None and self._is_token(cookie), False
+
+    def _is_token(self, given: str) -> bool:
+        """Whether ``given`` is the token: compared as UTF-8 bytes in constant time (a text with
+        non-ASCII characters is simply not the token; ``compare_digest`` refuses such ``str``)."""
+        return secrets.compare_digest(given.encode("utf-8", "surrogatepass"), self.token.encode())
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
@@ -130,6 +134,14 @@ class Studio:
         self.templates = Jinja2Templates(env=pages.environment(FileSystemLoader(str(HERE / "templates"))))
 
     # -- paths -------------------------------------------------------------------------------
+    def group_name(self, rel: str) -> str:
+        """What a group is called on the pages: its path below the root; the root itself (a studio
+        started on one sweep, or on a folder of attempts) by the name it was given (``cab-studio
+        multirun/s1``: ``multirun/s1``; ``cab-studio .``: the folder's own name), never ``.``."""
+        if rel != ".":
+            return rel
+        return self.shown if self.shown not in (".", "..") else (self.root.name or str(self.root))
+
     def inside(self, rel: str) -> Path | None:
         """``rel`` below the root (no hidden part, nothing outside), None otherwise."""
         rel = (rel or ".").strip("/") or "."
@@ -179,7 +191,9 @@ class Studio:
         return page.replace("<body>", f"<body>{nav}", 1), 200
 
     def nav(self, trail: list[tuple[str, str | None]], group: str | None = None) -> str:
-        items = [("cab-studio", "/")] + ([(group, f"/group?rel={quote(group)}")] if group is not None else []) + trail
+        items = [("cab-studio", "/")] + trail
+        if group is not None:
+            items.insert(1, (self.group_name(group), f"/group?rel={quote(group)}"))
         return self.templates.env.get_template("nav.html").render(items=items)
 
     # -- an attempt's page ----------------------------------------------------------------------
@@ -228,19 +242,20 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
     def api_tree(request: Request):
         gs = tree.groups(studio.root)
         plays = [p.status() for p in studio.plays.plays.values()]
-        return JSONResponse({"root": studio.shown, "groups": [g.as_dict(attempts=False) for g in gs],
+        return JSONResponse({"root": studio.shown, "groups": [{**g.as_dict(attempts=False), "name": studio.group_name(g.rel)}
+                                                             for g in gs],
                              "plays": plays})
 
     def group_page(request: Request):
         rel = request.query_params.get("rel", ".")
-        return page(request, "group.html", rel=rel)
+        return page(request, "group.html", rel=rel, name=studio.group_name(rel))
 
     def api_group(request: Request):
         rel = request.query_params.get("rel", ".")
         g = tree.group(studio.root, rel)
         if g is None:
             return JSONResponse({"error": f"no sweep or folder of attempts at {rel!r}"}, 404)
-        return JSONResponse(g.as_dict())
+        return JSONResponse({**g.as_dict(), "name": studio.group_name(g.rel)})
 
     def report_page(request: Request):
         html, status = studio.report(request.query_params.get("rel", "."))
@@ -256,11 +271,9 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
             if not request.url.path.endswith("/"):  # the page's relative links need the slash
                 return RedirectResponse(request.url.path + "/", 308)
             return HTMLResponse(studio.attempt_page(d))
-        if studio.plays.playing(d) or not any(rest == s or (s.endswith("/") and rest.startswith(s)) for s in SERVED):
+        f = None if studio.plays.playing(d) else viewer.shown_file(d, rest)
+        if f is None:  # not served and not there answer alike: the answer tells nothing of the folder
             return PlainTextResponse("not served", 404)
-        f = (d / rest).resolve()
-        if not f.is_relative_to(d) or not f.is_file():
-            return PlainTextResponse("not found", 404)
         return FileResponse(f)
 
     def api_stamp(request: Request):
@@ -274,7 +287,8 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
 
     def play_form(request: Request, error: str | None = None, form: dict | None = None, status: int = 200):
         choices = installed()
-        targets = [PLAYED] + [g.rel for g in tree.groups(studio.root) if g.rel != PLAYED]
+        targets = [(PLAYED, PLAYED)] + [(g.rel, studio.group_name(g.rel)) for g in tree.groups(studio.root)
+                                        if g.rel != PLAYED]
         return T.TemplateResponse(request, "play_new.html", {
             "root": str(studio.root), "tasks": choices["tasks"], "sims": choices["sims"], "targets": targets,
             "error": error, "form": form or {}}, status_code=status)
@@ -370,30 +384,31 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("dir", help="a folder of records: a sweep, outputs/, multirun/, any tree of attempt folders")
     ap.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; any other "
                                                          "address requires the token printed at start)")
-    ap.add_argument("--port", type=int, default=8765, help="port (default 8765; 0: any free port)")
+    ap.add_argument("--port", default="8765", help="port (default 8765; 0: any free port)")
     ap.add_argument("--state-dir", help="where the studio keeps its reports (default ~/.cache/cab-studio/<root hash>)")
     a = ap.parse_args(argv)
     root = Path(a.dir)
     if not root.is_dir():
-        print(f"cab-studio: {root} is not a directory", file=sys.stderr)
-        sys.exit(2)
+        fail(f"{root} is not a directory")
+    port = parse_port(a.port)
+    sock = bind(a.host, port)  # before anything else: a port that cannot be had is one line, exit 2
     loopback = is_loopback(a.host)
     token = None if loopback else secrets.token_urlsafe(24)
     import uvicorn
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     app = build_app(root, Path(a.state_dir) if a.state_dir else None, token, loopback)
-    config = uvicorn.Config(app, host=a.host, port=a.port, log_level="warning", lifespan="on")
+    config = uvicorn.Config(app, host=a.host, port=port, log_level="warning", lifespan="on")
     server = uvicorn.Server(config)
 
-    def announce():  # once the socket is bound (port 0: the port it got)
+    def announce():  # once the server listens (port 0: the port the socket got)
         import time
 
         while not server.started:
             if server.should_exit:
                 return
             time.sleep(0.05)
-        port = server.servers[0].sockets[0].getsockname()[1] if server.servers else a.port
+        port = sock.getsockname()[1]
         shown = f"[{a.host}]" if ":" in a.host else a.host
         url = f"http://{shown}:{port}/" + (f"?token={token}" if token else "")
         print(f"cab-studio: serving {root.resolve()} at {url}", file=sys.stderr, flush=True)
@@ -403,9 +418,49 @@ def main(argv: list[str] | None = None) -> None:
 
     threading.Thread(target=announce, daemon=True).start()
     try:
-        server.run()
+        server.run(sockets=[sock])
     except KeyboardInterrupt:  # pragma: no cover
         pass
+
+
+def fail(message: str) -> NoReturn:
+    """``cab-studio: <message>`` on stderr, exit status 2 (a mistake on the command line)."""
+    print(f"cab-studio: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def parse_port(text: str) -> int:
+    """``--port``: an integer from 0 to 65535 (0: any free port), else one line and exit 2."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        fail(f"--port must be an integer from 0 to 65535 (0: any free port), got {text!r}")
+    return port
+
+
+def bind(host: str, port: int) -> socket.socket:
+    """A socket bound to ``host``:``port`` (as uvicorn binds one: IPv6 when the host has a colon),
+    handed to the server; a port in use, an address not of this machine or one that does not resolve
+    is one line naming it and what to do, exit 2."""
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as e:
+        sock.close()
+        where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        if e.errno == errno.EADDRINUSE:
+            fail(f"port {port} on {host} is in use (another cab-studio?): stop what listens there, or choose "
+                 f"another port with --port (--port 0: any free port)")
+        if e.errno == errno.EACCES:
+            fail(f"not allowed to listen on {where} (ports below 1024 need privileges): choose another with --port")
+        if isinstance(e, socket.gaierror):
+            fail(f"--host {host!r} is not an address or a name that resolves ({e.strerror})")
+        fail(f"cannot listen on {where}: {e.strerror or e} (--host: an address of this machine, e.g. 127.0.0.1)")
+    sock.set_inheritable(True)
+    return sock
 
 
 if __name__ == "__main__":  # pragma: no cover

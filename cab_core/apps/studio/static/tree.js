@@ -18,7 +18,7 @@ async function pollTree() {
   const data = await r.json();
   const body = document.querySelector("#groups tbody");
   body.replaceChildren(...data.groups.map(g => {
-    const link = el("a", {href: "/group?rel=" + encodeURIComponent(g.rel), class: "group-link"}, g.rel);
+    const link = el("a", {href: "/group?rel=" + encodeURIComponent(g.rel), class: "group-link"}, g.name || g.rel);
     const rep = el("a", {href: "/report?rel=" + encodeURIComponent(g.rel), class: "report-link"}, "report");
     const tr = el("tr", {"data-rel": g.rel}, el("td", {}, link), cell("kind", g.kind), cell("done", g.done),
       cell("success", g.success), cell("running", g.running), cell("infra", g.infra),
