@@ -35,7 +35,7 @@ BAD_VALUES = [
                              "program), got -1"),
     ("sandbox.memory_mb=0", "sandbox.memory_mb must be an integer of at least 256 (MiB: the address space of the "
                             "run_code process), got 0"),
-    ("record.video_size=[1,2,3]", "record.video_size must be [width, height]: two integers from 16 to 4096 "
+    ("record.video_size=[1,2,3]", "record.video_size must be [width, height]: two integers from 8 to 4096 "
                                   "(pixels), got [1, 2, 3]"),
     ("record.video_every_steps=0", "record.video_every_steps must be a positive integer (physics steps per video "
                                    "frame; record.video=false records no video), got 0"),
@@ -65,7 +65,7 @@ def test_every_value_of_a_sweep_is_checked(override, line):
                                "program), got True"),
     ("sandbox.memory_mb=1.5", "sandbox.memory_mb must be an integer of at least 256 (MiB: the address space of the "
                               "run_code process), got 1.5"),
-    ("record.video_size=[320,0]", "record.video_size must be [width, height]: two integers from 16 to 4096 (pixels), "
+    ("record.video_size=[320,0]", "record.video_size must be [width, height]: two integers from 8 to 4096 (pixels), "
                                   "got [320, 0]"),
     ("record.video=maybe", "record.video must be true or false, got 'maybe'"),
     ("seed=abc", "seed must be a non-negative integer, or null (the task's fixed seed), got 'abc'"),

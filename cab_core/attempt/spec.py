@@ -16,7 +16,7 @@ from cab_core.attempt.randomize import Randomization
 from cab_core.errors import ConfigError
 
 MIN_SANDBOX_MEMORY_MB = 256  # below this the run_code process cannot start Python with numpy
-VIDEO_SIDE = (16, 4096)  # pixels, each side of the record video
+VIDEO_SIDE = (8, 4096)  # pixels, each side of the record video
 
 
 @dataclass
