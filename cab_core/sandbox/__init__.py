@@ -18,7 +18,14 @@ Layers, outermost first (each must hold on its own):
    ``match`` class-pattern keywords, or ``{0.attr}``/``{0[_key]}`` fields of ``str.format`` and
    ``format_map``, checked before the run for literal templates and, through a hook the AST rewrite
    puts on every ``.format``/``.format_map``, at run time for built ones), restricted builtins, a
-   numpy namespace without file I/O or ctypes. ``guest.py``'s docstring lists the routes.
+   numpy namespace without file I/O or ctypes. No view of raw memory: numpy's constructors that take
+   a buffer, an offset or strides are checked versions (``np.ndarray``, ``recarray``, ``chararray``,
+   ``frombuffer``), ``resize(refcheck=False)`` and the bytes of object arrays are refused, ``.data``,
+   ``.strides`` and ``.dtype`` are never assigned, ``byte_bounds``/``from_dlpack``/``lib``/``core``
+   are out of reach and ``np.empty`` is zeroed. No ``repr`` shows an address (every type's repr
+   slot drops " at 0x...") and ``hash`` takes values only. The program's ``math`` and ``numpy`` are
+   read-only copies, so it cannot patch what the guest itself uses to send results (strict JSON); a
+   program too deeply nested to compile is its own error. ``guest.py``'s docstring lists the routes.
 
 Use ``python -m cab_core.sandbox`` to see which layers this machine provides and how fast they are.
 """

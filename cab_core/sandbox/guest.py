@@ -44,6 +44,29 @@ held:
   ``global``/``nonlocal``) follow the ``__`` rule: ``except E as __builtins__`` ends with an implicit
   ``del __builtins__``, and exec fills a missing ``__builtins__`` with the real builtins. Each run also
   starts from the safe builtins again.
+
+It also means no view of raw memory and no address:
+
+* numpy's classes and helpers that take a raw buffer, an offset or strides are replaced in the
+  program's numpy (``_raw_memory``): ``np.ndarray`` (a ``GuardedClass``: ``isinstance`` and class
+  patterns see the real class; a call takes a buffer only through ``np.frombuffer``, which checks the
+  offset and size, and no strides), ``np.recarray``/``np.chararray`` (no buffer, offset or strides),
+  ``np.frombuffer`` (no object arrays), ``np.empty``/``empty_like`` (zeroed). ``byte_bounds``,
+  ``from_dlpack``, ``ctypes``, ``lib`` (``stride_tricks``) and ``core`` are out of reach;
+* ``.resize``, ``.tobytes``, ``.tostring`` and ``.data`` go through the same hook as ``format``:
+  ``resize`` keeps numpy's reference check (``refcheck=False`` frees memory a view still uses), and an
+  object array's bytes (its objects' addresses) are refused, as is ``bytes()`` of one. ``.data``,
+  ``.strides`` and ``.dtype`` are never assigned or deleted (``x.data = ...`` re-points an object
+  array at forged pointers);
+* ``repr`` (and so ``str``, f-strings, ``%``, ``format``, exception messages and numpy's object
+  arrays) shows no address: ``hide_addresses`` wraps every type's repr slot before seccomp, and
+  ``hash`` takes values only (the default hash is the address);
+* the program's ``math`` and ``numpy`` (and numpy's submodules) are ``ReadOnlyModule`` copies: a
+  patch such as ``math.isfinite = ...`` is refused and could not reach the guest's own modules, and
+  the serialiser uses references bound at import (``_isfinite``, ``_json_dumps``) and sends strict
+  JSON;
+* a program too deeply nested to parse or compile is reported as its error; the child and the
+  namespace stay.
 """
 from __future__ import annotations
 
