@@ -190,17 +190,80 @@ def scatter(name: str, title: str, points: list[tuple[str, float, float]], xlabe
     """Labelled points (label, x, y in 0..1); the x axis spans 0..max x."""
     with style(name):
         fig, ax = _figure(name, title, 8)
+        marks, notes = [], []
         for i, (label, x, y) in enumerate(points):
             (pt,) = ax.plot([x], [y], "o", ms=6, color=PALETTE[i % len(PALETTE)])
             _tip(fig, pt, f"{name}-point-{i}", f"{label}: {xlabel} {xfmt(x)}, {ylabel} {pct(y)}")
-            ax.annotate(label, (x, y), xytext=(5, 4), textcoords="offset points", fontsize=7)
+            marks.append(pt)
+            note = ax.annotate(label, (x, y), xytext=(5, 4), textcoords="offset points", fontsize=7,
+                               arrowprops={"arrowstyle": "-", "color": "#999", "lw": 0.5, "shrinkA": 1, "shrinkB": 4})
+            note.arrow_patch.set_visible(False)  # a leader line only for a label moved away from its point
+            notes.append(note)
         _pct_axis(ax, "y")
         ax.set_ylim(-0.02, 1.05)
         ax.set_xlim(0, max([p[1] for p in points] + [1e-9]) * 1.25)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(color="#eee", lw=0.6)
+        _place_labels(fig, ax, marks, notes)
     return fig
+
+
+def label_box(note, renderer):
+    """The window extent of an annotation's text alone (matplotlib's own extent adds its arrow)."""
+    from matplotlib.text import Text
+
+    note.update_positions(renderer)
+    return Text.get_window_extent(note, renderer)
+
+
+def _place_labels(fig: Figure, ax, marks: list, notes: list, gap: float = 2.0) -> None:
+    """Each point's label beside it where it overlaps no label placed before it, no other point and
+    stays inside the axes: the first free place of the four corners around the point, then the same
+    corners one, two... label heights further up or down (close or equal points get a stack of
+    labels, each joined to its point by a thin leader line); where none is free, the place that
+    overlaps least. Deterministic: the same points, the same places. Measured on the laid-out figure
+    (the layout is made again when it is saved: ``gap`` points of air keep neighbours apart)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.transforms import Bbox
+
+    if len(notes) < 2:
+        return
+    renderer = FigureCanvasAgg(fig).get_renderer()  # a canvas of its own: saving picks the format's anyway
+    fig.draw_without_rendering()  # lays the figure out (constrained layout) as the first save will
+    px = fig.dpi / 72.0
+    frame = ax.get_window_extent(renderer)
+    dots = [m.get_window_extent(renderer) for m in marks]
+    placed: list[Bbox] = []
+
+    def overlap(a: Bbox, b: Bbox) -> float:
+        w = min(a.x1, b.x1) - max(a.x0, b.x0)
+        h = min(a.y1, b.y1) - max(a.y0, b.y0)
+        return w * h if w > 0 and h > 0 else 0.0
+
+    for i, note in enumerate(notes):
+        note.set_verticalalignment("bottom")
+        height = label_box(note, renderer).height / px + gap  # points
+        best, best_cost = None, None
+        for k in range(12):
+            for dx, sign in ((5, 1), (5, -1), (-5, 1), (-5, -1)):
+                dy = sign * (4 + k * height) if sign > 0 else -(4 + (k + 1) * height - gap)
+                note.xyann = (dx, dy)
+                note.set_horizontalalignment("left" if dx > 0 else "right")
+                box = label_box(note, renderer).padded(gap * px / 2)
+                cost = sum(overlap(box, b) for b in placed) + sum(overlap(box, d) for j, d in enumerate(dots) if j != i)
+                outside = box.width * box.height - overlap(box, frame)
+                cost += outside
+                if best_cost is None or cost < best_cost:
+                    best, best_cost = (dx, dy, k), cost
+                if cost == 0:
+                    break
+            if best_cost == 0:
+                break
+        note.xyann = best[:2]
+        note.set_horizontalalignment("left" if best[0] > 0 else "right")
+        note.arrow_patch.set_visible(best[2] > 0)
+        placed.append(label_box(note, renderer).padded(gap * px / 2))
 
 
 # ---------------------------------------------------------------------------------------------

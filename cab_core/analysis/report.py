@@ -296,16 +296,15 @@ def notes(r: dict) -> list[str]:
 def markdown(r: dict, figs: list[tuple[str, str]] | None = None) -> str:
     """The tables as Markdown; ``figs``: (name, title) of the figures written to ``figures/``, listed
     (the SVG shown, the PDF and PNG linked)."""
-    parts = ["# cab report", "\n\n".join(notes(r))]
+    tabs = [f"## {title}\n\n{md_table(header, rows)}" for title, header, rows in tables(r)]
+    parts = ["# cab report", *tabs[:1], "\n\n".join(notes(r))]  # the summary table first, as on the page
     if figs:
         from cab_core.analysis.figures import PNG_DPI
 
         parts.append("## Figures\n\n" + f"PDF, SVG and PNG ({PNG_DPI} dpi) of each figure in `{FIGURES_FOLDER}/`.\n\n"
                      + "\n\n".join(f"![{t}]({FIGURES_FOLDER}/{n}.svg)\n\n{t}: [PDF]({FIGURES_FOLDER}/{n}.pdf) · "
                                      f"[SVG]({FIGURES_FOLDER}/{n}.svg) · [PNG]({FIGURES_FOLDER}/{n}.png)" for n, t in figs))
-    for title, header, rows in tables(r):
-        parts.append(f"## {title}\n\n{md_table(header, rows)}")
-    return "\n\n".join(parts) + "\n"
+    return "\n\n".join(parts + tabs[1:]) + "\n"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -81,14 +81,18 @@ def _turn(ev: dict) -> dict:
             "waited": ev.get("waited_s", 0), "thinking": ev.get("thinking"), "text": ev.get("text")}
 
 
-def matched_at(ck) -> dict[int, list[str]]:
-    """Charged-call index -> the checkpoints first matched by then (from the result's checkpoints)."""
+def matched_at(ck, latch_at: int | None = None) -> dict[int, list[str]]:
+    """Charged-call index -> the checkpoints first matched by then (from the result's checkpoints);
+    a subgoal attained by the latch event at ``latch_at``, the call during which the event latched."""
     out: dict[int, list[str]] = {}
     if not isinstance(ck, dict) or "error" in ck:
         return out
     for kind in ("subgoals", "spatial"):
         for c in ck.get(kind, []):
-            k = (c.get("first") or {}).get("calls")
+            first = c.get("first") or {}
+            k = first.get("calls")
+            if k is None and first.get("label") == "latch event":
+                k = latch_at
             if c.get("attained") and isinstance(k, int):
                 what = c.get("text", "") if kind == "subgoals" else c.get("name", "")
                 label = f"{'subgoal' if kind == 'subgoals' else 'spatial'} {c['index']}: {what}"
@@ -96,13 +100,13 @@ def matched_at(ck) -> dict[int, list[str]]:
     return out
 
 
-def timeline(d: Path, events: list[dict], ck=None) -> list[dict]:
+def timeline(d: Path, events: list[dict], ck=None, latch_at: int | None = None) -> list[dict]:
     """The events in order (what the page's timeline shows of each: ``kind`` call, turn, mark or
     other), each checkpoint marked after the charged call that first matched it. A program's
     internal calls are shown just before its run_code entry (they are logged as they happen, the
     program's own entry when it returns)."""
     out = []
-    marks = matched_at(ck)
+    marks = matched_at(ck, latch_at)
     charged = 0
     for ev in events:
         kind = ev.get("kind")
@@ -121,7 +125,43 @@ def timeline(d: Path, events: list[dict], ck=None) -> list[dict]:
     return out
 
 
-def _checkpoints(ck) -> dict:
+def latch_call(d: Path, v: dict) -> int | None:
+    """The charged call during which a latch task's event latched (``verdict.latch``), or None: the
+    ``calls`` of the first privileged snapshot recorded as latched (one is taken after every charged
+    call), as a spatial checkpoint's first match is counted. The checkpoints credit a subgoal that the
+    latch satisfies to the event itself (``first.calls`` null), not to a snapshot."""
+    if not (isinstance(v, dict) and isinstance(v.get("latch"), dict) and v["latch"].get("latched")):
+        return None
+    try:
+        with open(d / "privileged" / "snapshots.jsonl") as f:
+            for line in f:
+                try:
+                    snap = json.loads(line)
+                except ValueError:
+                    continue
+                if isinstance(snap, dict) and snap.get("latched") and isinstance(snap.get("calls"), int):
+                    return snap["calls"]
+    except OSError:
+        pass
+    return None
+
+
+def _first_calls(first: dict, latch: dict | None, at_call: int | None) -> str:
+    """The "first at call" cell: the charged call of the first match; for a subgoal attained by the
+    latch event (no call of its own on record), the call during which the event latched, said so."""
+    k = first.get("calls")
+    if isinstance(k, int):
+        return str(k)
+    if first.get("label") == "latch event":
+        step = (latch or {}).get("at_step")
+        where = f"physics step {step}" if isinstance(step, int) else ""
+        if at_call is not None:
+            return f"{at_call} (the event latched{', ' + where if where else ''})"
+        return f"the latch event{' (' + where + ')' if where else ''}"
+    return "" if k is None else str(k)
+
+
+def _checkpoints(ck, latch: dict | None = None, at_call: int | None = None) -> dict:
     if not isinstance(ck, dict) or "error" in ck:
         return {"unavailable": True, "error": str(ck.get("error")) if isinstance(ck, dict) else None}
     rows = []
@@ -130,7 +170,7 @@ def _checkpoints(ck) -> dict:
             first = c.get("first") or {}
             rows.append({"name": f"{kind[:-1] if kind == 'subgoals' else 'spatial'} {c['index']}",
                          "what": c.get("text") or c.get("name", ""), "attained": bool(c["attained"]),
-                         "first_calls": str(first.get("calls", "")) if first else "",
+                         "first_calls": _first_calls(first, latch, at_call) if first else "",
                          "arm": str(first.get("arm", "")) if first else ""})
     return {"unavailable": False, "subgoal_coverage": f"{ck.get('subgoal_coverage', 0):.0%}",
             "spatial_coverage": f"{ck.get('spatial_coverage', 0):.0%}", "rows": rows}
@@ -143,6 +183,17 @@ def _margin_line(m: dict) -> str:
             f"borderline below {m['threshold']:.0%})")
 
 
+def _margins_at(v: dict) -> str:
+    """Where the margins were measured, as the page says it: "the final state (...)", or the latched
+    event's moment (its physics step, and the step it latched at)."""
+    if v.get("margins_at") == "latch":
+        step, latched = v.get("margins_at_step"), (v.get("latch") or {}).get("at_step")
+        return ("the latch: " + (f"physics step {step}, " if isinstance(step, int) else "")
+                + "where the latched event held widest"
+                + (f" (it latched at step {latched})" if isinstance(latched, int) else ""))
+    return "the final state (when the attempt ended)"
+
+
 def _margins(v: dict) -> dict | None:
     """Each predicate's margin: how far inside (+) or outside (-) its threshold, in its unit and as
     a fraction of its tolerance."""
@@ -153,7 +204,7 @@ def _margins(v: dict) -> dict | None:
     def g(x) -> str:
         return "" if x is None else f"{x:.4g}"
 
-    return {"at": str(v.get("margins_at", "end")),
+    return {"at": _margins_at(v),
             "rows": [{"name": k, "cls": "good" if m["slack"] > 0 else "bad", "slack": f"{m['slack']:+.4g} {m['unit']}",
                       "fraction": f"{m['fraction']:+.1%}", "measured": g(m.get("measured")),
                       "threshold": g(m.get("threshold"))} for k, m in ms.items()]}
@@ -205,6 +256,7 @@ def render(a: Attempt) -> str:
     v, claim, b = r["verdict"], r["claim"], r["budget"]
     claimed = claim.get("success_claim")
     events, bad = _events(a.dir)
+    at_call = latch_call(a.dir, v)
     summary = [
         ("task", f"{r['task']} (seed {r['seed']}, attempt {r['attempt']})"),
         ("configuration", a.config), ("instruction", r.get("instruction", "")),
@@ -219,8 +271,10 @@ def render(a: Attempt) -> str:
     ]
     return _page(title=a.rel, heading=f"{r['task']} · {a.config} · attempt {r['attempt']}", finished=True,
                  summary=[(k, str(x)) for k, x in summary], **fork_links(a.dir, r.get("fork")), events_error=bad,
-                 margins=_margins(v), verifier=_json(v), checkpoints=_checkpoints(r.get("checkpoints")),
-                 video=shown_file(a.dir, "video.mp4") is not None, timeline=timeline(a.dir, events, r.get("checkpoints")))
+                 margins=_margins(v), verifier=_json(v),
+                 checkpoints=_checkpoints(r.get("checkpoints"), v.get("latch"), at_call),
+                 video=shown_file(a.dir, "video.mp4") is not None,
+                 timeline=timeline(a.dir, events, r.get("checkpoints"), at_call))
 
 
 def render_unfinished(d: Path) -> str:
