@@ -248,7 +248,7 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
 
     def group_page(request: Request):
         rel = request.query_params.get("rel", ".")
-        return page(request, "group.html", rel=rel, name=studio.group_name(rel))
+        return page(request, "group.html", rel=rel, group_name=studio.group_name(rel))
 
     def api_group(request: Request):
         rel = request.query_params.get("rel", ".")
