@@ -3,7 +3,8 @@
 One attempt: reads ``{"config": <plain resolved config>, "output_dir": <attempt dir>}`` as JSON on
 stdin, runs the attempt and exits. A warm worker (``--worker``): reads such jobs one JSON line at a
 time, each with ``"log"``, the file its output goes to, and answers each on its standard output with
-one JSON line ``{"status": S, "rss_mb": M}``; the renderer (its device, its precomputed tables,
+one JSON line ``{"status": S, "rss_mb": M}`` (with ``"error"``, one line, when an exception ended
+the attempt); the renderer (its device, its precomputed tables,
 compiled pipelines) and the imported plugins live on from one attempt to the next, each attempt
 builds its world fresh. The status, or the one-attempt process's exit status:
 
@@ -72,14 +73,26 @@ def serve() -> int:
         log = os.open(job["log"], os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         _output_to(log)
         os.close(log)
+        error = None
         try:
             status = run(job)
-        except Exception:  # noqa: BLE001 (a host fault: reported, and this process leaves)
-            traceback.print_exc()
+        except Exception as e:  # noqa: BLE001 (a host fault: reported, and this process leaves)
+            error = f"{type(e).__name__}: {e}"[:500]  # also in the reply: a full disk may refuse the log
+            try:
+                traceback.print_exc()
+            except OSError:
+                pass
             status = EXIT_FAULT
         finally:
-            _output_to(quiet)
-        replies.write(json.dumps({"status": status, "rss_mb": round(_rss_mb(), 1)}) + "\n")
+            try:
+                _output_to(quiet)
+            except OSError:  # (flushing into a full disk)
+                os.dup2(quiet, 1)
+                os.dup2(quiet, 2)
+        reply = {"status": status, "rss_mb": round(_rss_mb(), 1)}
+        if error is not None:
+            reply["error"] = error
+        replies.write(json.dumps(reply) + "\n")
         if status != 0:
             return status
     return 0

@@ -15,8 +15,12 @@ one aside, and runs the attempt under ``AttemptSupervisor`` (child process, watc
 """
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
+import os
+import socket
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,10 +29,13 @@ from typing import Any
 from cab_core.errors import ConfigError
 from cab_core.attempt.record import write_json_atomic
 from cab_core.sweep.layout import attempt_folders, check_distinct, varying_keys
-from cab_core.sweep.records import SET_ASIDE, check_attempt, is_infrastructure_failure, set_aside
+from cab_core.sweep.records import (GIVEN_UP, INTERRUPTED, SET_ASIDE, annotate_result, check_attempt,
+                                    infrastructure_failures, is_infrastructure_failure, set_aside,
+                                    unlisted_set_aside)
 from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig
 
 MANIFEST = "sweep.json"
+LOCK = "sweep.lock"  # held (flock) by the process that runs a sweep in this directory
 MANIFEST_VERSION = "cab-sweep/2"  # 2: attempt folders <task>/<model>/<sim>/[<swept>/]seed-<S>/attempt-<A>
 OLD_LAYOUTS = {"cab-sweep/1": "<task>/<model>/seed-<S>/attempt-<A>"}
 VOLATILE = ("hydra", "sweep")  # top-level config keys that may differ between sessions of one sweep
@@ -36,6 +43,58 @@ VOLATILE = ("hydra", "sweep")  # top-level config keys that may differ between s
 
 class SweepConfigChanged(ConfigError):
     """A sweep directory was started with another configuration; mixing results is refused."""
+
+
+class SweepBusy(SweepConfigChanged):
+    """A sweep is running in this sweep directory now: a second one is refused like a changed
+    configuration (exit status 2), before it writes or sets aside anything."""
+
+
+_LOCKS: dict[str, int] = {}  # sweep directories this process holds, and the descriptor holding each
+
+
+def lock_sweep(sweep_dir: Path) -> None:
+    """Hold ``<sweep_dir>/sweep.lock`` (``flock``, exclusive) for as long as this process lives, or
+    raise SweepBusy naming the process that holds it (pid, host, start time, command). The kernel
+    releases the lock when the process ends, however it ends (SIGKILL included): a resumed sweep
+    never finds a stale lock. The descriptor is not inherited by the processes the sweep starts."""
+    d = Path(sweep_dir)
+    key = str(d.resolve())
+    if key in _LOCKS:
+        return
+    d.mkdir(parents=True, exist_ok=True)
+    fd = os.open(d / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = _holder(fd)
+        os.close(fd)
+        raise SweepBusy(f"{d} is in use by a sweep running now ({holder}); nothing was run or set aside. Wait "
+                        "for it to end (then run this command to resume), or choose another hydra.sweep.dir") from None
+    _LOCKS[key] = fd
+    me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(), "argv": sys.argv}
+    try:  # who holds it, for the refusal above (the lock itself holds without it: a full disk)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(me).encode(), 0)
+    except OSError:
+        pass
+
+
+def unlock_sweep(sweep_dir: Path) -> None:
+    """Release :func:`lock_sweep`'s lock (the end of the process releases it too)."""
+    fd = _LOCKS.pop(str(Path(sweep_dir).resolve()), None)
+    if fd is not None:
+        os.close(fd)
+
+
+def _holder(fd: int) -> str:
+    try:
+        h = json.loads(os.pread(fd, 65536, 0))
+        started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(float(h["started"])))
+        cmd = " ".join(str(a) for a in h.get("argv") or [])
+        return f"pid {int(h['pid'])} on {h['host']}, started {started}" + (f": {cmd}" if cmd else "")
+    except (OSError, ValueError, KeyError, TypeError):
+        return "a process that has not yet written its name"
 
 
 def _plain(cfg: Any) -> Any:
@@ -129,8 +188,11 @@ class SweepManifest:
         return fingerprint(self.config, self.jobs)
 
     def open(self, sweep_dir: Path, launcher: str) -> dict:
-        """Start a session in ``sweep_dir``: write the manifest, or check it and append the session.
-        Raises SweepConfigChanged, naming what changed, when the directory holds another sweep."""
+        """Start a session in ``sweep_dir``: lock the directory for this process (:func:`lock_sweep`),
+        then write the manifest, or check it and append the session. Raises SweepBusy when another
+        sweep runs there now, SweepConfigChanged, naming what changed, when the directory holds
+        another sweep."""
+        lock_sweep(Path(sweep_dir))
         path = Path(sweep_dir) / MANIFEST
         now = time.time()
         if path.is_file():
@@ -175,20 +237,36 @@ def completed_results(sweep_dir: Path) -> list[Path]:
     return out
 
 
-def progress_line(sweep_dir: Path, job: str, what: str) -> str:
-    """One line for a finished job: counts over the whole sweep, the rate of this session, the ETA."""
+def progress_line(sweep_dir: Path, job: str, what: str, result: Path | None = None) -> str:
+    """One line for a finished job: counts over the whole sweep, the rate of this session, the ETA.
+    The count is the rank of this job's ``result`` among the complete attempts (in the order their
+    results were written, then by path): jobs that finish together each get their own number, not
+    the count both see once both have finished."""
     try:
         m = json.loads((Path(sweep_dir) / MANIFEST).read_text())
     except (OSError, json.JSONDecodeError):
         return f"cab sweep: {job}: {what}"
-    done = completed_results(Path(sweep_dir))
+    done = _by_completion(completed_results(Path(sweep_dir)))
+    own = Path(result).resolve() if result is not None else None
+    rank = next((i + 1 for i, (_, p) in enumerate(done) if own is not None and p.resolve() == own), len(done))
     session = m["sessions"][-1]
-    fresh = sum(1 for p in done if p.stat().st_mtime >= session["started"])
+    fresh = sum(1 for t, _ in done if t >= session["started"])
     elapsed = max(time.time() - session["started"], 1e-6)
     left = max(m["n_jobs"] - len(done), 0)
     eta = f"ETA {_hms(left * elapsed / fresh)}" if fresh and left else ("sweep complete" if not left else "ETA ?")
     rate = f"{3600 * fresh / elapsed:.0f} attempts/h, " if fresh else ""
-    return f"cab sweep [{len(done)}/{m['n_jobs']}] {job}: {what} | {rate}{eta}"
+    return f"cab sweep [{rank}/{m['n_jobs']}] {job}: {what} | {rate}{eta}"
+
+
+def _by_completion(results: list[Path]) -> list[tuple[float, Path]]:
+    """(modification time in seconds, path) of each result, oldest first, ties by path."""
+    out = []
+    for p in results:
+        try:
+            out.append((p.stat().st_mtime_ns, str(p), p))
+        except OSError:
+            continue
+    return [(ns / 1e9, p) for ns, _, p in sorted(out)]
 
 
 def summary_line(sweep_dir: Path) -> str:
@@ -215,23 +293,40 @@ def _hms(s: float) -> str:
 
 def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = None) -> tuple[dict | None, str]:
     """One job of a sweep: skip a complete attempt, set a partial one aside, run it supervised.
-    Returns the result (None when skipped) and the progress line."""
+    Returns the result (None when skipped) and the progress line, which also says what could not be
+    written (a full disk: the job ends with its line, the sweep with its resume line)."""
     from cab_core.attempt.spec import attempt_spec
 
     spec = attempt_spec(cfg, attempt_dir)  # a bad config fails here, before any process starts
     identity = {"task": spec.task, "seed": spec.seed, "attempt": spec.attempt, "sim": spec.sim, "model": spec.model}
     here, root = Path(attempt_dir).resolve(), Path(sweep_dir).resolve()
     job = str(here.relative_to(root)) if here.is_relative_to(root) else str(attempt_dir)
+    result_path = Path(attempt_dir) / "result.json"
     check = check_attempt(attempt_dir, identity, job_log)
     if check.state == "complete":
-        return None, progress_line(sweep_dir, job, "complete already, skipped")
-    if check.state == "partial":  # killed mid-attempt, or every try of an earlier session failed
-        infra = check.result is not None and is_infrastructure_failure(check.result)
-        set_aside(attempt_dir, "infrastructure" if infra else "interrupted", job_log)
+        if unlisted_set_aside(Path(attempt_dir), check.result):  # its failures' note could not be written then
+            try:
+                annotate_result(attempt_dir, infrastructure_failures(Path(attempt_dir)))
+            except OSError:
+                pass
+        return None, progress_line(sweep_dir, job, "complete already, skipped", result_path)
+    try:
+        if check.state == "partial":  # killed mid-attempt, or every try of an earlier session failed
+            infra = check.result is not None and is_infrastructure_failure(check.result)
+            set_aside(attempt_dir, GIVEN_UP if infra else INTERRUPTED, job_log)
+    except OSError as e:
+        return None, progress_line(sweep_dir, job, f"NOT RUN: its earlier records could not be set aside "
+                                                   f"({e.strerror or e}); {RESUME_HINT}")
     plain = _plain(cfg)
-    result = AttemptSupervisor(plain, attempt_dir, identity, SupervisorConfig.from_cfg(plain.get("sweep")),
-                               job_log).run()
-    return result, progress_line(sweep_dir, job, describe(result))
+    sup = AttemptSupervisor(plain, attempt_dir, identity, SupervisorConfig.from_cfg(plain.get("sweep")), job_log)
+    result = sup.run()
+    what = describe(result)
+    if sup.unwritten:
+        what += f"; NOT WRITTEN ({sup.write_error}): {', '.join(sup.unwritten)}; {RESUME_HINT}"
+    return result, progress_line(sweep_dir, job, what, result_path)
+
+
+RESUME_HINT = "free space (or fix the folder), then run the same command again to resume"
 
 
 def describe(result: dict) -> str:

@@ -20,6 +20,9 @@ from cab_core.attempt.record import (INFRA_REASON, RECORD_VERSION, AttemptRecord
                                      MalformedRecord, parse_record, write_record)
 
 SET_ASIDE = "set_aside"
+# Why a resumed sweep sets an attempt's records aside: a half-written attempt (the sweep stopped
+# during that try), or an attempt every try of which failed (its tries have folders of their own).
+INTERRUPTED, GIVEN_UP = "interrupted", "infrastructure"
 INFRA_LOG = "infrastructure.jsonl"
 # Terminations that are failures of the infrastructure, not of the model (the fault rule).
 INFRA_TERMINATIONS = INFRASTRUCTURE_TERMINATIONS
@@ -138,24 +141,80 @@ def set_aside(attempt_dir: Path, why: str, job_log: str | None = None) -> str | 
 
 
 def log_infrastructure_failure(attempt_dir: Path, entry: dict) -> None:
-    """Append one failure to the attempt's ``infrastructure.jsonl`` (append-only, survives resumes)."""
-    with open(Path(attempt_dir) / INFRA_LOG, "a") as f:
-        f.write(json.dumps(entry) + "\n")
-
-
-def infrastructure_failures(attempt_dir: Path) -> list[dict]:
-    """Every infrastructure failure recorded for this attempt, oldest first."""
+    """Append one failure to the attempt's ``infrastructure.jsonl`` (append-only, survives resumes).
+    A line that a full disk tore earlier is ended first, so that this one stays whole. Raises
+    OSError when it cannot be written (the supervisor says so; the set-aside folder still tells)."""
     p = Path(attempt_dir) / INFRA_LOG
-    if not p.is_file():
+    line = json.dumps(entry) + "\n"
+    with open(p, "ab") as f:
+        if f.tell() and not _ends_with_newline(p):
+            line = "\n" + line
+        f.write(line.encode())
+
+
+def _ends_with_newline(p: Path) -> bool:
+    with open(p, "rb") as f:
+        f.seek(-1, os.SEEK_END)
+        return f.read(1) == b"\n"
+
+
+def _aside_number(name: str) -> int:
+    head = name.split("-", 1)[0]
+    return int(head) if head.isdigit() else 0
+
+
+def _derived_failures(attempt_dir: Path, listed: set) -> list[dict]:
+    """A failure for each try set aside as an infrastructure failure whose entry is missing from
+    ``infrastructure.jsonl`` (a full disk kept it out): its kind is in the folder's name, its time
+    is the folder's. Folders set aside on resume (``NN-interrupted``: the sweep stopped during that
+    try; ``NN-infrastructure``: the result of an attempt given up on) are not failures."""
+    base = Path(attempt_dir) / SET_ASIDE
+    if not base.is_dir():
         return []
-    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+    out = []
+    for p in sorted((q for q in base.iterdir() if q.is_dir()), key=lambda q: (_aside_number(q.name), q.name)):
+        rel = f"{SET_ASIDE}/{p.name}"
+        kind = p.name.split("-", 1)[1] if "-" in p.name else p.name
+        if rel in listed or kind in (INTERRUPTED, GIVEN_UP):
+            continue
+        out.append({"kind": kind, "detail": f"its entry in {INFRA_LOG} could not be written (known from its "
+                                            "set-aside records)", "at": p.stat().st_mtime, "records": rel})
+    return out
 
 
-def write_infrastructure_result(attempt_dir: Path, identity: dict, failures: list[dict]) -> dict:
-    """The result of an attempt whose every try failed for reasons that are not the model's: no
+def infrastructure_failures(attempt_dir: Path, unlogged: list[dict] | tuple = ()) -> list[dict]:
+    """Every infrastructure failure of this attempt, oldest first: the entries of
+    ``infrastructure.jsonl`` (a line a full disk tore is skipped), those of ``unlogged`` (this
+    session's failures that could not be written there) not among them, and one for each try set
+    aside as an infrastructure failure that neither lists (see :func:`_derived_failures`)."""
+    p = Path(attempt_dir) / INFRA_LOG
+    out = []
+    if p.is_file():
+        for line in p.read_text(errors="replace").splitlines():
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(entry, dict):
+                out.append(entry)
+    out += [e for e in unlogged if e not in out]
+    out += _derived_failures(attempt_dir, {e.get("records") for e in out})
+    return sorted(out, key=lambda e: e.get("at") if isinstance(e.get("at"), (int, float)) else float("inf"))
+
+
+def unlisted_set_aside(attempt_dir: Path, result: dict) -> bool:
+    """Whether ``result`` (a complete attempt's) leaves out a try that was set aside as an
+    infrastructure failure (its note could not be written when that try ended)."""
+    listed = {f.get("records") for f in ((result.get("infrastructure") or {}).get("failures") or [])
+              if isinstance(f, dict)}
+    return any(f.get("records") not in listed for f in infrastructure_failures(attempt_dir))
+
+
+def infrastructure_record(identity: dict, failures: list[dict]) -> AttemptRecord:
+    """The record of an attempt whose every try failed for reasons that are not the model's: no
     verdict, marked so that reports exclude it and a resumed sweep runs it again."""
     last = failures[-1] if failures else {}
-    record = AttemptRecord.build(
+    return AttemptRecord.build(
         record_version=RECORD_VERSION, **identity,
         verdict={"success": None, "excluded": INFRA_REASON},
         termination={"reason": INFRA_REASON,
@@ -163,7 +222,11 @@ def write_infrastructure_result(attempt_dir: Path, identity: dict, failures: lis
         claim={"success_claim": None, "report": None},
         budget={}, timing={}, versions={},
         infrastructure={"failed": True, "failures": failures})
-    return write_record(Path(attempt_dir) / "result.json", record)
+
+
+def write_infrastructure_result(attempt_dir: Path, identity: dict, failures: list[dict]) -> dict:
+    """Write :func:`infrastructure_record` as the attempt's ``result.json``; returns what was written."""
+    return write_record(Path(attempt_dir) / "result.json", infrastructure_record(identity, failures))
 
 
 def annotate_result(attempt_dir: Path, failures: list[dict]) -> dict:

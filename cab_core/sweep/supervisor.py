@@ -35,8 +35,9 @@ from typing import Callable
 
 from cab_core.errors import ConfigError
 from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV, kill_group
-from cab_core.sweep.records import (INFRA_TERMINATIONS, annotate_result, check_attempt, infrastructure_failures,
-                                    is_infrastructure_failure, log_infrastructure_failure, set_aside,
+from cab_core.sweep.records import (INFRA_LOG, INFRA_TERMINATIONS, annotate_result, check_attempt,
+                                    infrastructure_failures, infrastructure_record, is_infrastructure_failure,
+                                    log_infrastructure_failure, record_entries, set_aside,
                                     write_infrastructure_result)
 
 CHILD_LOG = "attempt.log"
@@ -224,6 +225,7 @@ class AttemptSupervisor:
     def _run_child(self, try_no: int) -> tuple[int | None, str | None]:
         """One try; returns (exit status, or None when it was killed, and why it was killed: None,
         "hang" or "memory")."""
+        self.child_error = None  # the exception that ended the try, as a warm worker tells it
         self.dir.mkdir(parents=True, exist_ok=True)
         if self.settings.warm_workers:
             return self._run_in_worker(try_no)
@@ -272,6 +274,7 @@ class AttemptSupervisor:
                 _WORKERS.pop(key, None)
                 return None, killed
         code = int(reply["status"])
+        self.child_error = reply.get("error")
         s = self.settings
         if code != 0 or not worker.alive() or worker.attempts >= s.worker_max_attempts \
                 or worker.rss_mb > s.worker_max_rss_mb:
@@ -290,7 +293,8 @@ class AttemptSupervisor:
             raise ChildConfigError(f"attempt {self.dir}: {_log_tail(self.dir, 600).strip()}")
         if code != 0:
             how = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
-            return {"kind": "crash", "detail": f"attempt process {how}", "log_tail": _log_tail(self.dir)}
+            why = f" ({self.child_error})" if self.child_error else ""
+            return {"kind": "crash", "detail": f"attempt process {how}{why}", "log_tail": _log_tail(self.dir)}
         check = check_attempt(self.dir, self.identity, self.job_log)
         if check.state != "complete":
             return {"kind": "incomplete_record", "detail": "; ".join(check.problems)}
@@ -299,21 +303,68 @@ class AttemptSupervisor:
             return {"kind": reason, "detail": f"{INFRA_TERMINATIONS[reason]}: {check.result['termination'].get('detail')}"}
         return None
 
+    def _keep(self, what: str, write: Callable, *args):
+        """``write(*args)``; on a file-system error (a full disk, above all) note ``what`` could not be
+        written and return None: the supervisor's own bookkeeping never ends the sweep."""
+        try:
+            return write(*args)
+        except OSError as e:
+            self.unwritten.append(what)
+            self.write_error = self.write_error or (e.strerror or type(e).__name__)
+            _drop_temporary(self.dir)
+            return None
+
     def run(self) -> dict:
-        """Run tries until one is a valid attempt; returns its result (or the infrastructure result)."""
+        """Run tries until one is a valid attempt; returns its result (or the infrastructure result).
+        What could not be written (a full disk) is listed in :attr:`unwritten`, the error in
+        :attr:`write_error`; then no further try runs (retrying cannot help until there is space,
+        and records that could not be set aside stand in its way) and the result returned is the
+        one that should have been written."""
         s = self.settings
+        self.unwritten: list[str] = []
+        self.write_error: str | None = None
+        session: list[dict] = []  # this session's failures, whether or not infrastructure.jsonl took them
         for try_no in range(1, s.max_retries + 2):
             t0 = time.monotonic()
-            code, killed = self._run_child(try_no)
+            try:
+                code, killed = self._run_child(try_no)
+            except OSError as e:  # the try's folder or log could not be made
+                self.unwritten.append(f"the folder or log of try {try_no}")
+                self.write_error = self.write_error or (e.strerror or type(e).__name__)
+                break
             failure = self._failure(code, killed)
             if failure is None:
-                return annotate_result(self.dir, infrastructure_failures(self.dir))
+                failures = infrastructure_failures(self.dir, session)
+                done = self._keep("the infrastructure failures in result.json", annotate_result, self.dir, failures)
+                if done is None:
+                    done = json.loads((self.dir / "result.json").read_text())
+                    done["infrastructure"] = {"failed": False, "failures": failures}
+                return done
             failure.update(try_no=try_no, wall_seconds=round(time.monotonic() - t0, 3), at=time.time())
-            failure["records"] = set_aside(self.dir, failure["kind"], self.job_log)
-            log_infrastructure_failure(self.dir, failure)
+            failure["records"] = self._keep(f"set_aside/ for try {try_no}'s records ({failure['kind']})",
+                                            set_aside, self.dir, failure["kind"], self.job_log)
+            session.append(failure)
+            self._keep(f"{INFRA_LOG} (try {try_no}: {failure['kind']})", log_infrastructure_failure, self.dir, failure)
+            if self.unwritten:
+                break
             if try_no <= s.max_retries and s.retry_backoff_s:
                 time.sleep(s.retry_backoff_s)
-        return write_infrastructure_result(self.dir, self.identity, infrastructure_failures(self.dir))
+        failures = infrastructure_failures(self.dir, session)
+        out = None
+        if self.unwritten and record_entries(self.dir, self.job_log):
+            self.unwritten.append("result.json")  # not among a try's records: a resumed sweep sets them aside
+        else:
+            out = self._keep("result.json", write_infrastructure_result, self.dir, self.identity, failures)
+        return out if out is not None else infrastructure_record(self.identity, failures).dump()
+
+
+def _drop_temporary(d: Path) -> None:
+    """Remove what an atomic write of this process left half-written in ``d`` (a full disk)."""
+    for p in d.glob(f".*.tmp-{os.getpid()}"):
+        try:
+            p.unlink()
+        except OSError:
+            pass
 
 
 # -- batches: many one-off attempts (an oracle or the idle agent per task, seed and simulator) -----
