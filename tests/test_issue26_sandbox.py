@@ -238,6 +238,20 @@ def test_the_record_writer_writes_strict_json_and_says_where(tmp_path):
     assert strict_loads((tmp_path / "r.json").read_text()) == {"x": None, "non_finite_as_null": ["x"]}
 
 
+def test_a_tool_result_the_agent_sees_is_strict_json():
+    """serving.py passes every tool result through ``strict_payload`` before the agent sees it."""
+    from cab_core.attempt import serving
+    from cab_core.sandbox.truncate import strict_payload
+
+    assert serving.strict_payload is strict_payload
+    clean = {"pose": np.array([0.1, 0.2]), "ok": True}
+    assert strict_payload(clean) is clean  # finite: untouched, the same object
+    out = strict_payload({"pose": np.array([np.nan, 0.2]), "d": float("inf"), "nested": [{"x": float("-inf")}]})
+    assert out == {"pose": [None, 0.2], "d": None, "nested": [{"x": None}],
+                   "non_finite_as_null": ["pose[0]", "d", "nested[0].x"]}
+    strict_loads(json.dumps(out, allow_nan=False))
+
+
 def test_a_tool_payloads_nan_reaches_the_agent_as_null():
     from cab_core.sandbox import DispatchResult
 

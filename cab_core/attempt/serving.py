@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.faults import is_infrastructure_fault, tool_error_payload
 from cab_core.errors import AttemptEnded, BudgetExhausted, ObservationUnavailable, ToolArgumentError
+from cab_core.sandbox.truncate import strict_payload
 from cab_core.tools import validate_args
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -86,6 +87,7 @@ class CallServer:
         status = None
         try:
             payload, out_obs, status = self._invoke(name, args, direct=True)
+            payload = strict_payload(payload)  # what the agent sees is strict JSON (NaN: null, noted)
         except Exception as e:  # only an infrastructure fault gets here (cab_core.attempt.faults)
             self.recorder.event("host_fault", tool=name, arguments=args, error=repr(e), traceback=traceback.format_exc())
             self._end("host_fault", f"{name}: {e!r}")
@@ -172,6 +174,7 @@ class CallServer:
         if reason in ("sim_budget", "wall_budget"):
             return DispatchResult({"error": "budget exhausted", "reason": reason}, [], ended=True)
         payload, obs_ids, status = self._invoke(name, kwargs, direct=False)
+        payload = strict_payload(payload)
         self.recorder.event("internal_call", tool=name, arguments=kwargs, result=payload, obs_ids=obs_ids, status=status,
                             physics_steps=self.clock.steps - steps0, physics_step_end=self.clock.steps, tick=self.ctx.tick)
         if self.clock.steps != steps0:

@@ -788,6 +788,7 @@ def install_landlock(read_paths: list[str]) -> str:
 _ADDRESS = re.compile(r" at 0x[0-9a-fA-F]+")
 _REPR_KEEP = (str, bytes, bytearray, int, float, complex, bool, type(None), list, tuple, dict, set, frozenset)
 _repr_slots: dict = {}  # original slot -> (original, replacement): kept alive as long as the process
+_repr_replacements: set = set()  # the replacements' addresses (a second call wraps nothing twice)
 
 
 def hide_addresses(keep: tuple = ()) -> str:
@@ -824,7 +825,7 @@ def hide_addresses(keep: tuple = ()) -> str:
         current = get_slot(t, tp_repr)
         if slot.value != current:
             raise OSError(f"the type layout of this Python is not the expected one ({t.__name__})")
-        if current:
+        if current and current not in _repr_replacements:  # not wrapped yet
             plan.append((slot, current))
     for slot, current in plan:
         if current not in _repr_slots:
@@ -836,7 +837,9 @@ def hide_addresses(keep: tuple = ()) -> str:
                 except BaseException:  # noqa: BLE001 - a repr that fails (recursion) says what it is
                     return f"<{type(obj).__name__} object>"
 
-            _repr_slots[current] = (original, reprfunc(wrapper))
+            replacement = reprfunc(wrapper)
+            _repr_slots[current] = (original, replacement)
+            _repr_replacements.add(ctypes.cast(replacement, ctypes.c_void_p).value)
         slot.value = ctypes.cast(_repr_slots[current][1], ctypes.c_void_p).value
 
     def probe():

@@ -61,6 +61,20 @@ def non_finite_note(found: list[str], earlier=None) -> list[str]:
     return paths
 
 
+def strict_payload(payload: dict) -> dict:
+    """``payload`` itself when strict JSON can hold it; else a copy with null for each NaN or
+    infinity and ``non_finite_as_null`` saying where (a tool result the agent sees)."""
+    try:
+        json.dumps(payload, allow_nan=False, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+        return payload
+    except ValueError:
+        found: list[str] = []
+        clean = finite_json(payload, "", found)
+        if found and isinstance(clean, dict):
+            clean[NON_FINITE_KEY] = non_finite_note(found, clean.get(NON_FINITE_KEY))
+        return clean
+
+
 def cut_str(s: str, n: int) -> str:
     if len(s) <= n:
         return s
