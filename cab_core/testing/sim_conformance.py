@@ -910,3 +910,8 @@ def run_all(factory: SimFactory) -> dict[str, str]:
         except Exception as e:  # noqa: BLE001 (a report, not control flow)
             out[check_id(check)] = f"{type(e).__name__}: {e}"
     return out
+
+# far-away bodies change nothing (its own module; it builds on this module's world)
+from cab_core.testing.isolation_conformance import check_isolation  # noqa: E402
+
+CHECKS.append(check_isolation)
