@@ -154,11 +154,14 @@ def test_ordinary_numpy_still_works(sb):
         "          np.ndarray((2,)).tolist(), np.empty(3).tolist(), np.empty_like(b).tolist(), x.tolist(),\n"
         "          np.frombuffer(b, np.uint8, 2, 6).tolist(), np.zeros(2).tobytes().hex(), len(bytes(b)),\n"
         "          np.ndarray.tolist(np.ones(2)), repr(np.ndarray), hash((1, 'a')) == hash((1, 'a'))]\n"
+        "result += [b.view(np.ndarray).shape, np.zeros(2, [('a', 'f8')]).view(np.recarray).a.tolist(),\n"
+        "           np.ndarray.view(b, np.uint16).shape, b.view(type=np.ndarray, dtype=np.uint32).shape]\n"
         "match b:\n"
         "    case np.ndarray():\n"
         "        result.append('matched')"))
     assert r["value"] == [[[99, 5], [6, 7]], 99, True, True, [0.0, 0.0], [0.0] * 3, [0] * 8, [0.0] * 6,
-                          [6, 7], "00" * 16, 8, [1.0, 1.0], "<class 'numpy.ndarray'>", True, "matched"]
+                          [6, 7], "00" * 16, 8, [1.0, 1.0], "<class 'numpy.ndarray'>", True, [8], [0.0, 0.0],
+                          [4], [2], "matched"]
 
 
 def test_repr_shows_no_address(sb):

@@ -53,8 +53,9 @@ It also means no view of raw memory and no address:
   offset and size, and no strides), ``np.recarray``/``np.chararray`` (no buffer, offset or strides),
   ``np.frombuffer`` (no object arrays), ``np.empty``/``empty_like`` (zeroed). ``byte_bounds``,
   ``from_dlpack``, ``ctypes``, ``lib`` (``stride_tricks``) and ``core`` are out of reach;
-* ``.resize``, ``.tobytes``, ``.tostring`` and ``.data`` go through the same hook as ``format``:
-  ``resize`` keeps numpy's reference check (``refcheck=False`` frees memory a view still uses), and an
+* ``.resize``, ``.tobytes``, ``.tostring``, ``.data`` and ``.view`` go through the same hook as
+  ``format``: ``resize`` keeps numpy's reference check (``refcheck=False`` frees memory a view still
+  uses), ``view`` takes the program's array classes for numpy's (``x.view(np.recarray)``), and an
   object array's bytes (its objects' addresses) are refused, as is ``bytes()`` of one. ``.data``,
   ``.strides`` and ``.dtype`` are never assigned or deleted (``x.data = ...`` re-points an object
   array at forged pointers);
@@ -147,7 +148,7 @@ BANNED_ATTRS = {
 }
 # ndarray attributes that hand out raw bytes or can free memory a view still uses: every load of one
 # goes through the run-time hook (like ``format``), which checks the object it is taken from.
-ARRAY_ATTRS = ("resize", "tobytes", "tostring", "data")
+ARRAY_ATTRS = ("resize", "tobytes", "tostring", "data", "view")
 # Attributes no program assigns or deletes: they re-point an array at other memory or reinterpret it.
 FROZEN_ATTRS = {"data", "strides", "dtype"}
 _BANNED_NODES = {
@@ -340,6 +341,15 @@ def _array_method(arr, name: str, value):
         resize.__name__ = resize.__qualname__ = "resize"
         resize.__doc__ = value.__doc__
         return resize
+    if name == "view":  # x.view(np.recarray): the program's array classes stand in for numpy's own
+        def view(*args, **kwargs):
+            args = tuple(a._cab_real if isinstance(a, GuardedClass) else a for a in args)
+            kwargs = {k: v._cab_real if isinstance(v, GuardedClass) else v for k, v in kwargs.items()}
+            return value(*args, **kwargs)
+
+        view.__name__ = view.__qualname__ = "view"
+        view.__doc__ = value.__doc__
+        return view
     if arr.dtype.hasobject:
         raise SandboxPolicyError(f"'.{name}' of an array of Python objects is not allowed (its bytes are the "
                                  "objects' addresses)")
@@ -1187,4 +1197,6 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    code = main(sys.argv[1:])
+    sys.stderr.flush()
+    os._exit(code)  # no interpreter teardown: the repr slots point into callbacks it would free
