@@ -303,3 +303,14 @@ def test_a_scripted_attempt_gets_refusals_and_strict_json_records(tmp_path):
     assert seen[4]["ok"] is False and seen[4]["error"].startswith("RecursionError: the program could not be compiled")
     assert not any(s["namespace_reset"] for s in seen)
     assert not ADDRESS.search("\n".join(lines))
+    # a record whose measurements went NaN (a body blown away) is still a valid, strict record
+    from cab_core.attempt.record import AttemptRecord
+
+    result["verdict"]["values"] = {"distance": float("nan")}
+    result["verdict"]["margins"] = {"p": {"slack": float("nan"), "scale": 0.01, "fraction": float("-inf"), "unit": "m"}}
+    dumped = AttemptRecord.build(**result).dump()
+    assert dumped["verdict"]["values"] == {"distance": None}
+    assert dumped["verdict"]["margins"]["p"]["slack"] is None and dumped["verdict"]["margins"]["p"]["fraction"] is None
+    assert dumped["non_finite_as_null"] == ["verdict.values.distance", "verdict.margins.p.slack",
+                                            "verdict.margins.p.fraction"]
+    strict_loads(dumps(dumped))

@@ -122,10 +122,11 @@ class Claim(Block):
 
 class Margin(Block):
     """How far one predicate's measured quantity is inside (``slack > 0``) or outside its threshold
-    (:class:`cab_core.contracts.verifier.Margin`)."""
-    slack: Num
-    scale: Num
-    fraction: Num
+    (:class:`cab_core.contracts.verifier.Margin`). Null where the measurement was not a number
+    (strict JSON holds no NaN: :func:`dumps`)."""
+    slack: Num | None
+    scale: Num | None
+    fraction: Num | None
     unit: str
     measured: Num | None = None
     threshold: Num | None = None
@@ -154,7 +155,7 @@ class Verdict(Block):
     scoring: str | None = None
     final_state_success: bool | None = None
     predicates: dict[str, bool] | None = None
-    values: dict[str, Num] | None = None
+    values: dict[str, Num | None] | None = None  # null: not a number (strict JSON)
     final_requirements: dict[str, bool] | None = None
     guard: dict[str, bool] | None = None
     latch: Latch | None = None  # null for final-state tasks
