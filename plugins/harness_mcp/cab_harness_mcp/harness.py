@@ -155,6 +155,7 @@ class McpHarness:
         self.bridge: CallBridge | None = None
         self.tools: list = []
         self._info: dict = {}
+        self.stopped_because: str | None = None  # why serving stopped after the attempt was recorded
 
     # -- before the simulator starts ----------------------------------------------------------
     def preflight(self, model_cfg: dict) -> None:
@@ -286,8 +287,15 @@ class McpHarness:
                 if finish_video is not None:
                     finish_video()  # the video, after the answer; the server answers later calls meanwhile
                     answered_at = time.monotonic()
-            if transport.finished or self._client_gone(transport) or time.monotonic() - answered_at >= s.linger_s:
-                break
+            if transport.finished:
+                self.stopped_because = "transport_finished"
+            elif self._client_gone(transport):
+                self.stopped_because = "sessions_ended"
+            elif time.monotonic() - answered_at >= s.linger_s:
+                self.stopped_because = "linger"
+            else:
+                continue
+            break
 
     @staticmethod
     def _client_gone(transport: ServerThread) -> bool:
