@@ -77,7 +77,8 @@ def serve() -> int:
         try:
             status = run(job)
         except Exception as e:  # noqa: BLE001 (a host fault: reported, and this process leaves)
-            error = f"{type(e).__name__}: {e}"[:500]  # also in the reply: a full disk may refuse the log
+            # in the reply too: a full disk may refuse the log
+            error = " ".join(f"{type(e).__name__}: {e}".split())[:500]
             try:
                 traceback.print_exc()
             except OSError:
