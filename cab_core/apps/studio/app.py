@@ -242,8 +242,8 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
     def api_tree(request: Request):
         gs = tree.groups(studio.root)
         plays = [p.status() for p in studio.plays.plays.values()]
-        return JSONResponse({"root": studio.shown, "groups": [{**g.as_dict(attempts=False), "name": studio.group_name(g.rel)}
-                                                             for g in gs],
+        named = [{**g.as_dict(attempts=False), "name": studio.group_name(g.rel)} for g in gs]
+        return JSONResponse({"root": studio.shown, "groups": named,
                              "plays": plays})
 
     def group_page(request: Request):
