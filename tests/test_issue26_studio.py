@@ -314,3 +314,16 @@ def test_scatter_labels_do_not_overlap(points):
     again = fg.scatter("success_wall", "Success rate against median wall time", points, "median wall time (s)",
                        "success rate", xfmt=lambda x: f"{x:.1f} s")
     assert fg.inline_svg(again) == svg  # the same points, the same places, the same bytes
+
+
+def test_a_margin_written_as_null_is_shown_not_measured():
+    """A measurement that was not a finite number is null in a strict-JSON record
+    (``non_finite_as_null``); the attempt page and the conformance message say so instead of failing."""
+    from cab_core.analysis.viewer import _margins
+    from cab_core.testing.task_conformance import _predicate_line
+
+    m = {"slack": None, "scale": 0.04, "fraction": None, "unit": "m", "measured": None, "threshold": 0.04}
+    rows = _margins({"margins": {"on_pad": m}})["rows"]
+    assert rows == [{"name": "on_pad", "cls": "bad", "slack": "not measured", "fraction": "",
+                     "measured": "", "threshold": "0.04"}]
+    assert _predicate_line("on_pad", m) == "on_pad false: threshold 0.04 m, margin not measured"

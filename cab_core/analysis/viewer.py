@@ -205,9 +205,19 @@ def _margins(v: dict) -> dict | None:
         return "" if x is None else f"{x:.4g}"
 
     return {"at": _margins_at(v),
-            "rows": [{"name": k, "cls": "good" if m["slack"] > 0 else "bad", "slack": f"{m['slack']:+.4g} {m['unit']}",
-                      "fraction": f"{m['fraction']:+.1%}", "measured": g(m.get("measured")),
-                      "threshold": g(m.get("threshold"))} for k, m in ms.items()]}
+            "rows": [_margin_row(k, m, g) for k, m in ms.items()]}
+
+
+def _margin_row(name: str, m: dict, g) -> dict:
+    """One predicate's row; a measurement that was not a finite number is written as null in the
+    record (``non_finite_as_null``) and shown as "not measured"."""
+    slack, fraction = m.get("slack"), m.get("fraction")
+    if slack is None:
+        return {"name": name, "cls": "bad", "slack": "not measured", "fraction": "",
+                "measured": g(m.get("measured")), "threshold": g(m.get("threshold"))}
+    return {"name": name, "cls": "good" if slack > 0 else "bad", "slack": f"{slack:+.4g} {m.get('unit', '')}",
+            "fraction": "" if fraction is None else f"{fraction:+.1%}", "measured": g(m.get("measured")),
+            "threshold": g(m.get("threshold"))}
 
 
 def fork_links(d: Path, fork: dict | None) -> dict:

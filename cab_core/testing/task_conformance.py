@@ -95,7 +95,11 @@ def _predicate_line(name: str, m: dict | None) -> str:
         parts.append(f"measured {_number(m['measured'])}{unit}")
     if m.get("threshold") is not None:
         parts.append(f"threshold {_number(m['threshold'])}{unit}")
-    parts.append(f"margin {m['slack']:+.4g}{unit} ({m['fraction']:+.0%} of its tolerance)")
+    if m.get("slack") is None:  # a measurement that was not a finite number (null in the record)
+        parts.append("margin not measured")
+    else:
+        frac = "" if m.get("fraction") is None else f" ({m['fraction']:+.0%} of its tolerance)"
+        parts.append(f"margin {m['slack']:+.4g}{unit}{frac}")
     return f"{name} false: {', '.join(parts)}"
 
 
