@@ -35,13 +35,13 @@ measured regions; ``python -m cab_core.testing.appearance_conformance --tasks al
 region's figures): the largest hue angle seen is 5.7 degrees (bound 15), the largest lightness
 ratio 2.4 (bound 4: lit and shaded faces of one object differ that much), but for open_microwave's
 buttons on PyBullet at 3.1: its URDF names two colours ``button`` (buttons and knob), PyBullet
-takes the last one for both and SAPIEN the first. PyBullet's collision
-shapes drawn white over the bodies they belong to (issue 26, item 13) failed four tasks: lift_pot's
-black handles at 32 times the picture's median lightness and its red wall 24 degrees off in hue
-(the white band), move_can_pot's pot (33 degrees, 7.6 times), place_bread_skillet's black skillet
-(29 times) and place_object_basket's basket (17 times). What the bounds cannot see: a colour off by less than a factor 4 in lightness at the
-same hue (a mid grey drawn light grey). Shapes with a texture image are not judged
-(``sim_conformance.check_textures`` is about them), nor is the robot.
+takes the last one for both and SAPIEN the first. PyBullet's collision shapes drawn white over the
+bodies they belong to (issue 26, item 13) failed four tasks: lift_pot's black handles at 32 times
+the picture's median lightness and its red wall 24 degrees off in hue (the white band),
+move_can_pot's pot (33 degrees, 7.6 times), place_bread_skillet's black skillet (29 times) and
+place_object_basket's basket (17 times). What the bounds cannot see: a colour off by less than a
+factor 4 in lightness at the same hue (a mid grey drawn light grey). Shapes with a texture image
+are not judged (``sim_conformance.check_textures`` is about them), nor is the robot.
 
 Cost: a build, a settle and two renders per task and simulator, plus the rasterisation: 2 to 4 s a
 task on a shared 2-core CPU (MuJoCo fastest, PyBullet's TinyRenderer slowest); all 25 tasks on the
@@ -62,7 +62,6 @@ import sys
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -207,7 +206,8 @@ def _urdf_visuals(urdf: str) -> list[tuple[str, object, tuple, tuple[float, floa
             m = vis.find("material")
             if m is not None:
                 c = m.find("color")
-                color = tuple(float(x) for x in c.get("rgba").split()[:3]) if c is not None else named.get(m.get("name"))
+                color = (tuple(float(x) for x in c.get("rgba").split()[:3]) if c is not None
+                         else named.get(m.get("name")))
             geo = vis.find("geometry")
             if geo is None or len(geo) == 0:
                 continue
@@ -307,7 +307,8 @@ def _erode(mask: np.ndarray, n: int) -> np.ndarray:
     m = mask.copy()
     for _ in range(n):
         p = np.pad(m, 1, constant_values=False)
-        m = m & p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:] & p[:-2, :-2] & p[2:, 2:] & p[:-2, 2:] & p[2:, :-2]
+        m = (m & p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:]
+             & p[:-2, :-2] & p[2:, 2:] & p[:-2, 2:] & p[2:, :-2])
     return m
 
 
@@ -434,7 +435,8 @@ def main(argv: list[str] | None = None) -> int:
     """Print every region's figures per task and simulator; exit 1 where a check fails."""
     from cab_core.plugins import registry
 
-    ap = argparse.ArgumentParser(prog="python -m cab_core.testing.appearance_conformance", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m cab_core.testing.appearance_conformance",
+                                 description=__doc__.split("\n")[0])
     ap.add_argument("--sims", default=None, help="comma-separated simulators (default: every installed one)")
     ap.add_argument("--tasks", default=None, help="'all', or comma-separated tasks (default: the representative set)")
     a = ap.parse_args(argv)
