@@ -124,7 +124,15 @@ def test_task_selection(monkeypatch):
 
     installed = list(all_tasks())
     monkeypatch.delenv(ac.ENV_TASKS, raising=False)
-    assert ac.selected_tasks() == [t for t in ac.REPRESENTATIVE if t in installed]
+    chosen = ac.selected_tasks()
+    assert chosen == list(ac.representative_tasks()) and len(chosen) == ac.REPRESENTATIVE_COUNT
+    assert set(chosen) <= set(installed)
+    # among them a scene where white collision shapes would show: a dark body split over links
+    emb = ac._embodiment()
+    tasks = all_tasks()
+    feats = set().union(*(ac.scene_features(tasks[t].build(tasks[t].info.seed, emb).scene)[0] for t in chosen))
+    assert {"near-black body of collision shapes past one link", "articulated", "visual shapes past one link",
+            "three colours on one body", "saturated"} <= feats
     monkeypatch.setenv(ac.ENV_TASKS, "all")
     assert ac.selected_tasks() == installed
     monkeypatch.setenv(ac.ENV_TASKS, "lift_pot, open_microwave")
