@@ -15,6 +15,7 @@ one aside, and runs the attempt under ``AttemptSupervisor`` (child process, watc
 """
 from __future__ import annotations
 
+import atexit
 import fcntl
 import hashlib
 import json
@@ -54,23 +55,31 @@ _LOCKS: dict[str, int] = {}  # sweep directories this process holds, and the des
 
 
 def lock_sweep(sweep_dir: Path) -> None:
-    """Hold ``<sweep_dir>/sweep.lock`` (``flock``, exclusive) for as long as this process lives, or
-    raise SweepBusy naming the process that holds it (pid, host, start time, command). The kernel
-    releases the lock when the process ends, however it ends (SIGKILL included): a resumed sweep
-    never finds a stale lock. The descriptor is not inherited by the processes the sweep starts."""
+    """Hold ``<sweep_dir>/sweep.lock`` (``flock``, exclusive) until :func:`unlock_sweep` or the end
+    of this process, or raise SweepBusy naming the process that holds it (pid, host, start time,
+    command). The kernel releases the lock when the process ends, however it ends (SIGKILL
+    included): a resumed sweep never finds a stale lock. The descriptor is not inherited by the
+    processes the sweep starts. The file is removed when the lock is released by this process (a
+    lock taken on a file that was removed meanwhile is taken again on the new one)."""
     d = Path(sweep_dir)
     key = str(d.resolve())
     if key in _LOCKS:
         return
     d.mkdir(parents=True, exist_ok=True)
-    fd = os.open(d / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = _holder(fd)
-        os.close(fd)
-        raise SweepBusy(f"{d} is in use by a sweep running now ({holder}); nothing was run or set aside. Wait "
-                        "for it to end (then run this command to resume), or choose another hydra.sweep.dir") from None
+    path = d / LOCK
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise SweepBusy(f"{d} is in use by a sweep running now ({holder}); nothing was run or set aside. "
+                            "Wait for it to end (then run this command to resume), or choose another "
+                            "hydra.sweep.dir") from None
+        if _same_file(fd, path):
+            break
+        os.close(fd)  # its holder removed it after we opened it: lock the file there now
     _LOCKS[key] = fd
     me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(), "argv": sys.argv}
     try:  # who holds it, for the refusal above (the lock itself holds without it: a full disk)
@@ -80,11 +89,32 @@ def lock_sweep(sweep_dir: Path) -> None:
         pass
 
 
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        a, b = os.fstat(fd), os.stat(path)
+    except FileNotFoundError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
 def unlock_sweep(sweep_dir: Path) -> None:
-    """Release :func:`lock_sweep`'s lock (the end of the process releases it too)."""
+    """Release :func:`lock_sweep`'s lock and remove its file (while still holding it)."""
     fd = _LOCKS.pop(str(Path(sweep_dir).resolve()), None)
-    if fd is not None:
-        os.close(fd)
+    if fd is None:
+        return
+    path = Path(sweep_dir) / LOCK
+    try:
+        if _same_file(fd, path):
+            path.unlink()
+    except OSError:
+        pass
+    os.close(fd)
+
+
+@atexit.register
+def _unlock_all() -> None:
+    for key in list(_LOCKS):
+        unlock_sweep(Path(key))
 
 
 def _holder(fd: int) -> str:
@@ -193,6 +223,13 @@ class SweepManifest:
         sweep runs there now, SweepConfigChanged, naming what changed, when the directory holds
         another sweep."""
         lock_sweep(Path(sweep_dir))
+        try:
+            return self._open(Path(sweep_dir), launcher)
+        except BaseException:  # refused (or the manifest could not be written): nothing of this session stays
+            unlock_sweep(Path(sweep_dir))
+            raise
+
+    def _open(self, sweep_dir: Path, launcher: str) -> dict:
         path = Path(sweep_dir) / MANIFEST
         now = time.time()
         if path.is_file():
