@@ -249,3 +249,26 @@ def test_a_killed_sweep_leaves_no_lock(tmp_path):
     assert own_lines(r.stderr)[-1] == f"cab sweep: 2/2 attempts complete; {sweep}"
     aside = attempt_dir(sweep, 1) / "set_aside"
     assert (sorted(p.name for p in aside.iterdir()) if aside.exists() else []) == (["01-interrupted"] if half else [])
+
+
+def test_the_lock_names_its_holder_and_goes_with_it(tmp_path):
+    import sys
+
+    from cab_core.sweep.manifest import LOCK, lock_sweep, unlock_sweep
+
+    sweep = tmp_path / "sw"
+    other = [sys.executable, "-c", "import sys; from cab_core.sweep.manifest import lock_sweep; lock_sweep(sys.argv[1])",
+             str(sweep)]
+    lock_sweep(sweep)
+    try:
+        lock_sweep(sweep)  # this process holds it already: no refusal of its own
+        r = subprocess.run(other, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 1
+        assert (f"SweepBusy: {sweep} is in use by a sweep running now (pid {os.getpid()} on {socket.gethostname()}, "
+                "started ") in r.stderr
+    finally:
+        unlock_sweep(sweep)
+    assert not (sweep / LOCK).exists()
+    r = subprocess.run(other, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert not (sweep / LOCK).exists()  # released and removed at that process's end
