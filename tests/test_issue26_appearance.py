@@ -145,3 +145,20 @@ def test_task_selection(monkeypatch):
 def test_the_check_runs_with_the_simulator_conformance_suite():
     assert ac.check_appearance in sc.CHECKS and ac.check_appearance in sc.NEEDS_RENDERER
     assert sc.check_id(ac.check_appearance) == "appearance"
+
+
+def test_a_urdf_material_name_carries_one_colour():
+    """Simulators keep either the first or the last colour given under one URDF material name (the
+    microwave's buttons and knob once differed per simulator): the suite refuses two colours per name."""
+    from cab_suite_codeaction.common import hinged_urdf, urdf_part
+
+    def build(knob_material):
+        parts = [urdf_part("box", (0.1, 0.1, 0.1), (0, 0, 0), rgba=(0.8, 0.8, 0.82, 1), material="button"),
+                 urdf_part("box", (0.1, 0.1, 0.1), (0, 0, 0.2), rgba=(0.55, 0.55, 0.58, 1), material=knob_material)]
+        return hinged_urdf("thing", base_inertial="", base_parts=parts, child="door", child_inertial="",
+                           child_parts=[], joint="hinge", origin=(0, 0, 0), axis="0 0 1", upper=1.0,
+                           velocity=1.0, damping=0.1, friction=0.0)
+
+    assert 'material name="knob"' in build("knob")
+    with pytest.raises(ValueError, match=r"thing: material 'button' is given two colours"):
+        build("button")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
@@ -290,6 +291,7 @@ def hinged_urdf(robot: str, *, base_inertial: str, base_parts: Sequence[str], ch
     """A two-link URDF: a ``base`` link and a ``child`` link on one revolute ``joint`` (lower limit 0)."""
     nl = "\n    "
     ox, oy, oz = origin
+    _one_colour_per_material(robot, [*base_parts, *child_parts])
     return f"""<?xml version="1.0"?>
 <robot name="{robot}">
   <link name="base">
@@ -310,6 +312,16 @@ def hinged_urdf(robot: str, *, base_inertial: str, base_parts: Sequence[str], ch
   </joint>
 </robot>
 """
+
+
+def _one_colour_per_material(robot: str, parts: Sequence[str]) -> None:
+    """A URDF material name is global to the robot: simulators keep the first or the last colour
+    given under a name, so two colours under one name would render differently per simulator."""
+    seen: dict[str, str] = {}
+    for name, rgba in re.findall(r'<material name="([^"]+)"><color rgba="([^"]+)"/>', "".join(parts)):
+        if seen.setdefault(name, rgba) != rgba:
+            raise ValueError(f"{robot}: material {name!r} is given two colours ({seen[name]} and {rgba}); "
+                             "name each colour's material apart")
 
 
 def box_inertia(mass: float, size: Sequence[float]) -> tuple[float, float, float]:

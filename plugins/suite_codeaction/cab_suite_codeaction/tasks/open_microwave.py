@@ -134,7 +134,7 @@ def microwave_urdf(v: Variant) -> str:
             add("button", "box", (0.022, 0.004, 0.014),
                 (px + (col - 1) * 0.03, -D / 2 - DOOR_T - 0.002, z0 + H - 0.095 - row * 0.026),
                 rgba=_rgba((0.80, 0.80, 0.82)), collision=False)
-    add("button", "cylinder", (0.02, 0.008), (px, -D / 2 - DOOR_T - 0.004, z0 + 0.065), rpy=(np.pi / 2, 0, 0),
+    add("knob", "cylinder", (0.02, 0.008), (px, -D / 2 - DOOR_T - 0.004, z0 + 0.065), rpy=(np.pi / 2, 0, 0),
         rgba=_rgba((0.55, 0.55, 0.58)), collision=False)
     # feet
     for fx in (-1, 1):
