@@ -283,6 +283,9 @@ class Episode:
             if block is not None and block["render_seconds"] is None:
                 del block["render_seconds"]  # as the record writes it (Video.omit_if_none)
             result["video"] = block  # in place: the dict finish() returned is the record's
+            timing = result.get("timing")
+            if self._video_render_seconds is not None and isinstance(timing, dict):
+                timing["wall_seconds"] = round(time.monotonic() - self._t_start, 3)  # the whole attempt, video included
             if self.record is not None:
                 try:
                     self.record = AttemptRecord.build(**result)
