@@ -3,9 +3,12 @@
     events.jsonl          append-only: every call, its arguments, the result the agent saw, timings
     observations/         every image the agent was shown (obs_NNNN.png)
     programs/             every run_code submission (prog_NNN.py)
-    video.mp4             head-view video in simulated time (separate recording camera)
+    video.mp4             head-view video in simulated time (separate recording camera); complete
+                          when present (video.partial.mp4 while it is encoded)
     privileged/           host-only: scene info and state snapshots (never shown to the agent)
-    result.json           written atomically at the end
+    result.json           written atomically at the end: once the verdict is recorded (``video``
+                          null while the video is still to be rendered), and again, atomically,
+                          with the video listed
 
 Paths inside records are relative to the attempt directory; no machine path is stored.
 """
