@@ -272,3 +272,34 @@ def test_the_lock_names_its_holder_and_goes_with_it(tmp_path):
     r = subprocess.run(other, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert not (sweep / LOCK).exists()  # released and removed at that process's end
+
+
+@pytest.mark.sim
+def test_a_full_disk_before_the_next_job_is_one_line_with_the_resume_line(tmp_path):
+    """The disk fills while the first of two jobs runs: Hydra's own writes for the second job (its
+    .hydra/ files) fail before cab's code runs for it; that is one line naming the file and the
+    resume, not Hydra's traceback. Run again with space, both attempts complete."""
+    disk, out = tmp_path / "disk", tmp_path / "out"
+    disk.mkdir()
+    out.mkdir()
+    ns = _private_mount_namespace(disk)
+    if ns is None:
+        pytest.skip("no mount namespace to mount a small tmpfs in (needs root or user namespaces)")
+    sweep = disk / "sw"
+    env = {**os.environ, "DISK": str(disk), "OUT": str(out), "ATTEMPT": str(attempt_dir(sweep, 1))}
+    cmd = sweep_cmd(sweep, looking_script(tmp_path), (1, 2), 1)
+    r = subprocess.run([*ns, "bash", "-c", FULL_DISK, "full-disk", *cmd], env=env, capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    first = (out / "first.err").read_text()
+    assert (out / "first.rc").read_text().strip() == "1", first[-3000:]
+    assert "Traceback" not in first
+    lines = own_lines(first)
+    assert len(lines) == 2, lines
+    assert "INFRASTRUCTURE FAILURE (" in lines[0]
+    assert re.fullmatch(rf"cab: cannot write (\S+|in the sweep folder {re.escape(str(sweep))}): No space left on "
+                        r"device; finished attempts are kept: free space, then run the same command again to resume",
+                        lines[1]), lines[1]
+    second = (out / "second.err").read_text()
+    assert (out / "second.rc").read_text().strip() == "0", second[-3000:]
+    assert own_lines(second)[-1] == f"cab sweep: 2/2 attempts complete; {sweep}"

@@ -102,8 +102,14 @@ def main() -> None:
         from cab_core.apps import stdio
 
         stdio.claim()
-    if not single or os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's tracebacks
+    if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's tracebacks
         _hydra_entry()
+        return
+    if not single:
+        if args is None or not args.multirun or args.cfg:
+            _hydra_entry()
+            return
+        _sweep_entry()
         return
     _HYDRA_FULL_ERROR_BEFORE = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"
@@ -117,6 +123,45 @@ def main() -> None:
         _refuse(line)
     finally:
         _restore_hydra_full_error()
+
+
+# Set while a sweep runs (cab -m): Hydra raises what fails in its own writes for a job (the job's
+# .hydra/ files, its log) instead of printing a traceback, so that a full disk is one line.
+_SWEEP_FULL_ERROR = False
+_SWEEP_DIR: str | None = None  # the sweep's folder, once its manifest is open
+
+
+def _full_disk(e: BaseException) -> OSError | None:
+    """The OSError of a full disk (or an exhausted quota) behind ``e``, if that is what it is."""
+    import errno
+
+    for x in (e, e.__cause__, e.__context__):
+        if isinstance(x, OSError) and x.errno in (errno.ENOSPC, errno.EDQUOT):
+            return x
+    return None
+
+
+def _sweep_entry() -> None:
+    """``cab -m``: a disk that fills up while the sweep runs ends it with one line and the resume
+    line (a job's records are the supervisor's to write; Hydra's own writes for the next job fail
+    here); any other error keeps its traceback."""
+    global _SWEEP_FULL_ERROR
+    import os
+
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    _SWEEP_FULL_ERROR = True
+    try:
+        _hydra_entry()
+    except Exception as e:
+        full = _full_disk(e)
+        if full is None:
+            raise
+        where = full.filename or (f"in the sweep folder {_SWEEP_DIR}" if _SWEEP_DIR else "in the sweep folder")
+        _refuse(f"cannot write {where}: {full.strerror}; finished attempts are kept: "
+                "free space, then run the same command again to resume", status=1)
+    finally:
+        os.environ.pop("HYDRA_FULL_ERROR", None)
+        _SWEEP_FULL_ERROR = False
 
 
 def _restore_hydra_full_error() -> None:
@@ -262,8 +307,10 @@ class SweepManifestCallback(Callback):
         from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest
         from cab_core.sweep.layout import SweepJobsCollide
 
+        global _SWEEP_DIR
         try:
             SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
+            _SWEEP_DIR = str(config.hydra.sweep.dir)
         except (SweepConfigChanged, SweepJobsCollide) as e:
             print(f"cab: refused: {e}", file=sys.stderr)
             sys.exit(2)
