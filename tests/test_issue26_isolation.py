@@ -2,10 +2,10 @@
 randomize=distractors: the pinched bowl was thrown off the table on lifting).
 
 Root cause: PhysX's PCM contact of the inner finger pad (a box) cut into a thin wedge of the bowl's
-wall sometimes reports the way out through the wedge's top face, 13-26 mm deep; SAPIEN leaves a
-dynamic body's max depenetration velocity unbounded, so the solver removed that in one step (1.6
-m/s, 39 rad/s). Whether the wrong contact appeared depended on float32 rounding, which the
-distractors changed. Fix: the SAPIEN backend bounds it (0.25 m/s). The isolation conformance check
+wall sometimes reports the way out through the wedge's top face, 13-26 mm deep, and the solver
+removed that in one step (1.6 m/s, 39 rad/s). Whether the wrong contact appeared depended on
+float32 rounding, which the distractors changed. Fix: the SAPIEN backend builds its scenes without
+PCM (SAT contacts); a depenetration bound is an option (0.25 m/s broke six grasps). The isolation conformance check
 (cab_core.testing.isolation_conformance) requires a world's bodies to move alike with and without
 far-away bodies on every simulator."""
 import json
@@ -39,8 +39,21 @@ def _overlap_scene() -> SceneSpec:
     return SceneSpec(bodies=[slab, cube], gravity=(0.0, 0.0, 0.0))
 
 
-def test_sapien_bounds_how_fast_a_penetration_is_left():
+def test_sapien_builds_without_pcm_and_leaves_the_process_config_alone():
+    import sapien
+
+    before = sapien.physx.get_scene_config().enable_pcm
     sim = _factory("sapien")()
+    try:
+        sim.build(_overlap_scene(), sc.make_embodiment())
+        assert sim.versions()["pcm"] == "off" and sim.versions()["max_depenetration_velocity"] == "unbounded"
+        assert sapien.physx.get_scene_config().enable_pcm == before
+    finally:
+        sim.close()
+
+
+def test_sapien_depenetration_bound_when_asked():
+    sim = _factory("sapien", max_depenetration_velocity=0.25)()
     try:
         sim.build(_overlap_scene(), sc.make_embodiment())
         dt = sim.timestep
@@ -54,12 +67,15 @@ def test_sapien_bounds_how_fast_a_penetration_is_left():
         sim.close()
 
 
-@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), "fast", True])
-def test_sapien_depenetration_option_is_checked(bad):
+@pytest.mark.parametrize("key,bad", [("max_depenetration_velocity", 0), ("max_depenetration_velocity", -1.0),
+                                     ("max_depenetration_velocity", float("nan")),
+                                     ("max_depenetration_velocity", "fast"), ("max_depenetration_velocity", True),
+                                     ("pcm", "yes"), ("pcm", 1)])
+def test_sapien_contact_options_are_checked(key, bad):
     from cab_sim_sapien.simulator import SapienSimulator
 
-    with pytest.raises(ConfigError, match="max_depenetration_velocity"):
-        SapienSimulator({"render": False, "max_depenetration_velocity": bad})
+    with pytest.raises(ConfigError, match=key):
+        SapienSimulator({"render": False, key: bad})
 
 
 def test_far_bodies_stand_far_from_everything():

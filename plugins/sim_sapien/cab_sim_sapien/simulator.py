@@ -23,14 +23,18 @@ Options (the ``cfg`` dict of the plugin factory):
     Hand every camera SAPIEN's BRDF lookup table from the cache folder instead of letting SAPIEN
     generate it again in each process (5 s idle, up to 19 s under load on lavapipe); images are
     identical. ``false`` is SAPIEN's own behaviour. See :mod:`cab_sim_sapien.brdf`.
-``max_depenetration_velocity`` (float, m/s, default 0.25)
-    The fastest PhysX pushes a dynamic body out of a penetration (SAPIEN leaves it unbounded,
-    1e32). Bounded, a wrong contact cannot throw a body: PhysX's PCM contact generation, for a
-    box (a finger pad) cut deep into a thin convex piece (a 4.5 mm wedge of a bowl's wall),
-    sometimes reports the way out through the piece's top face, 13-26 mm deep, and unbounded the
-    solver removes that in one step (the nested bowls of stack_bowls_three flew off at 1.6 m/s
-    and 39 rad/s, or not, with float32 rounding: whether unrelated bodies were in the scene).
-    0.25 m/s removes 1 mm of penetration per 4 ms step; ordinary contacts never come near it.
+``pcm`` (bool, default false)
+    PhysX's persistent contact manifolds (SAPIEN's default: on). Off: PhysX's SAT-based contact
+    generation. With PCM, a box cut into a thin convex piece sometimes gets a contact whose
+    normal leaves through the piece's far face: the inner finger pad pinching a bowl's rim in
+    stack_bowls_three (a 2.6 cm flat pad inside the 5.35 cm concave wall, its edges in the
+    neighbouring 4.5 mm wall wedges) got a 13-26 mm "penetration" straight up, which the solver
+    removed in one step and threw the bowl off the table at 1.6 m/s and 39 rad/s; whether it
+    appeared depended on float32 rounding, so three small bodies 30 cm away decided the verdict
+    (issue 26). Without PCM no such contact was seen, and the 25 reference solutions succeed.
+``max_depenetration_velocity`` (float, m/s, default: SAPIEN's, unbounded)
+    The fastest PhysX pushes a dynamic body out of a penetration. 0.25 m/s made six reference
+    solutions lose their grasps; 1 m/s still let a wrong contact spin a bowl at 5 rad/s.
 
 Conventions: poses are numpy float64 ``[x, y, z, qw, qx, qy, qz]`` (SAPIEN's ``Pose.q`` is wxyz too);
 SAPIEN stores everything in float32, so values read back are float32-exact. Cameras: cab's OpenCV
@@ -98,8 +102,9 @@ log = logging.getLogger(__name__)
 BACKEND = "sapien"
 STATE_FORMAT = 1
 _KNOWN_OPTIONS = {"render", "timestep", "shader", "shadows", "shadow_map_size", "brdf_cache", "name",
-                  "max_depenetration_velocity"}
-MAX_DEPENETRATION_VELOCITY = 0.25  # m/s, see the module's docstring
+                  "max_depenetration_velocity", "pcm"}
+MAX_DEPENETRATION_VELOCITY = None  # m/s; None: SAPIEN's own (unbounded), see the module's docstring
+PCM = False  # PhysX's persistent contact manifolds, see the module's docstring
 
 # Rotation taking SAPIEN camera axes (x forward, y left, z up) into OpenCV camera axes
 # (x right, y down, z forward): the columns are SAPIEN's axes written in the OpenCV frame.
@@ -182,9 +187,15 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._shadow_map_size = size
         self._brdf_cache = bool(cfg.get("brdf_cache", True))
         depen = cfg.get("max_depenetration_velocity", MAX_DEPENETRATION_VELOCITY)
-        if isinstance(depen, bool) or not isinstance(depen, (int, float)) or not math.isfinite(depen) or depen <= 0:
-            raise ConfigError(f"sapien max_depenetration_velocity must be a positive number of m/s, got {depen!r}")
-        self._max_depenetration = float(depen)
+        if depen is not None and (isinstance(depen, bool) or not isinstance(depen, (int, float))
+                                  or not math.isfinite(depen) or depen <= 0):
+            raise ConfigError(f"sapien max_depenetration_velocity must be a positive number of m/s or null, "
+                              f"got {depen!r}")
+        self._max_depenetration = None if depen is None else float(depen)
+        pcm = cfg.get("pcm", PCM)
+        if not isinstance(pcm, bool):
+            raise ConfigError(f"sapien pcm must be true or false, got {pcm!r}")
+        self._pcm = pcm
         self._lut = None
         self._scene = None
         self._closed = False
@@ -196,7 +207,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         - Ground: a static plane at ``scene.ground_z`` named ``"ground"``.
         - Bodies: primitives and OBJ meshes (convex hulls; non-convex triangle meshes only for
           static and kinematic bodies). ``mass`` rescales the density-derived mass and inertia.
-          Dynamic bodies leave a penetration at ``max_depenetration_velocity`` at most.
+          Dynamic bodies leave a penetration at ``max_depenetration_velocity`` at most, when set.
         - Articulated objects: SAPIEN's URDF loader; a non-zero ``joint_friction`` /
           ``joint_damping`` overrides the URDF's ``<dynamics>`` (damping is a zero-stiffness drive).
         - Robot: fixed root at ``base_pose``, gravity off on its links (the drives then track
@@ -221,6 +232,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         previous = sapien.physx.get_scene_config()
         cfg = sapien.physx.get_scene_config()
         cfg.gravity = np.asarray(scene.gravity, dtype=np.float32)
+        cfg.enable_pcm = self._pcm
         sapien.physx.set_scene_config(cfg)
         try:
             physx = sapien.physx.PhysxCpuSystem()
@@ -385,7 +397,8 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
             raise SimulatorError(f"body {body.name!r}: {n_collision - len(comp.collision_shapes)} collision "
                                  f"shape(s) failed to build (bad mesh?)")
         if body.kind == "dynamic":
-            comp.max_depenetration_velocity = self._max_depenetration
+            if self._max_depenetration is not None:
+                comp.max_depenetration_velocity = self._max_depenetration
             comp.linear_damping = float(body.linear_damping)
             comp.angular_damping = float(body.angular_damping)
             if body.mass is not None:
@@ -833,7 +846,9 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._live()
         out = {"simulator": BACKEND, "sapien": str(sapien.__version__), "physx": str(sapien.physx.version()),
                "timestep": repr(self._timestep), "render": "on" if self._rs is not None else "off",
-               "max_depenetration_velocity": repr(self._max_depenetration)}
+               "pcm": "on" if self._pcm else "off",
+               "max_depenetration_velocity": "unbounded" if self._max_depenetration is None
+               else repr(self._max_depenetration)}
         if self._rs is not None:
             out["shader"] = self._shader
             out["shadows"] = f"on ({self._shadow_map_size})" if self._shadows else "off"
