@@ -14,14 +14,15 @@ added (boxes, cylinders, spheres and a small stack, dynamic, resting on the grou
 ``FAR_M`` beyond the reach of everything in the scene, found from the scene description alone),
 drives the same motion in both and requires every body and articulated object of the world to
 follow the same trajectory within ``TOLERANCE_M`` (position) and ``TOLERANCE_RAD`` (orientation) at
-every sample. By default the world is :mod:`cab_core.testing.sim_conformance`'s, with a tower of
-three boxes and a ball in a box-walled tray on its table (resting and nested contacts), and its arm
-sweeps through the cube while opening and closing the gripper; about a second per simulator. It is
-part of ``pytest --cab-conformance=sims``; by hand::
+every sample. In the simulator conformance run (``pytest --cab-conformance=sims``,
+``sim_conformance.check_isolation``) the world is :mod:`cab_core.testing.sim_conformance`'s with a
+tower of three boxes and a ball in a box-walled tray on its table (:func:`isolation_scene`: resting
+and nested contacts), its arm sweeping and opening and closing the gripper; 1-6 s per simulator.
+By hand::
 
-    from cab_core.testing.isolation_conformance import check_isolation
+    from cab_core.testing import sim_conformance as sc
 
-    check_isolation(lambda: MySimulator({"render": False}))
+    sc.check_isolation(lambda: MySimulator({"render": False}))
 """
 from __future__ import annotations
 
@@ -115,13 +116,11 @@ def with_far_bodies(scene: SceneSpec, also: list[tuple[float, float]] = (), far:
     return replace(scene, bodies=list(scene.bodies) + extra)
 
 
-def isolation_scene() -> SceneSpec:
-    """:func:`cab_core.testing.sim_conformance.make_scene` plus resting and nested contacts on its
-    table: a tower of three boxes and a ball in a tray of four box walls on a floor."""
-    from cab_core.testing import sim_conformance as sc
-
-    scene = sc.make_scene()
-    top = sc.TABLE_TOP
+def isolation_scene(scene: SceneSpec, table_top: float) -> SceneSpec:
+    """``scene`` (the simulator conformance world) plus resting and nested contacts on its table
+    (top at ``table_top``), out of its arm's reach: a tower of three boxes and a ball in a tray of
+    four box walls on a floor."""
+    top = table_top
     wood = Material(color=(0.6, 0.5, 0.3, 1.0), static_friction=0.6, dynamic_friction=0.5)
     tower = [Body(f"tower_{k}", [Shape(Box((0.02, 0.02, 0.015)), material=wood)],
                   pose=(0.28, 0.02, top + 0.015 + 0.03 * k + 0.0005 * (k + 1), 1, 0, 0, 0), mass=0.03)
@@ -149,31 +148,16 @@ def _trajectory(sim: Simulator, names: list[str], motion: Callable[[Simulator, i
     return out
 
 
-def _sweep(sim: Simulator, n: int, phase: int) -> None:
-    """The conformance arm's motion (sim_conformance's script: both joints and the gripper)."""
-    from cab_core.testing import sim_conformance as sc
-
-    sc._motion_script(sim, n, phase=phase)
-
-
-def check_isolation(factory: SimFactory, scene: SceneSpec | None = None, embodiment=None,
+def check_isolation(factory: SimFactory, scene: SceneSpec, embodiment,
                     motion: Callable[[Simulator, int, int], None] | None = None, steps: int = STEPS,
                     every: int = SAMPLE_EVERY, tolerance_m: float = TOLERANCE_M,
                     tolerance_rad: float = TOLERANCE_RAD) -> dict:
-    """The world's bodies follow the same trajectory with and without far-away extra bodies.
-
-    ``scene``/``embodiment``: the world (default: :func:`isolation_scene` and the conformance arm,
-    driven by its motion script); ``motion(sim, n, start)`` drives ``n`` steps from step ``start``
-    (default with a given scene: none, the world just runs). Compares every body and articulated
-    object of ``scene`` each ``every`` steps. Returns the largest differences seen (``max_m``,
-    ``max_rad``, ``body``)."""
-    from cab_core.testing import sim_conformance as sc
-
-    if scene is None:
-        scene, embodiment = isolation_scene(), embodiment or sc.make_embodiment()
-        motion = motion or _sweep
-    if embodiment is None:
-        raise ValueError("check_isolation: a scene needs its embodiment")
+    """The world ``scene`` + ``embodiment``'s bodies follow the same trajectory with and without
+    far-away extra bodies. ``motion(sim, n, start)`` drives ``n`` steps from step ``start`` (None:
+    the world just runs). Compares every body and articulated object of ``scene`` each ``every``
+    steps. Returns the largest differences seen (``max_m``, ``max_rad``, ``body``).
+    :func:`cab_core.testing.sim_conformance.check_isolation` runs it on the conformance world
+    (:func:`isolation_scene`, the arm driven by its motion script)."""
     crowded = with_far_bodies(scene, also=[tuple(embodiment.base_pose[:2])])
     names = scene.names()
     runs = []
