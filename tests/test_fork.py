@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.cmdline import check_command_line
-from cab_core.attempt.fork import ForkDiverged, ForkPoint, charged_calls, forks_of, recovery, transcript
+from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkDiverged, ForkPoint, charged_calls, forks_of, recovery, transcript
 from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.errors import ConfigError
 
@@ -112,20 +112,33 @@ def test_a_parent_that_cannot_be_written_to_is_forked_without_a_back_link(parent
 
 
 @pytest.mark.parametrize("task", ["beat_block_hammer", "lift_pot"])
-def test_the_recorded_agent_attempts_fork_exactly(task, tmp_path):
-    """The real model's attempts (played over MCP, with programs): each charged call's world is
-    re-made bit for bit as the record rounds it, and the idle agent's verdict at the last call is
-    the recorded one."""
+def test_the_recorded_agent_attempts_fork(task, tmp_path):
+    """The real model's attempts (played over MCP, with programs) were recorded before SAPIEN's
+    scenes were built without PCM (issue 26): as recorded, each still forks within the tolerance,
+    with the recorded verdict at its last call; with the physics they ran under stated in their
+    configuration (``pcm: true``, SAPIEN's own default then), each charged call's world is re-made
+    to a few hundredths of a millimetre (bit for bit on the machine that recorded them; PhysX's
+    contact arithmetic differs in the last float32 bits between CPUs)."""
     src = SHARED / task
     if not src.is_dir():
         pytest.skip("../shared/agent_attempts is not beside the checkout")
+    recorded = json.loads((src / "result.json").read_text())
     parent = tmp_path / task
     shutil.copytree(src, parent)
     n = charged_calls(events(parent))
+    r = fork(parent, n, tmp_path / "as-recorded", "idle")
+    assert r["fork"]["max_object_error_m"] <= FORK_TOLERANCE_M and r["fork"]["max_tcp_error_m"] <= FORK_TOLERANCE_M
+    assert r["verdict"]["success"] is recorded["verdict"]["success"]
+    log = parent / "events.jsonl"
+    evs = [json.loads(line) for line in log.read_text().splitlines()]
+    start = next(e for e in evs if e.get("kind") == "attempt_start")
+    assert "pcm" not in start["config"]["sim_cfg"]
+    start["config"]["sim_cfg"]["pcm"] = True
+    log.chmod(0o644)
+    log.write_text("".join(json.dumps(e) + "\n" for e in evs))
     for k in (1, n):
         r = fork(parent, k, tmp_path / f"at{k}", "idle")
-        assert r["fork"]["exact"] is True and r["fork"]["max_object_error_m"] == 0.0
-    recorded = json.loads((src / "result.json").read_text())
+        assert r["fork"]["max_object_error_m"] < 1e-4 and r["fork"]["max_tcp_error_m"] < 1e-4, r["fork"]
     assert r["verdict"]["success"] is recorded["verdict"]["success"]
 
 
