@@ -117,8 +117,8 @@ def test_the_recorded_agent_attempts_fork(task, tmp_path):
     scenes were built without PCM (issue 26): as recorded, each still forks within the tolerance,
     with the recorded verdict at its last call; with the physics they ran under stated in their
     configuration (``pcm: true``, SAPIEN's own default then), each charged call's world is re-made
-    to a few hundredths of a millimetre (bit for bit on the machine that recorded them; PhysX's
-    contact arithmetic differs in the last float32 bits between CPUs)."""
+    to a few hundredths of a millimetre (bit for bit on the machines before; 18 um apart at
+    lift_pot's call 4 on one machine, with the code that recorded it too)."""
     src = SHARED / task
     if not src.is_dir():
         pytest.skip("../shared/agent_attempts is not beside the checkout")
