@@ -30,16 +30,7 @@ CAB = os.path.join(os.path.dirname(sys.executable), "cab")
 ADDRESS = re.compile(r"0x[0-9a-fA-F]{6,}")
 
 
-def _dispatch(name, kwargs):
-    raise AssertionError(f"no tool is called by these programs: {name}")
-
-
-@pytest.fixture(scope="module")
-def sb():
-    sandbox = Sandbox(["get_arm_pose"], _dispatch, lambda obs_id: np.zeros((2, 2, 3), np.uint8),
-                      SandboxConfig(timeout_s=30))
-    yield sandbox
-    sandbox.close()
+from test_sandbox_policy import sb  # noqa: F401  (the module's sandbox: no tool is called by these programs)
 
 
 @pytest.fixture(autouse=True)

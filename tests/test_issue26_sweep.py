@@ -144,12 +144,10 @@ def _private_mount_namespace(where: Path) -> list[str] | None:
     return None
 
 
-@pytest.mark.sim
-def test_full_disk_during_an_attempt_is_one_line_and_the_resumed_record_lists_the_try(tmp_path):
-    """A sweep whose disk fills up while its attempt runs: the attempt's process fails, the
-    supervisor can still set its records aside but cannot write its note; one line says what was
-    not written and the sweep ends with its resume line. Run again once there is space, the attempt
-    completes and its record lists the try that was set aside."""
+def _sweep_filling_its_disk(tmp_path: Path, attempts) -> tuple[Path, Path]:
+    """Runs FULL_DISK: a one-worker sweep of ``attempts`` on a small tmpfs that fills up while
+    attempt 1 records, then again once there is space; the sweep folder (as the runs named it)
+    and the folder of what each run left (first/second .err and .rc, full/, resumed/)."""
     disk, out = tmp_path / "disk", tmp_path / "out"
     disk.mkdir()
     out.mkdir()
@@ -158,10 +156,20 @@ def test_full_disk_during_an_attempt_is_one_line_and_the_resumed_record_lists_th
         pytest.skip("no mount namespace to mount a small tmpfs in (needs root or user namespaces)")
     sweep = disk / "sw"
     env = {**os.environ, "DISK": str(disk), "OUT": str(out), "ATTEMPT": str(attempt_dir(sweep, 1))}
-    cmd = sweep_cmd(sweep, looking_script(tmp_path), (1,), 1)
+    cmd = sweep_cmd(sweep, looking_script(tmp_path), attempts, 1)
     r = subprocess.run([*ns, "bash", "-c", FULL_DISK, "full-disk", *cmd], env=env, capture_output=True, text=True,
                        timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
+    return sweep, out
+
+
+@pytest.mark.sim
+def test_full_disk_during_an_attempt_is_one_line_and_the_resumed_record_lists_the_try(tmp_path):
+    """A sweep whose disk fills up while its attempt runs: the attempt's process fails, the
+    supervisor can still set its records aside but cannot write its note; one line says what was
+    not written and the sweep ends with its resume line. Run again once there is space, the attempt
+    completes and its record lists the try that was set aside."""
+    sweep, out = _sweep_filling_its_disk(tmp_path, (1,))
     first = (out / "first.err").read_text()
     assert (out / "first.rc").read_text().strip() == "0", first[-3000:]
     assert "Traceback" not in first
@@ -279,18 +287,7 @@ def test_a_full_disk_before_the_next_job_is_one_line_with_the_resume_line(tmp_pa
     """The disk fills while the first of two jobs runs: Hydra's own writes for the second job (its
     .hydra/ files) fail before cab's code runs for it; that is one line naming the file and the
     resume, not Hydra's traceback. Run again with space, both attempts complete."""
-    disk, out = tmp_path / "disk", tmp_path / "out"
-    disk.mkdir()
-    out.mkdir()
-    ns = _private_mount_namespace(disk)
-    if ns is None:
-        pytest.skip("no mount namespace to mount a small tmpfs in (needs root or user namespaces)")
-    sweep = disk / "sw"
-    env = {**os.environ, "DISK": str(disk), "OUT": str(out), "ATTEMPT": str(attempt_dir(sweep, 1))}
-    cmd = sweep_cmd(sweep, looking_script(tmp_path), (1, 2), 1)
-    r = subprocess.run([*ns, "bash", "-c", FULL_DISK, "full-disk", *cmd], env=env, capture_output=True, text=True,
-                       timeout=900)
-    assert r.returncode == 0, r.stderr[-3000:]
+    sweep, out = _sweep_filling_its_disk(tmp_path, (1, 2))
     first = (out / "first.err").read_text()
     assert (out / "first.rc").read_text().strip() == "1", first[-3000:]
     assert "Traceback" not in first
