@@ -17,6 +17,7 @@ import subprocess
 import sys
 from html import unescape
 from pathlib import Path
+from urllib.parse import urljoin
 
 import pytest
 from test_studio import Server, fetch
@@ -327,3 +328,26 @@ def test_a_margin_written_as_null_is_shown_not_measured():
     assert rows == [{"name": "on_pad", "cls": "bad", "slack": "not measured", "fraction": "",
                      "measured": "", "threshold": "0.04"}]
     assert _predicate_line("on_pad", m) == "on_pad false: threshold 0.04 m, margin not measured"
+
+
+def test_a_forks_links_lead_to_pages_each_serves(tree, tmp_path):
+    """An attempt page links the attempt it was forked from: cab-view to that folder's view.html
+    (a file it writes there), cab-studio to its own page of that attempt (it serves no view.html)."""
+    c = tree / "c"
+    c.mkdir()
+    start = {"kind": "attempt_start", "task": TASK,
+             "config": {"model": "idle", "harness": "direct", "sim": "mujoco", "fork": {"parent": "../a", "at": 1}}}
+    (c / "events.jsonl").write_text(json.dumps(start) + "\n")
+    try:
+        assert 'class="fork-parent" href="../a/view.html"' in viewer.render_unfinished(c)
+        s = Server(tree, tmp_path / "state")
+        try:
+            status, page, _ = fetch(s.base + "/attempt/c/")
+            assert status == 200
+            [href] = re.findall(r'class="fork-parent" href="([^"]+)"', page)
+            assert href == "../a/"
+            assert fetch(urljoin(s.base + "/attempt/c/", href))[0] == 200  # as a browser resolves it
+        finally:
+            s.stop()
+    finally:
+        shutil.rmtree(c)

@@ -260,8 +260,9 @@ def _page(**ctx) -> str:
     return render("attempt.html.j2", **ctx)
 
 
-def render(a: Attempt) -> str:
-    """The page of a finished attempt."""
+def render(a: Attempt, page_of: str = "view.html") -> str:
+    """The page of a finished attempt; ``page_of``: what a link to another attempt's page appends
+    to its folder (cab-view's ``view.html``; cab-studio's attempt route serves the folder itself)."""
     r = a.result
     v, claim, b = r["verdict"], r["claim"], r["budget"]
     claimed = claim.get("success_claim")
@@ -280,14 +281,14 @@ def render(a: Attempt) -> str:
         ("wall s", str((r.get("timing") or {}).get("wall_seconds"))),
     ]
     return _page(title=a.rel, heading=f"{r['task']} · {a.config} · attempt {r['attempt']}", finished=True,
-                 summary=[(k, str(x)) for k, x in summary], **fork_links(a.dir, r.get("fork")), events_error=bad,
+                 summary=[(k, str(x)) for k, x in summary], **fork_links(a.dir, r.get("fork")), page_of=page_of, events_error=bad,
                  margins=_margins(v), verifier=_json(v),
                  checkpoints=_checkpoints(r.get("checkpoints"), v.get("latch"), at_call),
                  video=shown_file(a.dir, "video.mp4") is not None,
                  timeline=timeline(a.dir, events, r.get("checkpoints"), at_call))
 
 
-def render_unfinished(d: Path) -> str:
+def render_unfinished(d: Path, page_of: str = "view.html") -> str:
     """The page of an attempt without result.json (still running, or interrupted): what its
     event log holds so far. No verdict, checkpoints or video exist before the attempt ends."""
     events, bad = _events(d)
@@ -302,7 +303,7 @@ def render_unfinished(d: Path) -> str:
         ("tool calls so far", charged), ("last event at wall s", events[-1].get("t_wall") if events else "–"),
     ]
     return _page(title=d.name, heading=f"{start.get('task', d.name)} · {config} · unfinished", finished=False,
-                 summary=[(k, str(x)) for k, x in summary], **fork_links(d, c.get("fork")), events_error=bad,
+                 summary=[(k, str(x)) for k, x in summary], **fork_links(d, c.get("fork")), page_of=page_of, events_error=bad,
                  timeline=timeline(d, events))
 
 

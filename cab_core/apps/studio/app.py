@@ -207,12 +207,12 @@ class Studio:
         note = ""
         if finished:
             try:
-                page = viewer.render(Attempt.load(d, d.parent))
+                page = viewer.render(Attempt.load(d, d.parent), page_of="")  # another attempt: its route
             except CabError as e:
                 note = f"<p class='bad'>{escape(str(e))}</p>"
-                page = viewer.render_unfinished(d)
+                page = viewer.render_unfinished(d, page_of="")
         else:
-            page = viewer.render_unfinished(d)
+            page = viewer.render_unfinished(d, page_of="")
         page = page.replace("<body>", f"<body>{self.nav([(rel, None)])}{note}", 1)
         return page.replace("</body>", f"{live}</body>", 1)
 
