@@ -300,3 +300,23 @@ def test_a_full_disk_before_the_next_job_is_one_line_with_the_resume_line(tmp_pa
     second = (out / "second.err").read_text()
     assert (out / "second.rc").read_text().strip() == "0", second[-3000:]
     assert own_lines(second)[-1] == f"cab sweep: 2/2 attempts complete; {sweep}"
+
+
+def test_a_write_that_fails_leaves_the_old_file_and_no_temporary_copy(tmp_path, monkeypatch):
+    """write_json_atomic on a full disk: the error reaches the caller, the file keeps its old
+    content and no half-written temporary file is left beside it."""
+    import errno
+
+    from cab_core.attempt import record
+
+    p = tmp_path / "result.json"
+    record.write_json_atomic(p, {"a": 1})
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(record.os, "fsync", full)
+    with pytest.raises(OSError, match="No space left"):
+        record.write_json_atomic(p, {"a": 2})
+    assert json.loads(p.read_text()) == {"a": 1}
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["result.json"]

@@ -74,11 +74,16 @@ def dumps(obj: Any, **kw) -> str:
 def write_json_atomic(path: Path, obj: Any) -> None:
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w") as f:
-        f.write(dumps(obj, indent=2, sort_keys=False))
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    text = dumps(obj, indent=2, sort_keys=False)
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # a full disk, a signal: the old file stays whole, no half-written copy is left
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 # -- the model ------------------------------------------------------------------------------------
