@@ -153,7 +153,11 @@ def test_sim_laptop_frames_hinge_and_verdicts():
         sim.step(2)
         ev = v.evaluate(w)
         assert ev.success, ev
-        assert ev.values["tcp_to_edge_right"] == pytest.approx(0.05, abs=0.005)
+        # the verifier measures the edge where the world has it (the teleported lid settles on its
+        # hinge in those 2 steps: 5.0-5.6 cm away, as the contact generation has it)
+        gap = float(np.linalg.norm(w.tcp_pose("right")[:3] - v.edge_point(w)))
+        assert ev.values["tcp_to_edge_right"] == pytest.approx(gap, abs=1e-6)
+        assert ev.values["tcp_to_edge_right"] == pytest.approx(0.05, abs=0.01)
         assert LAPTOP.subgoals(w) == [True, True]
 
 
