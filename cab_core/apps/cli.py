@@ -125,9 +125,6 @@ def main() -> None:
         _restore_hydra_full_error()
 
 
-# Set while a sweep runs (cab -m): Hydra raises what fails in its own writes for a job (the job's
-# .hydra/ files, its log) instead of printing a traceback, so that a full disk is one line.
-_SWEEP_FULL_ERROR = False
 _SWEEP_DIR: str | None = None  # the sweep's folder, once its manifest is open
 
 
@@ -143,13 +140,13 @@ def _full_disk(e: BaseException) -> OSError | None:
 
 def _sweep_entry() -> None:
     """``cab -m``: a disk that fills up while the sweep runs ends it with one line and the resume
-    line (a job's records are the supervisor's to write; Hydra's own writes for the next job fail
-    here); any other error keeps its traceback."""
-    global _SWEEP_FULL_ERROR
+    line (a job's records are the supervisor's to write; Hydra's own writes for the next job, its
+    .hydra/ files and log, fail here: HYDRA_FULL_ERROR makes Hydra raise them instead of printing
+    a traceback); any other error keeps its traceback."""
     import os
 
+    before = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"
-    _SWEEP_FULL_ERROR = True
     try:
         _hydra_entry()
     except Exception as e:
@@ -160,8 +157,10 @@ def _sweep_entry() -> None:
         _refuse(f"cannot write {where}: {full.strerror}; finished attempts are kept: "
                 "free space, then run the same command again to resume", status=1)
     finally:
-        os.environ.pop("HYDRA_FULL_ERROR", None)
-        _SWEEP_FULL_ERROR = False
+        if before is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = before
 
 
 def _restore_hydra_full_error() -> None:
