@@ -93,6 +93,24 @@ def test_jobs_finishing_together_each_get_their_own_count(tmp_path):
     assert progress_line(sweep, "d", "INFRASTRUCTURE FAILURE", bad).startswith("cab sweep [3/3] d: ")
 
 
+def test_a_result_written_again_after_the_other_job_counted_keeps_its_place(tmp_path):
+    """``result.json`` is written twice (the verdict, then again once the video is closed): job a's
+    first write, job b's result and count, then a's second write and count. Ordered by modification
+    time, both jobs printed [2/2] (seen in CI); a keeps the first place b saw it in."""
+    t0 = time.time()
+    sweep = _fake_sweep(tmp_path / "sw", 2, t0 - 10)
+    base = int((t0 - 5) * 1e9)
+    a = _result(sweep / "a", base + 1_000)
+    b = _result(sweep / "b", base + 2_000)
+    assert progress_line(sweep, "b", "done", b).startswith("cab sweep [2/2] b: done | ")
+    os.utime(a, ns=(base + 3_000, base + 3_000))  # a's second write
+    assert progress_line(sweep, "a", "done", a).startswith("cab sweep [1/2] a: done | ")
+    assert (sweep / "progress.order").read_text() == "a/result.json\nb/result.json\n"
+    # an attempt set aside after it was counted gives up its place
+    os.replace(sweep / "a", tmp_path / "aside")
+    assert progress_line(sweep, "b", "done", b).startswith("cab sweep [1/2] b: done | ")
+
+
 # -- item 6: a full disk during an attempt --------------------------------------------------------
 
 

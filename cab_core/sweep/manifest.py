@@ -284,8 +284,9 @@ def progress_line(sweep_dir: Path, job: str, what: str, result: Path | None = No
     except (OSError, json.JSONDecodeError):
         return f"cab sweep: {job}: {what}"
     done = _by_completion(completed_results(Path(sweep_dir)))
-    own = Path(result).resolve() if result is not None else None
-    rank = next((i + 1 for i, (_, p) in enumerate(done) if own is not None and p.resolve() == own), len(done))
+    order = _finish_order(Path(sweep_dir), done)
+    own = _place(Path(result), Path(sweep_dir)) if result is not None else None
+    rank = order.index(own) + 1 if own in order else len(done)
     session = m["sessions"][-1]
     fresh = sum(1 for t, _ in done if t >= session["started"])
     elapsed = max(time.time() - session["started"], 1e-6)
@@ -293,6 +294,38 @@ def progress_line(sweep_dir: Path, job: str, what: str, result: Path | None = No
     eta = f"ETA {_hms(left * elapsed / fresh)}" if fresh and left else ("sweep complete" if not left else "ETA ?")
     rate = f"{3600 * fresh / elapsed:.0f} attempts/h, " if fresh else ""
     return f"cab sweep [{rank}/{m['n_jobs']}] {job}: {what} | {rate}{eta}"
+
+
+ORDER = "progress.order"  # complete attempts, one folder a line, in the order a job first saw them
+
+
+def _finish_order(sweep_dir: Path, done: list[tuple[float, Path]]) -> list[str]:
+    """The complete attempts in the order they were first seen complete, under ``flock`` on
+    ``progress.order``: each one keeps its place once it has one, so two jobs that finish together
+    get two numbers. (A result's modification time cannot order them: ``result.json`` is written
+    again when the video is closed, after the other job may have counted.) Without the file (a full
+    disk, a read-only folder) the order is that of the results' modification times."""
+    seen = [_place(p, sweep_dir) for _, p in done]
+    try:
+        with open(sweep_dir / ORDER, "a+", encoding="utf-8") as f:
+            fcntl.flock(f, fcntl.LOCK_EX)
+            f.seek(0)
+            listed = f.read().splitlines()
+            new = [s for s in seen if s not in set(listed)]
+            if new:
+                f.write("".join(s + "\n" for s in new))
+                f.flush()
+            order = listed + new
+    except OSError:
+        order = seen
+    current = set(seen)  # an attempt set aside since it was listed no longer counts
+    return [s for s in order if s in current]
+
+
+def _place(result: Path, sweep_dir: Path) -> str:
+    """How ``progress.order`` names a result: its path in the sweep folder (absolute if outside)."""
+    here, root = result.resolve(), sweep_dir.resolve()
+    return str(here.relative_to(root)) if here.is_relative_to(root) else str(here)
 
 
 def _by_completion(results: list[Path]) -> list[tuple[float, Path]]:
