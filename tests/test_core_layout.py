@@ -28,6 +28,7 @@ WINGS = (
     ("cab_core.attempt",),  # one attempt: spec, world, serving, finishing, records
     ("cab_core.tools", "cab_core.sandbox"),  # the tools the agent calls; the confined run_code
     ("cab_core.config", "cab_core.conf", "cab_core.plugins"),  # Hydra configuration; the plugin registry
+    ("cab_core.kits",),  # what plugin authors build tasks, oracles and harnesses with
     ("cab_core.contracts",),  # what plugins implement and tasks are written with
     ("cab_core.errors", "cab_core.geometry", "cab_core.numerics"),  # errors, pose and camera math, numerics
 )
