@@ -9,7 +9,8 @@ math the tools and the hosts use. Imports nothing else of cab_core.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

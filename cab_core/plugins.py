@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable, Mapping
 from functools import lru_cache
 from importlib import metadata
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 import pluggy
 

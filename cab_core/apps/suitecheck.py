@@ -21,7 +21,9 @@ def verdict(rows: list[dict]) -> dict:
 
     o = [r for r in rows if r["agent"] == "oracle"]
     i = [r for r in rows if r["agent"] == "idle"]
-    within = lambda r: "error" not in r and r["success"] and r["calls"] <= r["calls_limit"] and r["sim_s"] <= r["sim_s_limit"]
+    def within(r: dict) -> bool:
+        return "error" not in r and r["success"] and r["calls"] <= r["calls_limit"] and r["sim_s"] <= r["sim_s_limit"]
+
     sub = [x for r in o if "error" not in r for x in r["subgoals"]]
     spa = [x for r in o if "error" not in r for x in r["spatial"]]
     return {

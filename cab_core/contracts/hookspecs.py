@@ -15,7 +15,8 @@ whose heavy dependency is missing fails only when it is used, with the install c
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 
@@ -32,19 +33,19 @@ hookimpl = pluggy.HookimplMarker("cab")
 
 
 @hookspec
-def cab_simulators() -> dict[str, Callable[[dict], "Simulator"]]:
+def cab_simulators() -> dict[str, Callable[[dict], Simulator]]:
     """Simulator backends: ``{"my_sim": factory}``; ``factory(cfg)`` returns an unbuilt
     :class:`cab_core.contracts.simulator.Simulator`. Called once per process. All results are merged."""
 
 
 @hookspec
-def cab_planners() -> dict[str, Callable[[dict], "Planner"]]:
+def cab_planners() -> dict[str, Callable[[dict], Planner]]:
     """Motion planners: ``{"my_planner": factory}``; ``factory(cfg)`` returns a
     :class:`cab_core.contracts.planner.Planner` (not yet set up). Called once per process."""
 
 
 @hookspec
-def cab_embodiments() -> dict[str, Callable[[dict], "EmbodimentSpec"]]:
+def cab_embodiments() -> dict[str, Callable[[dict], EmbodimentSpec]]:
     """Robots: ``{"my_robot": factory}``; ``factory(cfg)`` generates the robot description if
     needed and returns an :class:`cab_core.contracts.embodiment.EmbodimentSpec`. Called once per process."""
 
@@ -53,7 +54,7 @@ def cab_embodiments() -> dict[str, Callable[[dict], "EmbodimentSpec"]]:
 
 
 @hookspec
-def cab_task_suites() -> dict[str, Callable[[], dict[str, "Task"]]]:
+def cab_task_suites() -> dict[str, Callable[[], dict[str, Task]]]:
     """Task suites: ``{"my_suite": loader}``; ``loader()`` returns ``{task_name: Task}``.
     Task names are unique across suites. Called once per process."""
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Union
+from typing import Literal
 
 import numpy as np
 
@@ -64,7 +64,7 @@ class Mesh:
     convex: bool = True
 
 
-Geometry = Union[Box, Sphere, Capsule, Cylinder, Mesh]
+Geometry = Box | Sphere | Capsule | Cylinder | Mesh
 
 
 @dataclass(frozen=True)

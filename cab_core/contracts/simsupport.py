@@ -9,15 +9,16 @@ rules and drifting apart. Nothing here imports a simulator.
 from __future__ import annotations
 
 import json
-from typing import Mapping, TypeVar
+from collections.abc import Mapping
+from typing import TypeVar
 
 import numpy as np
 
 from cab_core.contracts.embodiment import EmbodimentSpec
-from cab_core.errors import BadCommand, ConfigError, SimulatorError
-from cab_core.geometry import intrinsics
 from cab_core.contracts.scene import CameraSpec, SceneSpec, as_pose
 from cab_core.contracts.simulator import ROBOT, Contact, SimState
+from cab_core.errors import BadCommand, ConfigError, SimulatorError
+from cab_core.geometry import intrinsics
 
 T = TypeVar("T")
 

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.embodiment import EmbodimentSpec
     from cab_core.contracts.scene import SceneSpec
     from cab_core.contracts.verifier import Verifier, WorldView
-    from cab_core.contracts.embodiment import EmbodimentSpec
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ class Task(ABC):
         return tuple(self.seed_sets[seed_set])
 
     @abstractmethod
-    def build(self, seed: int, embodiment: "EmbodimentSpec") -> SceneInstance:
+    def build(self, seed: int, embodiment: EmbodimentSpec) -> SceneInstance:
         """The scene for ``seed``. Deterministic: the same seed gives the same scene."""
 
     @abstractmethod

@@ -3,8 +3,9 @@ latched-event scoring. Nothing here ever reaches a tool result."""
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Iterable, Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -22,7 +23,7 @@ class WorldView:
     which is what the paper's gripper predicates read (FACTS B.3).
     """
 
-    def __init__(self, sim: "Simulator", embodiment: "EmbodimentSpec", gripper_commands: dict[str, float],
+    def __init__(self, sim: Simulator, embodiment: EmbodimentSpec, gripper_commands: dict[str, float],
                  info: dict | None = None):
         self._sim = sim
         self._emb = embodiment
@@ -55,7 +56,7 @@ class WorldView:
     def gripper_command(self, arm: str) -> float:
         return float(self._grip[arm])
 
-    def contacts(self) -> list["Contact"]:
+    def contacts(self) -> list[Contact]:
         return self._sim.get_contacts()
 
     def in_contact(self, a: str, b: str, min_impulse: float = 0.0) -> bool:
@@ -69,7 +70,7 @@ class WorldView:
         return False
 
     def gripper_touches(self, arm: str, obj: str) -> bool:
-        links = {f"robot/{l}" for l in self._emb.arms[arm].gripper.finger_links}
+        links = {f"robot/{link}" for link in self._emb.arms[arm].gripper.finger_links}
         for c in self._sim.get_contacts():
             if c.impulse <= 0:
                 continue
@@ -81,7 +82,7 @@ class WorldView:
     def gripper_holds(self, arm: str, obj: str) -> bool:
         """Every finger of ``arm``'s gripper touches ``obj`` (one finger touching is a push, not
         a hold)."""
-        fingers = {f"robot/{l}" for l in self._emb.arms[arm].gripper.finger_links}
+        fingers = {f"robot/{link}" for link in self._emb.arms[arm].gripper.finger_links}
         touching = set()
         for c in self._sim.get_contacts():
             if c.impulse <= 0:

@@ -50,7 +50,7 @@ class PythonLayout:
     numpy_libs: str | None  # manylinux wheels keep OpenBLAS/gfortran in a sibling ``numpy.libs``
 
     @staticmethod
-    def current() -> "PythonLayout":
+    def current() -> PythonLayout:
         import numpy
 
         exe = os.path.realpath(getattr(sys, "_base_executable", None) or sys.executable)

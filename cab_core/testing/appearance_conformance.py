@@ -63,9 +63,9 @@ import os
 import sys
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable
 
 import numpy as np
 
@@ -499,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
     for sim in sims:
         for t in selected_tasks(a.tasks or ""):
             t0 = time.perf_counter()
-            regions = task_regions(lambda: reg[sim]({"name": sim, "render": True}), t, emb)
+            regions = task_regions(lambda sim=sim: reg[sim]({"name": sim, "render": True}), t, emb)
             bad = judge(regions)
             failed += bool(bad)
             print(f"{sim} {t}: {'FAIL' if bad else 'ok'} ({time.perf_counter() - t0:.1f} s)")

@@ -3,7 +3,7 @@ under the node id ``cab-conformance``; not a test module of its own: its name do
 ``test_``). Parametrised here, from the plugin's selection, over the installed simulators and tasks."""
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import pytest
 

@@ -31,18 +31,28 @@ import atexit
 import math
 import shutil
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
-from cab_core.errors import BadCommand
-from cab_core.geometry import (intrinsics, look_at_cv, pose_inv, pose_mul, quat_angle, quat_to_mat,
-                        transform_point)
-from cab_core.contracts.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
-                     SceneSpec, Shape, Sphere)
+from cab_core.contracts.scene import (
+    ArticulatedObject,
+    Body,
+    Box,
+    CameraSpec,
+    Capsule,
+    Cylinder,
+    Material,
+    Mesh,
+    SceneSpec,
+    Shape,
+    Sphere,
+)
 from cab_core.contracts.simulator import Contact, SimState, Simulator
+from cab_core.errors import BadCommand
+from cab_core.geometry import intrinsics, look_at_cv, pose_inv, pose_mul, quat_angle, quat_to_mat, transform_point
 
 SimFactory = Callable[[], Simulator]
 

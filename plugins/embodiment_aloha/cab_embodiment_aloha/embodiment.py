@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
-from cab_core.geometry import look_at_cv
 from cab_core.contracts.scene import CameraSpec, cache_dir
+from cab_core.geometry import look_at_cv
 
 from .kinematics import solve_home, tcp_pose_world
 from .params import ARM_PREFIX, DEFAULT_PARAMS, AlohaParams

@@ -90,7 +90,7 @@ class AlohaParams:
                           sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
-    def with_overrides(self, overrides: dict) -> "AlohaParams":
+    def with_overrides(self, overrides: dict) -> AlohaParams:
         """A copy with some fields replaced (lists become tuples); unknown names raise."""
         from dataclasses import fields, replace
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cab_core.contracts.embodiment import EmbodimentSpec
+from cab_core.contracts.planner import IKResult, Planner, PlanResult
 from cab_core.errors import ConfigError, MissingDependency, PlannerError
 from cab_core.geometry import pose_inv, pose_mul, quat_angle
-from cab_core.contracts.planner import IKResult, PlanResult, Planner
 
 INSTALL = "pip install mplib==0.2.1"
 SHORT_MOVE_M = 0.005  # straight-line moves shorter than this may fall back to a joint-space line
@@ -52,7 +52,7 @@ class MplibConfig:
     fingers: str = "open"  # finger joint values assumed for collision checks: open | closed
 
     @classmethod
-    def from_dict(cls, cfg: dict) -> "MplibConfig":
+    def from_dict(cls, cfg: dict) -> MplibConfig:
         known = set(cls.__dataclass_fields__)
         kw = {k: v for k, v in (cfg or {}).items() if k in known}
         try:

@@ -36,13 +36,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cab_core.contracts.embodiment import EmbodimentSpec
-from cab_core.errors import BadCommand
-from cab_core.geometry import axis_angle_quat, euler_quat, quat_mul, quat_to_mat
-from cab_core.contracts.scene import (ArticulatedObject, Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh,
-                            SceneSpec, Shape, Sphere)
+from cab_core.contracts.scene import (
+    ArticulatedObject,
+    Body,
+    Box,
+    CameraSpec,
+    Capsule,
+    Cylinder,
+    Material,
+    Mesh,
+    SceneSpec,
+    Shape,
+    Sphere,
+)
 from cab_core.contracts.simsupport import camera_mount, check_camera_spec, check_object_names, pose_or_bad
 from cab_core.contracts.simulator import ROBOT
 from cab_core.contracts.texturing import texture_image, textured, uv_mesh
+from cab_core.errors import BadCommand
+from cab_core.geometry import axis_angle_quat, euler_quat, quat_mul, quat_to_mat
 
 from .physics import PhysicsParams
 
@@ -145,7 +156,7 @@ def _read_urdf(root, path: str):
         c = m.find("color")
         if c is not None and m.get("name"):
             colours[m.get("name")] = tuple(float(v) for v in c.get("rgba").split())
-    links = {l.get("name"): l for l in root.findall("link")}
+    links = {link.get("name"): link for link in root.findall("link")}
     joints = []
     for j in root.findall("joint"):
         lim = j.find("limit")
@@ -438,7 +449,7 @@ class MjcfWriter:
                           ctrllimited="false")
             self.plan.actuators.append(n)
         # collision filter: links of one arm, and each arm with the robot's other links
-        owner = {l: name for name, arm in emb.arms.items() for l in arm.links}
+        owner = {link: name for name, arm in emb.arms.items() for link in arm.links}
         names = list(art.links)
         for i, a in enumerate(names):
             for b in names[i + 1:]:

@@ -55,7 +55,7 @@ class PhysicsParams:
     joint_friction_solimp: tuple[float, float, float] = (0.99, 0.99999, 0.001)
 
     @classmethod
-    def from_cfg(cls, overrides: dict | None) -> "PhysicsParams":
+    def from_cfg(cls, overrides: dict | None) -> PhysicsParams:
         """The defaults with ``overrides`` applied; unknown names and bad values are ConfigErrors."""
         overrides = dict(overrides or {})
         known = {f.name: f for f in fields(cls)}

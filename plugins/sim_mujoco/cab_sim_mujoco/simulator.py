@@ -34,22 +34,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cab_core.contracts.embodiment import EmbodimentSpec
+from cab_core.contracts.scene import SceneSpec
+from cab_core.contracts.simsupport import (
+    CameraAccessors,
+    LastStepContacts,
+    PairContacts,
+    live_or_error,
+    object_link_or_bad,
+    pack_state,
+    pose_or_bad,
+    robot_link_or_bad,
+    simulator_options,
+    start_joint_values,
+    step_count_or_bad,
+    timestep_option,
+    unpack_state,
+    vector_or_bad,
+)
+from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
+from cab_core.geometry import pose_mul, quat_to_mat
+
 from . import gl
+from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
+from .physics import PhysicsParams
 
 gl.forced_backend()  # before MuJoCo's import starts the OpenGL bindings MUJOCO_GL names
 import mujoco  # noqa: E402
-
-from cab_core.contracts.embodiment import EmbodimentSpec
-from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
-from cab_core.geometry import pose_mul, quat_to_mat
-from cab_core.contracts.scene import SceneSpec
-from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, PairContacts, live_or_error, object_link_or_bad,
-                                pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
-                                step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
-from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
-
-from .mjcf import VISUAL_GROUP, MjcfWriter, Plan
-from .physics import PhysicsParams
 
 log = logging.getLogger(__name__)
 
@@ -200,7 +212,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
             self._things[name] = t
         initial = {o.name: o.qpos for o in scene.articulations}
         for name, art in plan.articulations.items():
-            t = _Thing("articulation", body(art.root), links={l: body(n) for l, n in art.links.items()})
+            t = _Thing("articulation", body(art.root), links={link: body(n) for link, n in art.links.items()})
             if art.fixed:
                 t.mocap = int(m.body_mocapid[t.body])
             else:
@@ -217,7 +229,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
     def _index_robot(self, plan: Plan, emb: EmbodimentSpec) -> None:
         """Joint addresses and servo gains; the arms at home, grippers open, targets there."""
         m, d = self._model, self._data
-        self._robot_links = {l: self._id(mujoco.mjtObj.mjOBJ_BODY, n) for l, n in plan.robot.links.items()}
+        self._robot_links = {link: self._id(mujoco.mjtObj.mjOBJ_BODY, n) for link, n in plan.robot.links.items()}
         self._joint_names = emb.joint_order()
         jids = [self._id(mujoco.mjtObj.mjOBJ_JOINT, f"{ROBOT}/{n}") for n in plan.actuators]
         self._rq_all = np.array([m.jnt_qposadr[j] for j in jids], dtype=np.int64)

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from cab_core.geometry import quat_to_mat
 from cab_core.contracts.scene import Box, Capsule, Cylinder, Geometry, Mesh, Sphere
+from cab_core.geometry import quat_to_mat
 
 
 @dataclass(frozen=True)

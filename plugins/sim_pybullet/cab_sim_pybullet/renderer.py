@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cab_core.contracts.scene import Lighting
 from cab_core.errors import ConfigError, RendererUnavailable
 from cab_core.geometry import pose_to_mat
-from cab_core.contracts.scene import Lighting
 
 RENDERERS = ("auto", "tiny", "egl")
 # OpenGL camera axes written in the OpenCV camera frame: x stays, y and z flip
@@ -111,7 +111,7 @@ class Shading:
     specular: float
 
     @classmethod
-    def from_lighting(cls, lighting: Lighting, diffuse: float, specular: float) -> "Shading":
+    def from_lighting(cls, lighting: Lighting, diffuse: float, specular: float) -> Shading:
         """The first directional light (the direction light travels, negated) and the mean ambient."""
         if lighting.directional:
             travel, color = lighting.directional[0]

@@ -63,15 +63,30 @@ with c_output_silenced():  # its build-time banner
 from pybullet_utils.bullet_client import BulletClient
 
 from cab_core.contracts.embodiment import EmbodimentSpec
-from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
-from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
-from cab_core.contracts.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere
-from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
-                                check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
-                                pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
-                                step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
+from cab_core.contracts.scene import Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Sphere
+from cab_core.contracts.simsupport import (
+    CameraAccessors,
+    LastStepContacts,
+    PairContacts,
+    camera_mount,
+    check_camera_spec,
+    check_object_names,
+    live_or_error,
+    object_link_or_bad,
+    pack_state,
+    pose_or_bad,
+    robot_link_or_bad,
+    simulator_options,
+    start_joint_values,
+    step_count_or_bad,
+    timestep_option,
+    unpack_state,
+    vector_or_bad,
+)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 from cab_core.contracts.texturing import texture_image, textured, uv_mesh
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
+from cab_core.geometry import intrinsics, mat_to_quat, pose_inv, pose_mul
 
 from . import massprops
 from . import renderer as _renderer
@@ -572,7 +587,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         robot_bits = body_bit
         for b in arm_bits.values():
             robot_bits |= b
-        owner = {l: arm_bits[name] for name, arm in emb.arms.items() for l in arm.links}
+        owner = {link: arm_bits[name] for name, arm in emb.arms.items() for link in arm.links}
         everything = -1
         static_group = 2  # Bullet's StaticFilter
         for link, index in self._robot.links.items():

@@ -12,7 +12,7 @@ import glob
 import json
 import os
 import re
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 MIN_MESA = (24, 3)
@@ -52,7 +52,7 @@ def _icd_library(manifest: str) -> str | None:
     return None
 
 
-@lru_cache(maxsize=None)
+@cache
 def _version_in_library(path: str) -> str | None:
     """The "Mesa X.Y.Z..." string compiled into a Mesa driver library (a fast byte scan)."""
     try:

@@ -84,15 +84,30 @@ import sapien
 from sapien.wrapper.urdf_loader import URDFLoader
 
 from cab_core.contracts.embodiment import EmbodimentSpec
-from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
-from cab_core.geometry import mat_to_quat
-from cab_core.contracts.scene import Box, Capsule, CameraSpec, Cylinder, Material, Mesh, SceneSpec, Sphere, cache_dir
-from cab_core.contracts.simsupport import (CameraAccessors, LastStepContacts, PairContacts, camera_mount,
-                                check_camera_spec, check_object_names, live_or_error, object_link_or_bad,
-                                pack_state, pose_or_bad, robot_link_or_bad, simulator_options, start_joint_values,
-                                step_count_or_bad, timestep_option, unpack_state, vector_or_bad)
+from cab_core.contracts.scene import Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Sphere, cache_dir
+from cab_core.contracts.simsupport import (
+    CameraAccessors,
+    LastStepContacts,
+    PairContacts,
+    camera_mount,
+    check_camera_spec,
+    check_object_names,
+    live_or_error,
+    object_link_or_bad,
+    pack_state,
+    pose_or_bad,
+    robot_link_or_bad,
+    simulator_options,
+    start_joint_values,
+    step_count_or_bad,
+    timestep_option,
+    unpack_state,
+    vector_or_bad,
+)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 from cab_core.contracts.texturing import texture_image, textured, uv_mesh
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
+from cab_core.geometry import mat_to_quat
 
 from . import brdf as _brdf
 from . import renderer as _renderer
@@ -157,7 +172,7 @@ class _PhysicsOnlyURDFLoader(URDFLoader):
 @dataclass
 class _Rigid:
     kind: str  # static | dynamic | kinematic
-    entity: "sapien.Entity"
+    entity: sapien.Entity
     component: object  # PhysxRigidDynamicComponent | PhysxRigidStaticComponent
 
 
@@ -436,8 +451,8 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         arm_bits = {name: 1 << (20 + i) for i, name in enumerate(sorted(emb.arms))}
         owner = {}
         for name, arm in emb.arms.items():
-            for l in arm.links:
-                owner[l] = arm_bits[name]
+            for link in arm.links:
+                owner[link] = arm_bits[name]
         body_bits = 0
         for b in arm_bits.values():
             body_bits |= b
