@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import typing
 from importlib import resources
 
 import numpy as np
@@ -113,12 +114,38 @@ def test_each_tool_is_declared_once_next_to_its_handler():
     assert declared == {h.__name__ for h in handlers}  # no declared handler left out of the catalog
 
 
+def test_a_handlers_argument_model_is_the_annotation_of_its_args_parameter():
+    """The registry reads each tool's argument model from its handler's ``args`` annotation."""
+    handlers = [e for e in DECLARED if not isinstance(e, ToolDef)]
+    for h in handlers:
+        assert TOOLS[h.__name__].args is typing.get_type_hints(h, localns={"RobotContext": RobotContext})["args"]
+        assert issubclass(TOOLS[h.__name__].args, BaseModel)
+
+    def unannotated(ctx, args):
+        """Reads nothing."""
+
+    with pytest.raises(TypeError, match=r"tool unannotated: annotate its args parameter"):
+        tool(group="observation", kind="read")(unannotated)
+
+    def not_a_model(ctx, args: dict):
+        """Reads nothing."""
+
+    with pytest.raises(TypeError, match=r"tool not_a_model: annotate its args parameter .* not <class 'dict'>"):
+        tool(group="observation", kind="read")(not_a_model)
+
+    def unresolved(ctx, args: NoSuchModel):  # noqa: F821
+        """Reads nothing."""
+
+    with pytest.raises(TypeError, match="tool unresolved: its args annotation does not resolve .*NoSuchModel"):
+        tool(group="observation", kind="read")(unresolved)
+
+
 def test_a_handler_without_docstring_or_outside_the_catalog_is_refused():
-    def nameless(ctx, args):
+    def nameless(ctx, args: m.CaptureHeadArgs):
         pass
 
     with pytest.raises(TypeError, match="docstring"):
-        tool(m.CaptureHeadArgs, group="observation", kind="read")(nameless)
+        tool(group="observation", kind="read")(nameless)
     with pytest.raises(PluginError, match="not declared as a tool"):
         build_registry([nameless])
     with pytest.raises(PluginError, match="duplicate tool 'done'"):

@@ -77,8 +77,8 @@ def require_current(ctx: RobotContext, obs: Observation) -> None:
 # ==============================================================================================
 # project / ray / plane_intersect
 # ==============================================================================================
-@tool(m.ProjectArgs, group="geometry", kind="read", result=m.Estimate)
-def project(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.Estimate)
+def project(ctx: RobotContext, args: m.ProjectArgs) -> ToolOutput:
     """Projects a world point (m) into an observation's image with its calibration snapshot: value [u, v] in
     pixels, or null when the point is behind the camera; also its camera depth (m) and whether it falls in
     frame. Use it to check a 3D estimate against the image."""
@@ -95,8 +95,8 @@ def project(ctx: RobotContext, args) -> ToolOutput:
         failure=("BEHIND_CAMERA", "the point is behind the camera (camera depth <= 0)") if behind else None))
 
 
-@tool(m.RayArgs, group="geometry", kind="read", result=m.Estimate)
-def ray(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.Estimate)
+def ray(ctx: RobotContext, args: m.RayArgs) -> ToolOutput:
     """Back-projects a pixel of an observation into a world-frame viewing ray: origin = camera centre (m), dir =
     unit direction. Direction only: an RGB pixel carries no depth. Uses the observation's calibration
     snapshot. Pixels are [u, v] in that observation's image (top-left origin, u right, v down)."""
@@ -114,8 +114,8 @@ def _ray_plane(C, d, p0, n) -> float:
     return float(np.dot(n, p0 - C) / np.dot(n, d))
 
 
-@tool(m.PlaneIntersectArgs, group="geometry", kind="read", result=m.Estimate)
-def plane_intersect(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.Estimate)
+def plane_intersect(ctx: RobotContext, args: m.PlaneIntersectArgs) -> ToolOutput:
     """Intersects a pixel's viewing ray with a plane you specify (point and normal, world m) and returns the 3D
     point with propagated 1-sigma uncertainty from your pixel and plane-offset sigmas, amplified by obliquity
     (1/|cos| of the ray-normal angle) and range. Always coarse: it is only as good as your plane. Fails with
@@ -211,8 +211,8 @@ def _triangulate_px(ob: Observation, oa: Observation, pb, pa):
     return _midpoint(C1, d1, C2, d2), (C1, d1, C2, d2)
 
 
-@tool(m.TriangulateCorrespondenceArgs, group="geometry", kind="read", result=m.Estimate)
-def triangulate_correspondence(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.Estimate)
+def triangulate_correspondence(ctx: RobotContext, args: m.TriangulateCorrespondenceArgs) -> ToolOutput:
     """Triangulates one scene point from a motion pair: you give the pixel of the same point in the 'before' and
     'after' images; the two viewing rays from the measured camera poses are intersected by the two-ray
     midpoint method. Returns the world point (m) with 1-sigma uncertainty from your pixel sigma, the ray gap,
@@ -292,8 +292,8 @@ def triangulate_correspondence(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # scale_from_object_size
 # ==============================================================================================
-@tool(m.ScaleFromObjectSizeArgs, group="geometry", kind="read", result=m.Estimate)
-def scale_from_object_size(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.Estimate)
+def scale_from_object_size(ctx: RobotContext, args: m.ScaleFromObjectSizeArgs) -> ToolOutput:
     """Coarse camera depth (m, along the optical axis) of an object from its pixel bounding box and your prior
     of its physical extent: Z = f * known_extent / pixel_extent. Assumes the extent is roughly parallel to
     the image plane. Uncertainty is null unless you give known_extent_sigma_m. Also reports the implied world
@@ -412,8 +412,8 @@ def _inner_tips_fk(ctx: RobotContext, arm: str) -> tuple[np.ndarray, np.ndarray,
 # ==============================================================================================
 # scale_from_gripper
 # ==============================================================================================
-@tool(m.ScaleFromGripperArgs, group="geometry", kind="read", result=m.ObservationSummary)
-def scale_from_gripper(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.ObservationSummary, renders=True)
+def scale_from_gripper(ctx: RobotContext, args: m.ScaleFromGripperArgs) -> ToolOutput:
     """Captures a fresh image and marks the two inner fingertip points of an arm (from forward kinematics) in
     it: their true distance (m), pixel endpoints, in-frame flags, pixel span, camera depths and metres per
     pixel along the segment. A metric scale reference valid near the fingertips' depth. Does not move the
@@ -466,8 +466,8 @@ def scale_from_gripper(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # draw_marks
 # ==============================================================================================
-@tool(m.DrawMarksArgs, group="observation", kind="read", result=m.ObservationSummary)
-def draw_marks(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read", result=m.ObservationSummary)
+def draw_marks(ctx: RobotContext, args: m.DrawMarksArgs) -> ToolOutput:
     """Draws 1-12 numbered, coloured markers with your labels at pixels of an existing observation and returns a
     new annotated observation (same camera, tick and calibration). Reports for each mark its colour, whether
     it is in frame and its label box. Pixels are [u, v] in that observation's image (top-left origin, u
@@ -503,8 +503,8 @@ def grasp_quats(approach, opening) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return q1, q2, a, o
 
 
-@tool(m.GraspQuatCandidatesArgs, group="geometry", kind="read")
-def grasp_quat_candidates(ctx: RobotContext | None, args) -> ToolOutput:
+@tool(group="geometry", kind="read")
+def grasp_quat_candidates(ctx: RobotContext | None, args: m.GraspQuatCandidatesArgs) -> ToolOutput:
     """Converts a gripper approach axis (wrist toward fingertips) and opening axis (finger line), both in world
     coordinates and orthogonal, into the two wxyz quaternions with TCP +x = approach and +y = +/- opening;
     they differ by a 180 degree roll about the approach axis. Pure conversion: unranked, no reachability
@@ -544,8 +544,8 @@ def camera_arm(ctx: RobotContext, camera: str) -> str:
     raise ToolArgumentError(f"no arm carries camera {camera!r}")
 
 
-@tool(m.CameraAimPoseArgs, group="geometry", kind="read")
-def camera_aim_pose(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read")
+def camera_aim_pose(ctx: RobotContext, args: m.CameraAimPoseArgs) -> ToolOutput:
     """Pure geometry: computes a TCP pose that points a wrist camera at a world target from a given pitch
     (degrees; 90 = approach straight down) with the TCP `standoff` metres above the target, using the
     calibrated camera mount. Returns the target TCP pose and the target's predicted pixel and depth in that
@@ -727,8 +727,8 @@ _GRIPPER_NOTE = ("finger silhouettes are boxes from the embodiment's public fing
                  "collision or reachability verdict.")
 
 
-@tool(m.PreviewTcpPoseArgs, group="geometry", kind="read", result=m.ObservationSummary)
-def preview_tcp_pose(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.ObservationSummary)
+def preview_tcp_pose(ctx: RobotContext, args: m.PreviewTcpPoseArgs) -> ToolOutput:
     """Draws the gripper at a proposed TCP pose (world m, wxyz) into a current-tick observation: finger
     silhouettes, inner-tip markers, grasp centre, approach arrow with 1 cm ticks and axes, and returns a new
     annotated observation with pixel positions, per-finger boxes, in-view flags and optional offsets to a
@@ -784,8 +784,8 @@ def _iou(a: list | None, b: list | None) -> float | None:
     return inter / union if union > 0 else 0.0
 
 
-@tool(m.CompareTcpPosesArgs, group="geometry", kind="read", result=m.ObservationSummary)
-def compare_tcp_poses(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="read", result=m.ObservationSummary)
+def compare_tcp_poses(ctx: RobotContext, args: m.CompareTcpPosesArgs) -> ToolOutput:
     """Draws 2-4 proposed TCP poses (numbered) into a current-tick observation and compares them pairwise: grasp
     centre offset and distance (m), approach angle (deg), finger-box overlap and separation for different
     arms, projected overlap and which is nearer to the camera. No collision or reachability verdict."""

@@ -336,8 +336,8 @@ def _clamp(delta: np.ndarray) -> tuple[np.ndarray, bool]:
 # ---------------------------------------------------------------------------------------------
 # tools
 # ---------------------------------------------------------------------------------------------
-@tool(m.MoveDeltaArgs, group="motion", kind="act", result=m.ActionResult)
-def move_delta(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="motion", kind="act", result=m.ActionResult)
+def move_delta(ctx: RobotContext, args: m.MoveDeltaArgs) -> ToolOutput:
     """Moves one arm's TCP by a world-frame displacement (m), holding the call-start orientation. The norm is
     clamped to 0.30 m (direction kept); by default it runs as guarded legs of at most 0.03 m that stop on
     stall or deviation. Returns an ActionResult. Consumes simulated time."""
@@ -375,8 +375,8 @@ def move_delta(ctx: RobotContext, args) -> ToolOutput:
                    abort_reason=st["reason"] if st["status"] == "ABORTED" else None)
 
 
-@tool(m.MoveBothDeltaArgs, group="motion", kind="act", result=m.ActionResult)
-def move_both_delta(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="motion", kind="act", result=m.ActionResult)
+def move_both_delta(ctx: RobotContext, args: m.MoveBothDeltaArgs) -> ToolOutput:
     """Moves both TCPs by world-frame displacements (m) together. A FAILED result may still mean one arm moved
     (execution.partial). Returns an ActionResult with a sync block. Consumes simulated time."""
     deltas = {}
@@ -469,8 +469,8 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
                    arms=arms, planning="SUCCEEDED", execution="COMPLETED", steps=steps)
 
 
-@tool(m.ReachTcpArgs, group="motion", kind="act", result=m.ActionResult)
-def reach_tcp(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="motion", kind="act", result=m.ActionResult)
+def reach_tcp(ctx: RobotContext, args: m.ReachTcpArgs) -> ToolOutput:
     """Moves one arm's TCP to an absolute world position (m) and optional orientation (wxyz; default keeps the
     call-start orientation): one full plan, then a guarded waypoint fallback and up to 2 correction plans.
     Returns an ActionResult; compare commanded with observed_after. Consumes simulated time."""
@@ -483,8 +483,8 @@ def reach_tcp(ctx: RobotContext, args) -> ToolOutput:
     return _plan_and_go(ctx, {arm: target}, ctx.next_action_id(), commanded, before)
 
 
-@tool(m.ReachBothTcpArgs, group="motion", kind="act", result=m.ActionResult)
-def reach_both_tcp(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="motion", kind="act", result=m.ActionResult)
+def reach_both_tcp(ctx: RobotContext, args: m.ReachBothTcpArgs) -> ToolOutput:
     """Moves both TCPs to absolute world positions (m) with optional orientations, planned and executed
     together. A FAILED result may still mean one arm moved (execution.partial). Consumes simulated time."""
     before = robot_snapshot(ctx)
@@ -496,8 +496,8 @@ def reach_both_tcp(ctx: RobotContext, args) -> ToolOutput:
     return _plan_and_go(ctx, targets, ctx.next_action_id(), commanded, before)
 
 
-@tool(m.ProbeContactAlongArgs, group="motion", kind="act", result=m.ActionResult)
-def probe_contact_along(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="motion", kind="act", result=m.ActionResult)
+def probe_contact_along(ctx: RobotContext, args: m.ProbeContactAlongArgs) -> ToolOutput:
     """Moves one arm's TCP along a world direction in small steps until the set of fingers in contact changes or
     the distance is used up (distance clamped to 0.30 m, step to 0.03 m). SUCCESS means only that contact
     changed; the result reports the stop reason, transition and finger poses. Consumes simulated time."""
@@ -542,8 +542,8 @@ def probe_contact_along(ctx: RobotContext, args) -> ToolOutput:
                    steps=out["steps"], partial=False, failure=failure, abort_reason=reason)
 
 
-@tool(m.SetGripperArgs, group="motion", kind="act", result=m.ActionResult)
-def set_gripper(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="motion", kind="act", result=m.ActionResult)
+def set_gripper(ctx: RobotContext, args: m.SetGripperArgs) -> ToolOutput:
     """Drives one gripper to a normalised opening (1 = open, 0 = closed) over about 0.8 s. SUCCESS means the
     actuation completed, not that something is held: read finger_gap_m and contact in the result. Consumes
     simulated time."""
@@ -580,8 +580,8 @@ def set_gripper(ctx: RobotContext, args) -> ToolOutput:
                    before=before, arms=[arm], planning="NOT_APPLICABLE", execution="COMPLETED", steps=steps)
 
 
-@tool(m.CheckTcpPoseReachabilityArgs, group="geometry", kind="plan")
-def check_tcp_pose_reachability(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="plan")
+def check_tcp_pose_reachability(ctx: RobotContext, args: m.CheckTcpPoseReachabilityArgs) -> ToolOutput:
     """Asks the motion planner for a trajectory from the current arm configuration to a TCP pose without moving:
     whether one was found, planner status and diagnostics. Only robot self-collision is modelled (no table,
     objects or other arm)."""
@@ -609,8 +609,8 @@ def check_tcp_pose_reachability(ctx: RobotContext, args) -> ToolOutput:
                        "stage": "planner_query", "reason": _planner_block(res)["meaning"]})
 
 
-@tool(m.CaptureMotionPairArgs, group="geometry", kind="act", result=m.ObservationPair)
-def capture_motion_pair(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="geometry", kind="act", result=m.ObservationPair, renders=True)
+def capture_motion_pair(ctx: RobotContext, args: m.CaptureMotionPairArgs) -> ToolOutput:
     """Moves one arm by a small world-frame displacement (dx, dy, dz in m) as a real guarded motion, capturing
     its wrist RGB before and after. Returns both observations, the motion's ActionResult, the measured camera
     translation and rotation, contact evidence and validity flags, and a pair_id for

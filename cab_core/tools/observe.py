@@ -33,8 +33,8 @@ def _param(ctx: RobotContext, key: str, default: float) -> float:
 # ==============================================================================================
 # get_world_frame
 # ==============================================================================================
-@tool(m.GetWorldFrameArgs, group="observation", kind="read", result=m.ObservationSummary)
-def get_world_frame(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read", result=m.ObservationSummary, renders=True)
+def get_world_frame(ctx: RobotContext, args: m.GetWorldFrameArgs) -> ToolOutput:
     """Captures a fresh head-camera image with a display-only legend glyph in a screen corner and returns the
     world conventions: +x robot-right (left arm at -x, right arm at +x), +y forward away from the robot, +z
     up, metres, seconds, radians, wxyz quaternions, pixel convention. The legend is a schematic: it gives no
@@ -107,8 +107,8 @@ def _merge(dst: dict, src: dict) -> None:
             dst[k] = v
 
 
-@tool(m.GetEmbodimentArgs, group="observation", kind="read")
-def get_embodiment(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read")
+def get_embodiment(ctx: RobotContext, args: m.GetEmbodimentArgs) -> ToolOutput:
     """Describes the robot: arms and their sides, gripper geometry (max opening 0.08 m, finger-gap range,
     empty-close gap), the TCP convention (nominal grasp centre; flange behind it along the approach axis,
     fingertip plane ahead), gripper-local axes (+x approach, +y opening line), cameras (qualitatively),
@@ -171,8 +171,8 @@ def get_embodiment(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # get_camera_info
 # ==============================================================================================
-@tool(m.GetCameraInfoArgs, group="observation", kind="read")
-def get_camera_info(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read")
+def get_camera_info(ctx: RobotContext, args: m.GetCameraInfoArgs) -> ToolOutput:
     """Returns the current calibration of one camera: 3x3 pinhole K (pixels, no distortion), 3x4 extrinsic E =
     [R|t] mapping world to camera (p_cam = R p_world + t; camera +x right, +y down, +z forward) and image
     size [H, W]. Wrist cameras move with their arm, so E changes after motion. A read failure returns
@@ -203,8 +203,8 @@ def _arm_pose_block(ctx: RobotContext, arm: str) -> dict:
         return {"ee_pose": None, "tcp_pose": None, "orientation": None, "read_failures": 1}
 
 
-@tool(m.GetArmPoseArgs, group="observation", kind="read")
-def get_arm_pose(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read")
+def get_arm_pose(ctx: RobotContext, args: m.GetArmPoseArgs) -> ToolOutput:
     """Measured flange (ee_pose) and TCP pose of one arm, world frame [x,y,z,qw,qx,qy,qz], with an orientation
     block: approach_axis_world (gripper +x), opening_axis_world (gripper +y) and plain-text readings such as
     'approach points down (-z)'."""
@@ -225,8 +225,8 @@ def _gripper_block(ctx: RobotContext, arm: str) -> dict:
             "drive_commanded_closed": val < DRIVE_CLOSED_BELOW, "read_failures": fails}
 
 
-@tool(m.GetGripperStateArgs, group="observation", kind="read")
-def get_gripper_state(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read")
+def get_gripper_state(ctx: RobotContext, args: m.GetGripperStateArgs) -> ToolOutput:
     """Gripper readback of one arm: gripper_val (the last command, 1 = open, 0 = closed), opening_m = command x
     0.08 m, finger_gap_m (physical distance between finger-link origins from forward kinematics, metres) and
     drive_commanded_closed (command < 0.2). A closed command with a gap above the empty-close gap suggests
@@ -282,8 +282,8 @@ def _contact_summary(ctx: RobotContext, arm: str) -> dict:
             "total_impulse": rnd(c["total_impulse"], 8), "unit": "N*s", "threshold": CONTACT_IMPULSE_THRESHOLD}
 
 
-@tool(m.GetGraspContactArgs, group="observation", kind="read")
-def get_grasp_contact(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read")
+def get_grasp_contact(ctx: RobotContext, args: m.GetGraspContactArgs) -> ToolOutput:
     """Anonymous contact between one arm's fingers and anything that is not the robot, during the last physics
     step: total and per-finger impulse (N*s, threshold 1e-4), fingers_in_contact, and the world pose of each
     contacting finger link. Finger-finger and robot self-contact are excluded; the touched body is never
@@ -336,8 +336,8 @@ def _joint_state(ctx: RobotContext, arm: str) -> dict:
             "units": {"revolute": ["rad", "rad/s"], "prismatic": ["m", "m/s"]}, "read_failures": fails}
 
 
-@tool(m.GetRobotStateArgs, group="observation", kind="read")
-def get_robot_state(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read")
+def get_robot_state(ctx: RobotContext, args: m.GetRobotStateArgs) -> ToolOutput:
     """Combined state of one or both arms: flange and TCP poses with orientation blocks, gripper readback,
     anonymous finger contact summary and joint_state (names, types, positions in rad or m, velocities in
     rad/s or m/s). The only tool that returns joint positions and velocities. World frame: metres, +x
@@ -360,8 +360,8 @@ def get_robot_state(ctx: RobotContext, args) -> ToolOutput:
 # ==============================================================================================
 # captures
 # ==============================================================================================
-@tool(m.CaptureHeadArgs, group="observation", kind="read", result=m.ObservationSummary)
-def capture_head(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read", result=m.ObservationSummary, renders=True)
+def capture_head(ctx: RobotContext, args: m.CaptureHeadArgs) -> ToolOutput:
     """Captures the fixed head camera (RGB, 640x480 in the benchmark) and returns the image with its obs_id,
     tick and calibration snapshot (K, E, size). No depth."""
     return observation_output(ctx.capture("head_camera"))
@@ -379,8 +379,8 @@ def _observation_set(ctx: RobotContext, shots: list[tuple[str, str]]) -> ToolOut
     return ToolOutput(payload=payload, obs_ids=ids)
 
 
-@tool(m.CaptureWristArgs, group="observation", kind="read", result=m.ObservationSet)
-def capture_wrist(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read", result=m.ObservationSet, renders=True)
+def capture_wrist(ctx: RobotContext, args: m.CaptureWristArgs) -> ToolOutput:
     """Captures wrist-camera RGB (320x240): the active arm's wrist, or with views='both' also the opposite wrist
     (roles active/opposite). active_arm='none' with views='both' captures both wrists without roles. Each
     image has its obs_id and calibration snapshot."""
@@ -395,8 +395,8 @@ def capture_wrist(ctx: RobotContext, args) -> ToolOutput:
     return _observation_set(ctx, shots)
 
 
-@tool(m.CaptureEvidenceViewsArgs, group="observation", kind="read", result=m.ObservationSet)
-def capture_evidence_views(ctx: RobotContext, args) -> ToolOutput:
+@tool(group="observation", kind="read", result=m.ObservationSet, renders=True)
+def capture_evidence_views(ctx: RobotContext, args: m.CaptureEvidenceViewsArgs) -> ToolOutput:
     """Captures several views at the same tick: 'overview' (head camera), 'left_wrist', 'right_wrist' (default
     all three, in that order), each with obs_id and calibration. Use it to check a state from several angles."""
     out = _observation_set(ctx, [(v, _VIEW_CAMERA[v]) for v in args.views])

@@ -4,13 +4,14 @@ and what a handler returns (:class:`ToolOutput`).
 A robot tool is declared once, on its handler, in the module of its kind (``observe``,
 ``estimate``, ``motion``)::
 
-    @tool(m.RayArgs, group="geometry", kind="read", result=m.Estimate)
-    def ray(ctx: RobotContext, args: m.RayArgs) -> ToolOutput:
+    @tool(group="geometry", kind="read", result=Estimate)
+    def ray(ctx: RobotContext, args: RayArgs) -> ToolOutput:
         \"\"\"Back-projects a pixel of an observation into a world-frame viewing ray: ...\"\"\"
 
-The tool's name is the function's, its description (the text the agent reads) the function's
-docstring with every run of whitespace folded to one space, so the docstring may wrap freely but
-cannot carry a paragraph break. ``run_code`` and ``done`` are served by the episode host itself
+The tool's name is the function's, its argument model the annotation of its ``args`` parameter
+(read with :func:`typing.get_type_hints`, so the model must be defined, or imported, before the
+handler), its description (the text the agent reads) the function's docstring with every run of
+whitespace folded to one space, so the docstring may wrap freely but cannot carry a paragraph break. ``run_code`` and ``done`` are served by the episode host itself
 (:class:`~cab_core.attempt.serving.CallServer`): they are plain :class:`ToolDef` values without a
 handler. :mod:`cab_core.tools` lists every declaration in catalog order and builds the registry.
 
@@ -19,6 +20,8 @@ This module imports nothing else of cab_core, so a handler module can import it.
 """
 from __future__ import annotations
 
+import types
+import typing
 from dataclasses import dataclass, field
 from typing import Any, Callable, Literal, Optional
 
@@ -60,6 +63,7 @@ class ToolDef:
     description: str
     handler: Optional[Handler] = None  # None: served by the episode host (run_code, done)
     result: type[BaseModel] | None = None  # documented result model, when there is one
+    renders: bool = False  # the call renders a fresh image from a camera (slow on a CPU renderer)
 
     @property
     def read_only(self) -> bool:  # MCP readOnlyHint
@@ -95,15 +99,37 @@ def description_of(fn: Callable) -> str:
     return text
 
 
-def tool(args: type[BaseModel], *, group: Group, kind: Kind,
-         result: type[BaseModel] | None = None) -> Callable[[Handler], Handler]:
-    """Declare the decorated handler a tool: name, description (its docstring), argument model,
-    group, kind and documented result model. The function itself is returned unchanged, with its
-    declaration as ``fn.tool_def`` (the registry refuses undocumented arguments when it is built)."""
+def argument_model(fn: Callable) -> type[BaseModel]:
+    """The pydantic model a handler's ``args`` parameter is annotated with.
+
+    Only that one annotation is resolved (with :func:`typing.get_type_hints`, in the handler's module):
+    the handler modules import ``RobotContext`` for type checkers only, so ``ctx``'s would not resolve."""
+    if "args" not in getattr(fn, "__annotations__", {}):
+        raise TypeError(f"tool {fn.__name__}: annotate its args parameter with the tool's argument model "
+                        f"(args: <pydantic model>)")
+    only_args = types.SimpleNamespace(__annotations__={"args": fn.__annotations__["args"]})
+    try:
+        model = typing.get_type_hints(only_args, globalns=fn.__globals__)["args"]
+    except NameError as e:
+        raise TypeError(f"tool {fn.__name__}: its args annotation does not resolve ({e}); define or import its "
+                        f"argument model before the handler") from None
+    if not (isinstance(model, type) and issubclass(model, BaseModel)):
+        raise TypeError(f"tool {fn.__name__}: annotate its args parameter with the tool's argument model "
+                        f"(args: <pydantic model>), not {model!r}")
+    return model
+
+
+def tool(*, group: Group, kind: Kind, result: type[BaseModel] | None = None,
+         renders: bool = False) -> Callable[[Handler], Handler]:
+    """Declare the decorated handler a tool: name, description (its docstring), argument model (the
+    annotation of its ``args`` parameter), group, kind, documented result model and whether it renders
+    a fresh image. The function itself is returned unchanged, with its declaration as ``fn.tool_def``
+    (the registry refuses undocumented arguments when it is built)."""
 
     def declare(fn: Handler) -> Handler:
-        fn.tool_def = ToolDef(name=fn.__name__, group=group, kind=kind, args=args,  # type: ignore[attr-defined]
-                              description=description_of(fn), handler=fn, result=result)
+        fn.tool_def = ToolDef(name=fn.__name__, group=group, kind=kind,  # type: ignore[attr-defined]
+                              args=argument_model(fn), description=description_of(fn), handler=fn,
+                              result=result, renders=renders)
         return fn
 
     return declare
