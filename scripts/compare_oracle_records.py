@@ -17,7 +17,7 @@ What is compared:
 - ``observations/*.png``, byte for byte (``--no-images`` skips them).
 
 Values are compared exactly: the same JSON type and the same value (a float is not equal to an int of the
-same value; NaN equals NaN). The fields listed in ``TIMING_FIELDS`` (and those given with ``--ignore``) are
+same value; NaN equals NaN), except the lists in ``UNORDERED_FIELDS``, compared as sets. The fields listed in ``TIMING_FIELDS`` (and those given with ``--ignore``) are
 dropped before comparing: they are the fields whose values changed between two runs of the same attempt with
 the same code, and each measures wall-clock time (seconds). The video (``video.mp4``) is not compared:
 its frame count and size are in ``result.json``.
@@ -54,6 +54,12 @@ TIMING_FIELDS: dict[str, tuple[str, ...]] = {
     ),
     "privileged/snapshots.jsonl": (),
     "privileged/scene_info.json": (),
+}
+# Lists compared as sets (sorted before comparing), by file: the BLAS libraries are listed in the order the
+# process loaded them, which depends on which module imported numpy or scipy first (a sweep's warm worker
+# and a single run of the same attempt list them in opposite orders).
+UNORDERED_FIELDS: dict[str, tuple[str, ...]] = {
+    "result.json": ("versions.numerics.blas",),
 }
 Key = tuple[str, str, str, str, str]
 Pattern = tuple[str, ...]
@@ -93,6 +99,19 @@ def drop(value: Any, patterns: list[Pattern]) -> Any:
         if any(len(p) == 1 for p in matching):
             continue
         kept[k] = drop(v, [p[1:] for p in matching])
+    return kept if isinstance(value, dict) else list(kept.values())
+
+
+def sort_lists(value: Any, patterns: list[Pattern]) -> Any:
+    """``value`` with the lists that ``patterns`` point to sorted (by their items' JSON)."""
+    if not patterns:
+        return value
+    if isinstance(value, list) and any(not p for p in patterns):
+        return sorted(value, key=lambda item: json.dumps(item, sort_keys=True))
+    if not isinstance(value, (dict, list)):
+        return value
+    items = value.items() if isinstance(value, dict) else enumerate(value)
+    kept = {k: sort_lists(v, [p[1:] for p in patterns if p and p[0] in ("*", str(k))]) for k, v in items}
     return kept if isinstance(value, dict) else list(kept.values())
 
 
@@ -154,13 +173,14 @@ def where_in(name: str, index: int, value: Any) -> str:
     return name
 
 
-def compare_file(a: Path, b: Path, name: str, patterns: list[Pattern]) -> str | None:
-    """The first difference between the record file ``name`` of two attempts, fields in ``patterns`` dropped."""
+def compare_file(a: Path, b: Path, name: str, patterns: list[Pattern], unordered: list[Pattern]) -> str | None:
+    """The first difference between the record file ``name`` of two attempts, the fields in ``patterns``
+    dropped and the lists in ``unordered`` sorted."""
     values_a, values_b = read_records(a, name), read_records(b, name)
     if values_a is None or values_b is None:
         return None if values_a is values_b else f"{name}: {'missing in A' if values_a is None else 'missing in B'}"
     for i, (x, y) in enumerate(zip(values_a, values_b)):
-        x, y = drop(x, patterns), drop(y, patterns)
+        x, y = sort_lists(drop(x, patterns), unordered), sort_lists(drop(y, patterns), unordered)
         if name == "result.json":   # the verdict first: it is what a reader of the comparison looks for
             found = first_difference(x.get("verdict"), y.get("verdict"), "verdict") or first_difference(x, y)
         else:
@@ -187,7 +207,8 @@ def compare_images(a: Path, b: Path) -> str | None:
 def compare_attempt(a: Path, b: Path, extra: list[Pattern], images: bool) -> str | None:
     """The first difference between the records of two attempt folders; None when they are the same."""
     for name, fields in TIMING_FIELDS.items():
-        found = compare_file(a, b, name, [tuple(f.split(".")) for f in fields] + extra)
+        unordered = [tuple(f.split(".")) for f in UNORDERED_FIELDS.get(name, ())]
+        found = compare_file(a, b, name, [tuple(f.split(".")) for f in fields] + extra, unordered)
         if found:
             return found
     return compare_images(a, b) if images else None
