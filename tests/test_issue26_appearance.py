@@ -150,7 +150,7 @@ def test_the_check_runs_with_the_simulator_conformance_suite():
 def test_a_urdf_material_name_carries_one_colour():
     """Simulators keep either the first or the last colour given under one URDF material name (the
     microwave's buttons and knob once differed per simulator): the suite refuses two colours per name."""
-    from cab_suite_codeaction.common import hinged_urdf, urdf_part
+    from cab_core.kits.assets import hinged_urdf, urdf_part
 
     def build(knob_material):
         parts = [urdf_part("box", (0.1, 0.1, 0.1), (0, 0, 0), rgba=(0.8, 0.8, 0.82, 1), material="button"),

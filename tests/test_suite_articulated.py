@@ -13,17 +13,22 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    SEEDS,
+    LaptopWorld,
+    _cache,
+    check_settled_scene_fails,
+    check_urdf_hinge,
+    sapien_world,
+    world_view,
+)
 
-from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import ArticulatedObject
-
-from cab_suite_codeaction import common
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.scene import yaw_of
 from cab_suite_codeaction.assets_articulated import lid_rotation
 from cab_suite_codeaction.tasks import open_laptop_setup_arm as laptop_mod
 from cab_suite_codeaction.tasks import place_dual_shoes as shoes_mod
-
-from suite_helpers import SEEDS, LaptopWorld, _cache, check_urdf_hinge  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, sapien_world, world_view
 
 LAPTOP = laptop_mod.TASK()
 
@@ -43,11 +48,11 @@ def test_laptop_layouts_and_urdf(task_builds):
         x, y, z = lap.pose[:3]
         assert -0.05 <= x <= 0.05 and -0.1 <= y <= 0.05 and z == pytest.approx(0.74)
         assert np.allclose(quat_to_mat(lap.pose[3:])[:, 2], (0, 0, 1))  # yaw only
-        assert abs(common.yaw_of(lap.pose[3:])) <= np.pi / 3 + 1e-9
+        assert abs(yaw_of(lap.pose[3:])) <= np.pi / 3 + 1e-9
         lo, hi = m["lid_limits"]
         assert lap.qpos == pytest.approx((lo + 0.2 * (hi - lo),))
         assert m["success_qpos"] == pytest.approx(lo + 0.4 * (hi - lo))
-        assert inst.info["suggested_arm"] == ("right" if common.yaw_of(lap.pose[3:]) > 0 else "left")
+        assert inst.info["suggested_arm"] == ("right" if yaw_of(lap.pose[3:]) > 0 else "left")
         check_urdf_hinge(lap.urdf, (m["base_link"], m["lid_link"]), m["lid_joint"], (lo, hi), m["hinge_point_base"],
                          m["hinge_axis_base"])
         w, d, t = m["size"]

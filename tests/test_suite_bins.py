@@ -14,14 +14,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    SEEDS,
+    TASKS,
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    sapien_world,
+    task_and_verifier,
+    world_view,
+)
 
 from cab_core.attempt.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
-
-from cab_suite_codeaction import assets_bins, common
-
-from suite_helpers import SEEDS, TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, sapien_world, world_view
+from cab_core.kits.scene import yaw_of
+from cab_suite_codeaction import assets_bins
 
 NAMES = ("pick_diverse_bottles", "put_bottles_dustbin", "dump_bin_bigbin")
 
@@ -59,7 +66,7 @@ def test_pick_diverse_bottles_layouts():
             x, y, z = b.pose[:3]
             assert lo <= x <= hi and 0.03 <= y <= 0.23
             assert z - info["height"] / 2 == pytest.approx(0.741)  # standing on the table
-            assert abs(common.yaw_of(b.pose[3:])) <= 1.0 + 1e-9
+            assert abs(yaw_of(b.pose[3:])) <= 1.0 + 1e-9
             assert np.allclose(transform_point(b.pose, [0, 0, 1]) - b.pose[:3], [0, 0, 1])  # upright
             assert b.kind == "dynamic" and 0.05 <= b.mass <= 0.4
             assert 0 <= info["model_id"] < 20
@@ -183,7 +190,7 @@ def test_dump_bin_bigbin_layouts():
         x, y, z = sb.pose[:3]
         assert -0.2 <= x <= 0.2 and abs(x) >= 0.05 and -0.2 <= y <= -0.05
         assert z - info["height"] / 2 == pytest.approx(0.741)
-        assert abs(common.yaw_of(sb.pose[3:])) <= np.pi / 8.5 + 1e-9
+        assert abs(yaw_of(sb.pose[3:])) <= np.pi / 8.5 + 1e-9
         assert np.allclose(quat_to_mat(sb.pose[3:])[:, 2], (0, 0, 1))
         assert info["model_id"] in (0, 3, 7, 8, 9, 10) and sb.kind == "dynamic"
         assert 0.05 <= 2 * info["radius_top"] <= 0.08 and 0.05 <= info["grasp_width"] <= 0.075

@@ -16,22 +16,28 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    check_success_holds,
+    check_urdf_hinge,
+    sapien_world,
+    task_and_verifier,
+    world_view,
+)
 
-from cab_suite_codeaction.catalog import load_catalog
-
-from cab_suite_codeaction import catalog
-from cab_core.errors import PluginError
-from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
-from cab_core.plugins import all_tasks, build_plugin_manager, registry
 from cab_core.contracts.scene import ArticulatedObject, Box, Shape
 from cab_core.contracts.task import Task
-
-from cab_suite_codeaction import common, plugin
+from cab_core.errors import PluginError
+from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
+from cab_core.kits.assets import mesh_asset, write_asset
+from cab_core.kits.scene import LayoutError, base_scene, lowest_point_z, rand_pose, sample_until, yaw_of
+from cab_core.plugins import all_tasks, build_plugin_manager, registry
+from cab_suite_codeaction import catalog, plugin
+from cab_suite_codeaction.catalog import load_catalog
 from cab_suite_codeaction.tasks import TASK_MODULES, load_tasks
 from cab_suite_codeaction.tasks import beat_block_hammer as bbh
-
-from suite_helpers import FakeWorld, _cache, check_urdf_hinge, task_and_verifier  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, world_view
 
 # the three tasks this file covers; every other task has its own test file (tests/test_suite_*.py)
 TASKS = load_tasks(("beat_block_hammer", "stack_blocks_three", "open_microwave"))
@@ -72,7 +78,7 @@ def test_one_module_per_task_named_after_it():
 
 # --- layouts --------------------------------------------------------------------------------------
 def _yaw(q):
-    return common.yaw_of(q)
+    return yaw_of(q)
 
 
 def test_beat_block_hammer_layouts(task_builds):
@@ -84,7 +90,7 @@ def test_beat_block_hammer_layouts(task_builds):
         assert block.shapes[0].geometry == Box((0.025, 0.025, 0.025))
         assert np.allclose(hammer.pose[:2], (0.0, -0.06))
         # resting height from the geometry: the lowest point touches the table top (0.2 mm drop)
-        low = hammer.pose[2] + common.lowest_point_z(hammer.shapes, hammer.pose[3:])
+        low = hammer.pose[2] + lowest_point_z(hammer.shapes, hammer.pose[3:])
         assert 0.74 <= low <= 0.7405
         x, y, z = block.pose[:3]
         assert -0.25 <= x <= 0.25 and abs(x) >= 0.05 and -0.05 <= y <= 0.15
@@ -237,36 +243,36 @@ def test_open_microwave_verifier():
         assert ev.values["door_fraction"] == pytest.approx(frac)
 
 
-# --- common helpers -------------------------------------------------------------------------------
+# --- the task kit's helpers -----------------------------------------------------------------------
 def test_rand_pose_limits_and_ylim_prop():
     rng = np.random.default_rng(0)
     for _ in range(500):
-        p = common.rand_pose(rng, (-0.3, 0.3), (-0.1, 0.1), ylim_prop=True, rotate_rand=True,
+        p = rand_pose(rng, (-0.3, 0.3), (-0.1, 0.1), ylim_prop=True, rotate_rand=True,
                              rotate_lim=(0, 0, 0.5))
         assert -0.3 <= p[0] <= 0.3 and -0.1 <= p[1] <= 0.1 and p[2] == 0.741
         assert not (abs(p[0]) < 0.15 and p[1] > 0)
-        assert abs(common.yaw_of(p[3:])) <= 0.5 + 1e-9
+        assert abs(yaw_of(p[3:])) <= 0.5 + 1e-9
         assert np.allclose(quat_to_mat(p[3:])[:, 2], (0, 0, 1))  # yaw only
         assert p[3] >= 0
 
 
 def test_sample_until_fails_loudly():
-    with pytest.raises(common.LayoutError, match="widget"):
-        common.sample_until(lambda: np.zeros(7), lambda p: False, what="the widget", max_tries=10)
+    with pytest.raises(LayoutError, match="widget"):
+        sample_until(lambda: np.zeros(7), lambda p: False, what="the widget", max_tries=10)
 
 
 def test_lowest_point_z():
     shapes = [Shape(Box((0.1, 0.2, 0.05)))]
-    assert common.lowest_point_z(shapes) == pytest.approx(-0.05)
+    assert lowest_point_z(shapes) == pytest.approx(-0.05)
     q = axis_angle_quat([1, 0, 0], np.pi / 2)
-    assert common.lowest_point_z(shapes, q) == pytest.approx(-0.2)
+    assert lowest_point_z(shapes, q) == pytest.approx(-0.2)
 
 
 def test_write_asset_is_content_addressed_and_atomic(tmp_path, monkeypatch):
     monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path))
-    a = common.write_asset("thing", b"hello", ".txt")
-    b = common.write_asset("thing", b"hello", ".txt")
-    c = common.write_asset("thing", b"world", ".txt")
+    a = write_asset("thing", b"hello", ".txt")
+    b = write_asset("thing", b"hello", ".txt")
+    c = write_asset("thing", b"world", ".txt")
     assert a == b != c and a.read_bytes() == b"hello" and a.parent == tmp_path / "assets"
     assert not [p for p in a.parent.iterdir() if p.suffix == ".tmp"]
 
@@ -274,21 +280,21 @@ def test_write_asset_is_content_addressed_and_atomic(tmp_path, monkeypatch):
 def test_mesh_asset_deterministic(tmp_path, monkeypatch):
     trimesh = pytest.importorskip("trimesh")
     monkeypatch.setenv("CAB_CACHE_DIR", str(tmp_path))
-    p1 = common.mesh_asset("box", trimesh.creation.box((0.1, 0.2, 0.3)))
-    p2 = common.mesh_asset("box", trimesh.creation.box((0.1, 0.2, 0.3)))
+    p1 = mesh_asset("box", trimesh.creation.box((0.1, 0.2, 0.3)))
+    p2 = mesh_asset("box", trimesh.creation.box((0.1, 0.2, 0.3)))
     assert p1 == p2 and Path(p1).suffix == ".obj"
     assert np.allclose(trimesh.load(p1).extents, (0.1, 0.2, 0.3))
 
 
 def test_base_scene_facts():
-    sc = common.base_scene()
+    sc = base_scene()
     table, wall = sc.body("table"), sc.body("wall")
     assert table.kind == wall.kind == "static"
     assert table.shapes[0].geometry == Box((0.6, 0.35, 0.025))
     assert table.pose[2] + 0.025 == pytest.approx(0.74)
     assert wall.pose[1] - wall.shapes[0].geometry.half_size[1] == pytest.approx(0.4)
     assert sc.timestep == pytest.approx(1 / 250)
-    assert common.base_scene(table_x=0.3, table_z_bias=-0.1).body("table").pose[:3] == pytest.approx((0.3, 0, 0.615))
+    assert base_scene(table_x=0.3, table_z_bias=-0.1).body("table").pose[:3] == pytest.approx((0.3, 0, 0.615))
 
 
 # --- with the SAPIEN backend --------------------------------------------------------------------

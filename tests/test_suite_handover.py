@@ -10,19 +10,25 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    TASKS,
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    check_success_holds,
+    sapien_world,
+    task_and_verifier,
+    task_module,
+)
 
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-
-from cab_suite_codeaction import common
-
-from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, task_module
+from cab_core.kits.scene import lowest_point_z, yaw_of
 
 NAMES = ("handover_block", "handover_mic", "place_mouse_pad", "rotate_qrcode")
 
 
 def _yaw(q):
-    return common.yaw_of(q)
+    return yaw_of(q)
 
 
 # --- handover_block -----------------------------------------------------------------------------------
@@ -103,7 +109,7 @@ def test_handover_mic_layouts(task_builds):
         assert z + m["head_point"][2] < 0.92
         assert m["head_z_range"][0] <= m["head_point"][2] <= m["head_z_range"][1]
         assert m["handle_z_range"][0] <= m["handle_point"][2] <= m["handle_z_range"][1]
-        low = z + common.lowest_point_z(mic.shapes)
+        low = z + lowest_point_z(mic.shapes)
         assert 0.7405 <= low <= 0.7415
     assert ids == {0, 4, 5}
 

@@ -12,13 +12,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    SEEDS,
+    TASKS,
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    check_success_holds,
+    sapien_world,
+    task_and_verifier,
+    task_module,
+    tcp_in_rule,
+)
 
 from cab_core.geometry import quat_to_mat, transform_point
-
-from cab_suite_codeaction import common
-
-from suite_helpers import SEEDS, TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, task_module, tcp_in_rule
+from cab_core.kits.scene import yaw_of
 
 NAMES = ("blocks_ranking_size", "stack_bowls_three", "hanging_mug")
 
@@ -29,7 +37,7 @@ def _task(name):
 
 
 def _yaw(q):
-    return common.yaw_of(q)
+    return yaw_of(q)
 
 
 # --- blocks_ranking_size ---------------------------------------------------------------------------

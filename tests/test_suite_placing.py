@@ -13,15 +13,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    TASKS,
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    check_success_holds,
+    sapien_world,
+    task_module,
+)
 
-from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, Box, Cylinder, Shape
-
+from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
+from cab_core.kits.scene import yaw_of
 from cab_suite_codeaction import assets_placing as assets
-from cab_suite_codeaction import common
-
-from suite_helpers import TASKS, FakeWorld, _cache  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, check_success_holds, sapien_world, task_module
 
 NAMES = ("place_bread_basket", "place_bread_skillet", "place_cans_plasticbox", "place_object_basket")
 TOP = 0.74
@@ -30,7 +35,7 @@ STAND_TOP = TOP + 0.04
 
 
 def _yaw(q):
-    return common.yaw_of(q)
+    return yaw_of(q)
 
 
 def _wrap(a):

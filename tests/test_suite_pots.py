@@ -12,24 +12,29 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    TASKS,
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    sapien_world,
+    task_and_verifier,
+    tcp_in_rule,
+)
 
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
-
-from cab_suite_codeaction import common
-
-from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, sapien_world, tcp_in_rule
+from cab_core.kits.scene import lowest_point_z, yaw_of
 
 NAMES = ("lift_pot", "grab_roller_dual_contact", "move_can_pot")
 
 
 def _yaw(q):
-    return common.yaw_of(q)
+    return yaw_of(q)
 
 
 def _lowest_z(body):
     """The height of the body's lowest point (0.74 is the table top)."""
-    return body.pose[2] + common.lowest_point_z(body.shapes, body.pose[3:])
+    return body.pose[2] + lowest_point_z(body.shapes, body.pose[3:])
 
 
 # --- lift_pot ----------------------------------------------------------------------------------------
@@ -227,8 +232,8 @@ def test_move_can_pot_verifier(seed):
 
 
 def test_move_can_pot_euler_matches_transforms3d_convention():
-    from cab_suite_codeaction.tasks.move_can_pot import euler_sxyz
     from cab_core.geometry import euler_quat
+    from cab_suite_codeaction.tasks.move_can_pot import euler_sxyz
 
     rng = np.random.default_rng(0)
     for _ in range(50):

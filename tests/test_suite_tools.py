@@ -9,16 +9,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    TASKS,
+    FakeWorld,
+    _cache,
+    check_settled_scene_fails,
+    check_urdf_hinge,
+    sapien_world,
+    task_and_verifier,
+)
 
-from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.contracts.scene import ArticulatedObject
 from cab_core.contracts.simulator import Contact
-
+from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
+from cab_core.kits.scene import yaw_of
 from cab_suite_codeaction import assets_tools as at
-from cab_suite_codeaction.common import yaw_of
-
-from suite_helpers import TASKS, FakeWorld, _cache, check_urdf_hinge, task_and_verifier  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_settled_scene_fails, sapien_world
 
 NAMES = ("click_bell", "press_stapler", "scan_object")
 

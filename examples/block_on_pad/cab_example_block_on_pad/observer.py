@@ -3,8 +3,9 @@ positions after it, written next to the attempt's other records (``tcp_positions
 from __future__ import annotations
 
 import csv
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 COLUMNS = ("seq", "tool", "status", "physics_step_end", "left_x", "left_y", "left_z", "right_x", "right_y", "right_z")
 

@@ -1,7 +1,7 @@
 """block_on_pad: put the red block on the green pad.
 
 Scene (per seed)
-    The suite's table and wall. A red 4 cm cube (0.05 kg) lies on the table at x in +-[0.08, 0.25],
+    The task kit's table and wall (``cab_core.kits.scene.base_scene``). A red 4 cm cube (0.05 kg) lies on the table at x in +-[0.08, 0.25],
     y in [-0.2, 0.0], any heading; a thin green pad (10 x 10 cm, 5 mm thick, static) lies on the
     same side, its centre 0.12 m to 0.25 m from the cube's.
 
@@ -25,10 +25,11 @@ import numpy as np
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
 from cab_core.contracts.scene import Body, Box, Material, Shape
 from cab_core.contracts.task import SceneInstance, TaskInfo, ToolCaller, rng_for
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
-from cab_suite_codeaction.common import (DESTRUCTIVE_DROP, CodeActionTask, base_scene, pose_list, rand_pose,
-                                         sample_until, table_top_z)
-from cab_suite_codeaction.oracle import Hands, top_down_quat
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView
+from cab_core.kits.margins import margin_above, margin_within
+from cab_core.kits.oracle import Hands, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, base_scene, pose_list, rand_pose, sample_until, table_top_z
+from cab_core.kits.task import SceneTask
 
 NAME = "block_on_pad"
 HALF = 0.02  # the cube's half size
@@ -83,14 +84,12 @@ class BlockOnPadVerifier(Verifier):
         )
 
 
-class BlockOnPad(CodeActionTask):
-    """Declares its own metadata (``INFO``): the core learns about the task only from this plugin."""
+class BlockOnPad(SceneTask):
+    """Declares its own metadata (``INFO``, which names it): the core learns about the task only from
+    this plugin."""
 
-    name = NAME
+    info = INFO
     seed_sets = {"heldout": tuple(range(100, 110))}
-
-    def __init__(self) -> None:
-        self.info = INFO
 
     def build(self, seed: int, embodiment: Any = None) -> SceneInstance:
         rng = rng_for(seed, self.name)

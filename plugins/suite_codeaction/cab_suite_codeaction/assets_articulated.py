@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from .common import box_inertia, hinged_urdf, material, srgb, trimesh_module, urdf_inertial, urdf_part
+from cab_core.kits.assets import box_inertia, hinged_urdf, trimesh_module, urdf_inertial, urdf_part
+from cab_core.kits.scene import material, srgb
 
 
 # =================================================================================================
@@ -251,7 +252,7 @@ def shoe_shapes(style: ShoeStyle, foot: str, stem: str) -> list:
 
 @lru_cache(maxsize=64)
 def _shoe_shapes(style: ShoeStyle, foot: str, stem: str, _cache: str) -> tuple:
-    from .common import mesh_shape
+    from cab_core.kits.assets import mesh_shape
 
     L, st, H, t = style.length, style.sole_t, style.heel_h, SHOE_WALL_T
     outline = shoe_outline(style, foot)

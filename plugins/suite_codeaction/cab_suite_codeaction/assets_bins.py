@@ -21,11 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.geometry import axis_angle_quat, quat_mul
 from cab_core.contracts.scene import Body, Box, Material, Shape, Sphere
-
-from .common import IDENTITY_Q, assets_dir, material, mesh_shape, srgb, trimesh_module
-
+from cab_core.geometry import axis_angle_quat, quat_mul
+from cab_core.kits.assets import assets_dir, mesh_shape, trimesh_module
+from cab_core.kits.scene import IDENTITY_Q, material, srgb
 
 _SHAPES: dict[tuple, tuple[Shape, ...]] = {}
 

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.scene import Box, Cylinder, Mesh, Shape, Sphere
-
-from .common import material, mesh_asset
+from cab_core.kits.assets import mesh_asset
+from cab_core.kits.scene import material
 
 # local x -> z: a SAPIEN cylinder/capsule (axis along local x) standing upright
 X_TO_Z = (float(np.sqrt(0.5)), 0.0, -float(np.sqrt(0.5)), 0.0)

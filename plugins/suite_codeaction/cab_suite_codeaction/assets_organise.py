@@ -13,10 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cab_core.geometry import axis_angle_quat, quat_to_mat
 from cab_core.contracts.scene import Cylinder, Material, Mesh, Shape
-
-from .common import mesh_asset
+from cab_core.geometry import axis_angle_quat, quat_to_mat
+from cab_core.kits.assets import mesh_asset
 
 
 @dataclass(frozen=True)

@@ -12,17 +12,16 @@ from __future__ import annotations
 import copy
 import functools
 import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
+from cab_core.contracts.scene import Box, Capsule, Cylinder, Material, Mesh, Shape, cache_dir
 from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_mul
-from cab_core.contracts.scene import Box, Capsule, Cylinder, Material, Mesh, Shape
-
-from cab_core.contracts.scene import cache_dir
-
-from .common import body_pose, material, mesh_asset, trimesh_module
+from cab_core.kits.assets import mesh_asset, trimesh_module
+from cab_core.kits.scene import body_pose, material
 
 _BUILT: dict[tuple, tuple[list[Shape], dict[str, Any]]] = {}
 

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.scene import Box, Cylinder, Mesh, Shape
-
-from .common import IDENTITY_Q, assets_dir, material, mesh_asset
+from cab_core.kits.assets import assets_dir, mesh_asset
+from cab_core.kits.scene import IDENTITY_Q, material
 
 # quaternions that turn a primitive's local x axis (SAPIEN's cylinder axis) onto z or y
 X_TO_Z = (float(np.cos(-np.pi / 4)), 0.0, float(np.sin(-np.pi / 4)), 0.0)

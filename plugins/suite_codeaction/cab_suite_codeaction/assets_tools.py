@@ -2,7 +2,7 @@
 the handheld barcode scanner and the tea box (scan_object).
 
 Every object is built from primitives and a few revolved trimesh meshes, written into the asset
-cache by :func:`~cab_suite_codeaction.common.mesh_asset` / :func:`~cab_suite_codeaction.common.urdf_asset`.
+cache by :func:`~cab_core.kits.assets.mesh_asset` / :func:`~cab_core.kits.assets.urdf_asset`.
 Frames: metres, +z up while the object stands (or lies) in its resting pose on the table, origin on
 the table plane unless said otherwise. Variant counts follow upstream's model ids (bell {0, 1},
 stapler 0-6, scanner 0-4, tea box 0-5); sizes are plausible real-world ones (upstream's meshes are
@@ -10,17 +10,17 @@ not public).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from cab_core.geometry import axis_angle_quat, quat_to_mat
 from cab_core.contracts.scene import Box, Cylinder, Shape
-
-from .common import (body_pose, box_inertia, hinged_urdf, material, mesh_shape, srgb, urdf_asset, urdf_inertial,
-                     urdf_part)
+from cab_core.geometry import axis_angle_quat, quat_to_mat
+from cab_core.kits.assets import box_inertia, hinged_urdf, mesh_shape, urdf_asset, urdf_inertial, urdf_part
+from cab_core.kits.scene import body_pose, material, srgb
 
 # x-axis primitives (SAPIEN cylinders) stood upright: local x -> world z
 X_TO_Z = tuple(float(v) for v in axis_angle_quat([0.0, 1.0, 0.0], -np.pi / 2))

@@ -13,8 +13,8 @@ from functools import lru_cache
 from importlib import resources
 from typing import Any
 
-from cab_core.errors import ConfigError
 from cab_core.contracts.task import TaskInfo
+from cab_core.errors import ConfigError
 
 SCORING_MODES = ("final", "latch")
 _REQUIRED = ("name", "instruction", "seed", "scoring", "budget_tool_calls", "budget_sim_s")

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import importlib
 
-from cab_core.errors import PluginError
 from cab_core.contracts.task import Task
+from cab_core.errors import PluginError
 
 #: modules under ``cab_suite_codeaction.tasks`` whose ``TASK`` is registered, in catalog order
 TASK_MODULES: tuple[str, ...] = (

@@ -28,14 +28,25 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.geometry import transform_point
-from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Material, SceneSpec, Shape
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Material, SceneSpec, Shape
 from cab_core.contracts.verifier import Evaluation, WorldView, margin_within
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
+from cab_core.kits.scene import (
+    DESTRUCTIVE_DROP,
+    RED,
+    lowest_point_z,
+    pose_list,
+    rand_pose,
+    sample_until,
+    srgb,
+    vec,
+    yaw_of,
+)
+from cab_core.kits.task import LatchVerifier
 
-from ..oracle import Hands, closest_opening, top_down_quat, world_point, yaw_axis
-from ..common import (DESTRUCTIVE_DROP, RED, CodeActionTask, LatchVerifier, lowest_point_z, pose_list, rand_pose,
-                      sample_until, srgb, vec, yaw_of)
+from ..common import CodeActionTask
 
 GRASP_TCP_ABOVE_AXIS = 0.026  # the expert's top-down handle grasp: TCP this far above the handle axis
 

@@ -33,13 +33,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
-from cab_core.geometry import quat_to_mat
 from cab_core.contracts.scene import Body, Box, Material, SceneSpec, Shape
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_within
+from cab_core.geometry import quat_to_mat
+from cab_core.kits.margins import grippers_open
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, srgb, vec, yaw_of
+from cab_core.kits.task import arm_names
 
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, grippers_open, pose_list, rand_pose, sample_until,
-                      srgb, vec, yaw_of)
-from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, fingers_clear, top_down_quat, yaw_axis
+from ..common import CodeActionTask
 
 HALF_RANGES = ((0.030, 0.033), (0.024, 0.027), (0.018, 0.021))  # block1 (largest) .. block3
 BLOCK_NAMES = ("block1", "block2", "block3")

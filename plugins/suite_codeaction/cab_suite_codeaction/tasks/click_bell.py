@@ -25,13 +25,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, WorldView, margin_any, margin_below, margin_within
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import Hands, top_down_quat
+from cab_core.kits.scene import draw_variant, pose_list, rand_pose, sample_until, vec
+from cab_core.kits.task import LatchVerifier
 
 from ..assets_tools import BELL_KNOB_RADIUS, BELL_VARIANTS, bell_geometry, bell_shapes, gripper_bodies, is_gripper
-from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, sample_until, vec
-from ..oracle import Hands, top_down_quat
+from ..common import CodeActionTask
 
 TOLERANCE = (0.025, 0.025, 0.03)
 GRIPPER_CLOSED = 0.2

@@ -36,14 +36,26 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
-from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.contracts.scene import SceneSpec
 from cab_core.contracts.verifier import Evaluation, Margin, WorldView, margin_above, margin_all, margin_below
+from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
+from cab_core.kits.scene import draw_variant, pose_list, rand_pose, sample_until, yaw_of
+from cab_core.kits.task import LatchVerifier, arm_names
 
-from ..assets_bins import (BALL_MASS, BALL_RADIUS, BIN_FLOOR, TABLE_BINS, TABLE_BIN_IDS, ball_body, big_dustbin,
-                           big_dustbin_info, table_bin_body, table_bin_info)
-from ..common import CodeActionTask, LatchVerifier, arm_names, draw_variant, pose_list, rand_pose, sample_until, yaw_of
-from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, world_point
+from ..assets_bins import (
+    BALL_MASS,
+    BALL_RADIUS,
+    BIN_FLOOR,
+    TABLE_BIN_IDS,
+    TABLE_BINS,
+    ball_body,
+    big_dustbin,
+    big_dustbin_info,
+    table_bin_body,
+    table_bin_info,
+)
+from ..common import CodeActionTask
 
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)

@@ -29,13 +29,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import Body, Box, Material, SceneSpec, Shape
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, srgb, vec, yaw_of
+from cab_core.kits.stages import at_pose, closed, holds, near, near_point
 
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, srgb, vec, yaw_of
-from ..oracle import TOLERANT, Hands, OracleFailed, closest_opening, tcp_quat, top_down_quat, yaw_axis
-from ..stages import at_pose, closed, holds, near, near_point
+from ..common import CodeActionTask
 
 BLOCK_HALF = (0.03, 0.03, 0.10)
 BLOCK_SPAWN_Z = 0.842  # FACTS B.6: 2 mm above the table top for the 0.10 half-height

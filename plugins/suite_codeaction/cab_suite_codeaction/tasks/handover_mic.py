@@ -30,14 +30,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_below
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, tcp_quat, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until
+from cab_core.kits.stages import at_pose, closed, holds, near, near_point
 
 from ..assets_handover import microphone
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until
-from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat, top_down_quat
-from ..stages import at_pose, closed, holds, near, near_point
+from ..common import CodeActionTask
 
 MODEL_IDS = (0, 4, 5)
 RAISED_Z = 0.92

@@ -34,14 +34,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, Cylinder, Material, SceneSpec, Shape, Sphere, cache_dir
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_within
+from cab_core.geometry import axis_angle_quat, mat_to_quat, quat_to_mat, transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, draw_variant, pose_list, rand_pose, srgb, vec, yaw_of
 
 from ..assets_organise import Vessel, revolved, rod, tilt_correction, vessel_collision, visual, x_to
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, srgb, vec, yaw_of
-from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat
-
+from ..common import CodeActionTask
 
 # --- the mug, in its frame: origin at the bottom centre, +z up the axis, handle along +x -------------
 MUG = Vessel(r_bottom=0.039, r_rim=0.041, height=0.095, wall=0.004, base=0.006)

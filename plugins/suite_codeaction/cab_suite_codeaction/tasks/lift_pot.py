@@ -30,13 +30,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
-from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, draw_variant, pose_list, rand_pose, vec, yaw_of
 
 from ..assets_pots import POT_VARIANTS, pot_geometry, pot_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, lift_rules, pose_list, rand_pose, vec, yaw_of
-from ..oracle import TOLERANT, BothHands, OracleFailed, closest_opening, top_down_quat, yaw_axis
+from ..common import CodeActionTask, lift_rules
 
 MODEL_IDS = (0, 1)
 RAISED_Z = 0.82  # absolute (table top 0.74)

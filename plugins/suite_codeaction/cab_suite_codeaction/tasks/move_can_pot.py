@@ -36,14 +36,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
-from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_below, margin_within
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.oracle import OPEN, TOLERANT, Hands, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, draw_variant, pose_list, rand_pose, sample_until, vec, yaw_of
+from cab_core.kits.task import GrippersOpenVerifier
 
 from ..assets_pots import CAN_VARIANTS, POT_VARIANTS, can_geometry, can_shapes, pot_geometry, pot_shapes
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, draw_variant, pose_list, rand_pose,
-                      sample_until, vec, yaw_of)
-from ..oracle import OPEN, TOLERANT, Hands, top_down_quat
+from ..common import CodeActionTask
 
 POT_IDS = tuple(range(len(POT_VARIANTS)))
 CAN_IDS = tuple(sorted(CAN_VARIANTS))

@@ -28,14 +28,24 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import ArticulatedObject, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_any, margin_below
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.assets import urdf_asset
+from cab_core.kits.oracle import TOLERANT, Hands, tcp_quat
+from cab_core.kits.scene import draw_variant, pose_list, rand_pose, vec, yaw_of
+from cab_core.kits.task import arm_names
 
-from ..assets_articulated import (HINGE_DAMPING, HINGE_FRICTION, LAPTOP_VARIANTS, LID_UPPER, laptop_geometry,
-                                  laptop_urdf, lid_rotation)
-from ..common import CodeActionTask, arm_names, draw_variant, pose_list, rand_pose, urdf_asset, vec, yaw_of
-from ..oracle import TOLERANT, Hands, tcp_quat
+from ..assets_articulated import (
+    HINGE_DAMPING,
+    HINGE_FRICTION,
+    LAPTOP_VARIANTS,
+    LID_UPPER,
+    laptop_geometry,
+    laptop_urdf,
+    lid_rotation,
+)
+from ..common import CodeActionTask
 
 START_FRACTION = 0.2
 OPEN_FRACTION = 0.4

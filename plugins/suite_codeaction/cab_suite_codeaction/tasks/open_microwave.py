@@ -27,15 +27,16 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.geometry import quat_to_mat, transform_point
-from cab_core.contracts.scene import ArticulatedObject, SceneSpec
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
+from cab_core.contracts.scene import ArticulatedObject, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.assets import box_inertia, hinged_urdf, urdf_asset, urdf_inertial, urdf_part
+from cab_core.kits.oracle import TOLERANT, Hands, tcp_quat
+from cab_core.kits.scene import draw_variant, pose_list, rand_pose, srgb, vec
+from cab_core.kits.stages import at_pose, closed, near, near_xy
 
-from ..oracle import TOLERANT, Hands, tcp_quat
-from ..stages import at_pose, closed, near, near_xy
-from ..common import (CodeActionTask, box_inertia, draw_variant, hinged_urdf, pose_list, rand_pose, srgb, urdf_asset,
-                      urdf_inertial, urdf_part, vec)
+from ..common import CodeActionTask
 
 OPEN_FRACTION = 0.6
 DOOR_UPPER = 2.0  # rad (about 115 deg)

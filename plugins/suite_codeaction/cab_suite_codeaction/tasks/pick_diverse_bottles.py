@@ -29,13 +29,14 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import SceneSpec
 from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView, margin_above, margin_within
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import OPEN, TOLERANT, Hands, tcp_quat, world_point
+from cab_core.kits.scene import DESTRUCTIVE_DROP, draw_variant, pose_list, rand_pose, yaw_of
 
 from ..assets_bins import DIVERSE_BOTTLES, bottle_body, bottle_info
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, draw_variant, pose_list, rand_pose, yaw_of
-from ..oracle import OPEN, TOLERANT, Hands, tcp_quat, world_point
+from ..common import CodeActionTask
 
 TARGET_XY = {"bottle1": (-0.06, -0.105), "bottle2": (0.06, -0.105)}
 XY_TOLERANCE = 0.1

@@ -29,13 +29,24 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
-from cab_core.geometry import quat_to_mat
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Margin, WorldView, margin_above, margin_all, margin_within
+from cab_core.geometry import quat_to_mat
+from cab_core.kits.oracle import (
+    OPEN,
+    TOLERANT,
+    Hands,
+    OracleFailed,
+    closest_opening,
+    finger_reach,
+    top_down_quat,
+    yaw_axis,
+)
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, yaw_of
+from cab_core.kits.task import GrippersOpenVerifier, arm_names
 
-from ..assets_placing import BREAD_BASKETS, BREAD_BASKET_MASS, BREAD_MASS, bread_basket_shapes, bread_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose, yaw_of
-from ..oracle import OPEN, TOLERANT, Hands, OracleFailed, closest_opening, finger_reach, top_down_quat, yaw_axis
+from ..assets_placing import BREAD_BASKET_MASS, BREAD_BASKETS, BREAD_MASS, bread_basket_shapes, bread_shapes
+from ..common import CodeActionTask
 
 BASKET_XY = (0.0, -0.2)
 BREAD_IDS = (0, 1, 3, 5, 6)

@@ -39,13 +39,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
-from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, closest_opening, tcp_quat, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, yaw_of
+from cab_core.kits.task import arm_names
 
-from ..assets_placing import BREAD_MASS, SKILLETS, SKILLET_MASS, bread_shapes, skillet_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, rand_pose, sample_until, yaw_of
-from ..oracle import TOLERANT, Hands, closest_opening, tcp_quat, top_down_quat, yaw_axis
+from ..assets_placing import BREAD_MASS, SKILLET_MASS, SKILLETS, bread_shapes, skillet_shapes
+from ..common import CodeActionTask
 from .place_bread_basket import grasp_tcp_dz
 
 BREAD_IDS = (0, 1, 3, 5, 6)

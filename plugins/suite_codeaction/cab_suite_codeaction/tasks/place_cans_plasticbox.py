@@ -26,13 +26,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Margin, WorldView, margin_below
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import TOLERANT, BothHands, expect, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose
+from cab_core.kits.task import GrippersOpenVerifier, arm_names
 
 from ..assets_placing import CAN_MASS, PLASTIC_BOX_MASS, can_shapes, plastic_box_shapes
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose
-from ..oracle import TOLERANT, BothHands, expect, top_down_quat
+from ..common import CodeActionTask
 
 CAN_IDS = (0, 1, 2, 3, 5, 6)
 BOX_IDS = (3, 5)

@@ -37,15 +37,24 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder
-from cab_core.geometry import pose_inv, pose_mul, quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_all, margin_any, margin_within
+from cab_core.geometry import pose_inv, pose_mul, quat_to_mat, transform_point
+from cab_core.kits.margins import grippers_open
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, tcp_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, draw_variant, pose_list, rand_pose, sample_until, vec
+from cab_core.kits.task import arm_names
 
-from ..assets_articulated import (SHOE_BOX, SHOE_MASS, SHOE_STYLES, shoe_box_shapes, shoe_geometry, shoe_outline,
-                                  shoe_shapes)
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, arm_names, draw_variant, grippers_open, pose_list, rand_pose,
-                      sample_until, vec)
-from ..oracle import TOLERANT, Hands, OracleFailed, tcp_quat
+from ..assets_articulated import (
+    SHOE_BOX,
+    SHOE_MASS,
+    SHOE_STYLES,
+    shoe_box_shapes,
+    shoe_geometry,
+    shoe_outline,
+    shoe_shapes,
+)
+from ..common import CodeActionTask
 
 TABLE_Z_BIAS = -0.1
 BOX_XY = (0.0, -0.13)

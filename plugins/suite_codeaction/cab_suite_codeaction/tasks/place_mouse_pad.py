@@ -32,14 +32,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, cylinder, sphere
-from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Margin, WorldView, margin_any, margin_within
+from cab_core.geometry import axis_angle_quat, quat_mul, transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, vec, yaw_of
+from cab_core.kits.task import GrippersOpenVerifier
 
 from ..assets_handover import MAT_COLOURS, MAT_HALF, computer_mouse, mouse_mat
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, vec,
-                      yaw_of)
-from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
+from ..common import CodeActionTask
 
 MODEL_IDS = (0, 1, 2)
 TOL_X, TOL_Y = 0.015, 0.012

@@ -34,14 +34,25 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder, sphere
-from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_below
+from cab_core.geometry import quat_to_mat, transform_point
+from cab_core.kits.oracle import OPEN, TOLERANT, Hands, OracleFailed, closest_opening, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, yaw_of
+from cab_core.kits.task import arm_names
 
-from ..assets_placing import (CARDS_MASS, HANDLED_BASKETS, HB_MASS, PLAYING_CARDS, TOY_CARS, TOY_CAR_MASS,
-                              handled_basket_shapes, playing_cards_shapes, toy_car_shapes)
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, arm_names, pose_list, rand_pose, yaw_of
-from ..oracle import OPEN, TOLERANT, Hands, OracleFailed, closest_opening, top_down_quat
+from ..assets_placing import (
+    CARDS_MASS,
+    HANDLED_BASKETS,
+    HB_MASS,
+    PLAYING_CARDS,
+    TOY_CAR_MASS,
+    TOY_CARS,
+    handled_basket_shapes,
+    playing_cards_shapes,
+    toy_car_shapes,
+)
+from ..common import CodeActionTask
 from .place_bread_basket import grasp_tcp_dz
 
 RISE = 0.02

@@ -26,14 +26,23 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import ArticulatedObject, SceneSpec
 from cab_core.contracts.verifier import Evaluation, Margin, WorldView, margin_any, margin_within
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import Hands, closest_opening, top_down_quat, yaw_axis
+from cab_core.kits.scene import draw_variant, pose_list, rand_pose, vec, yaw_of
+from cab_core.kits.task import LatchVerifier
 
-from ..assets_tools import (STAPLER_JOINT_DAMPING, STAPLER_PRESS_TRAVEL, STAPLER_VARIANTS, gripper_bodies, is_gripper,
-                            stapler_asset, stapler_geometry)
-from ..common import CodeActionTask, LatchVerifier, draw_variant, pose_list, rand_pose, vec, yaw_of
-from ..oracle import Hands, closest_opening, top_down_quat, yaw_axis
+from ..assets_tools import (
+    STAPLER_JOINT_DAMPING,
+    STAPLER_PRESS_TRAVEL,
+    STAPLER_VARIANTS,
+    gripper_bodies,
+    is_gripper,
+    stapler_asset,
+    stapler_geometry,
+)
+from ..common import CodeActionTask
 
 TOLERANCE = (0.03, 0.03, 0.03)
 TIP_AHEAD = 0.0354  # fingertips ahead of the TCP: a top-down press puts the TCP this far above the cover

@@ -29,14 +29,23 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
-from cab_core.geometry import transform_point
 from cab_core.contracts.scene import SceneSpec
-from cab_core.contracts.verifier import (Evaluation, Margin, Verifier, WorldView, margin_above, margin_all, margin_below,
-                               margin_within)
+from cab_core.contracts.verifier import (
+    Evaluation,
+    Margin,
+    Verifier,
+    WorldView,
+    margin_above,
+    margin_all,
+    margin_below,
+    margin_within,
+)
+from cab_core.geometry import transform_point
+from cab_core.kits.oracle import OPEN, TOLERANT, Hands, OracleFailed, tcp_quat, world_point
+from cab_core.kits.scene import pose_list, rand_pose, sample_until
 
 from ..assets_bins import DRINK_BOTTLES, big_dustbin, big_dustbin_info, bottle_body, bottle_info
-from ..common import CodeActionTask, pose_list, rand_pose, sample_until
-from ..oracle import OPEN, TOLERANT, Hands, OracleFailed, tcp_quat, world_point
+from ..common import CodeActionTask
 
 TABLE_X = 0.3
 DUSTBIN_POSE = (-0.45, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)

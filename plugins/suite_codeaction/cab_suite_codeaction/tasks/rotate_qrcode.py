@@ -31,13 +31,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
-from cab_core.geometry import axis_angle_quat, quat_mul, quat_normalize, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
 from cab_core.contracts.verifier import Margin, WorldView, margin_below, margin_within
+from cab_core.geometry import axis_angle_quat, quat_mul, quat_normalize, transform_point
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, yaw_of
+from cab_core.kits.task import GrippersOpenVerifier
 
 from ..assets_handover import QR_BOARD_HALF, qr_board
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, pose_list, rand_pose, sample_until, yaw_of
-from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat, yaw_axis
+from ..common import CodeActionTask
 
 MODEL_IDS = (0, 1, 2, 3)
 MESH_FRAME = tuple(float(v) for v in axis_angle_quat([1.0, 0.0, 0.0], np.pi / 2))  # ours -> upstream mesh frame

@@ -31,14 +31,32 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
-from cab_core.geometry import mat_to_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.contracts.scene import Body, SceneSpec
-from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_above, margin_all, margin_below, margin_within
+from cab_core.contracts.verifier import (
+    Evaluation,
+    Verifier,
+    WorldView,
+    margin_above,
+    margin_all,
+    margin_below,
+    margin_within,
+)
+from cab_core.geometry import mat_to_quat, quat_mul, quat_to_mat, transform_point
+from cab_core.kits.oracle import TOLERANT, BothHands, Hands, top_down_quat, yaw_axis
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, vec, yaw_of
 
-from ..assets_tools import (SCANNER_MASS, SCANNER_VARIANTS, TEABOX_MASS, TEABOX_VARIANTS, Z_TO_X, footprint_distance,
-                            scanner_geometry, scanner_shapes, teabox_shapes)
-from ..common import DESTRUCTIVE_DROP, CodeActionTask, pose_list, rand_pose, sample_until, vec, yaw_of
-from ..oracle import TOLERANT, BothHands, Hands, top_down_quat, yaw_axis
+from ..assets_tools import (
+    SCANNER_MASS,
+    SCANNER_VARIANTS,
+    TEABOX_MASS,
+    TEABOX_VARIANTS,
+    Z_TO_X,
+    footprint_distance,
+    scanner_geometry,
+    scanner_shapes,
+    teabox_shapes,
+)
+from ..common import CodeActionTask
 
 LATERAL_TOL = 0.025
 MAX_DISTANCE = 0.07

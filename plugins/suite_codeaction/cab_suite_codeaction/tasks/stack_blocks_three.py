@@ -25,13 +25,15 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.contracts.scene import Body, Box, SceneSpec, Shape
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
+from cab_core.contracts.scene import Body, Box, SceneSpec, Shape
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, margin_within
+from cab_core.kits.margins import grippers_open
+from cab_core.kits.oracle import Hands, closest_opening, finger_reach, fingers_clear, top_down_quat, yaw_axis
+from cab_core.kits.scene import BLUE, DESTRUCTIVE_DROP, GREEN, RED, pose_list, rand_pose, sample_until, yaw_of
+from cab_core.kits.task import arm_names
 
-from ..oracle import Hands, closest_opening, finger_reach, fingers_clear, top_down_quat, yaw_axis
-from ..common import (BLUE, DESTRUCTIVE_DROP, GREEN, RED, CodeActionTask, arm_names, grippers_open, pose_list,
-                      rand_pose, sample_until, yaw_of)
+from ..common import CodeActionTask
 
 BLOCK_HALF = 0.025
 BLOCK_DENSITY = 600.0  # kg/m^3, a wooden toy block: 0.075 kg

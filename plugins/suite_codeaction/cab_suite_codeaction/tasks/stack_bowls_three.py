@@ -28,14 +28,15 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, annulus
-from cab_core.geometry import mat_to_quat, quat_to_mat
 from cab_core.contracts.scene import Body, Material, SceneSpec, Shape, cache_dir
 from cab_core.contracts.verifier import Margin, WorldView, margin_all, margin_below, margin_within
+from cab_core.geometry import mat_to_quat, quat_to_mat
+from cab_core.kits.oracle import TOLERANT, Hands, OracleFailed, top_down_quat
+from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, srgb
+from cab_core.kits.task import GrippersOpenVerifier, arm_names
 
 from ..assets_organise import Vessel, revolved, ring_band, tilt_correction, vessel_collision, visual
-from ..common import (DESTRUCTIVE_DROP, CodeActionTask, GrippersOpenVerifier, arm_names, pose_list, rand_pose,
-                      sample_until, srgb)
-from ..oracle import TOLERANT, Hands, OracleFailed, top_down_quat
+from ..common import CodeActionTask
 
 BOWL = Vessel(r_bottom=0.032, r_rim=0.058, height=0.05, wall=0.0045, base=0.005, band=0.015)
 BOWL_MASS = 0.12  # kg, a small melamine/porcelain rice bowl

@@ -1,6 +1,7 @@
-"""Reading a task's stage from the state (forks): small predicates the stage-aware reference
-solutions of open_microwave, handover_block, handover_mic and grab_roller_dual_contact share.
-They only read privileged state; none makes a tool call."""
+"""Reading a task's stage from the state (forks): small predicates a stage-aware reference
+solution uses to tell which of its steps are done (e.g. CodeActionBench's open_microwave,
+handover_block, handover_mic and grab_roller_dual_contact). They only read privileged state;
+none makes a tool call. Distances in metres."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,10 +1,14 @@
-"""Building blocks of the reference solutions. Oracles read privileged state (through the
+"""Building blocks of the reference solutions (oracles): grasp orientations, :class:`Hands` and
+:class:`BothHands` (moves through the public tools), and :func:`resume`, which runs a task's
+solution from any state an attempt can reach. Oracles read privileged state (through the
 ``WorldView``) only to compute targets; every action goes through the public tools (``call``).
-Quaternions are computed locally from axes, as an agent could do with ``grasp_quat_candidates``."""
+Quaternions are [qw, qx, qy, qz], computed locally from axes, as an agent could do with
+``grasp_quat_candidates``; positions and moves in metres."""
 from __future__ import annotations
 
 import numpy as np
 
+from cab_core.contracts.task import NotRecoverable
 from cab_core.errors import CabError
 from cab_core.geometry import mat_to_quat, quat_to_mat, transform_point
 
@@ -330,8 +334,6 @@ def resume(task, call, world) -> None:
     5. The solution from there (it computes its targets from where the objects are now). If it
        fails, or ends with the task not holding, the reason is given instead of a claim.
     At an attempt's start steps 1-3 make no call, so a fresh attempt plays as before."""
-    from cab_core.contracts.task import NotRecoverable
-
     verifier = task.verifier_class(world.info)
     stages = {}
 
