@@ -21,7 +21,6 @@ from cab_core.tools.context import ObservationStore, RobotContext
 from cab_core.contracts.simulator import Contact
 from cab_core.tools import CATALOG as DECLARED, DONE, RUN_CODE, TOOLS, build_registry, schemas, validate_args
 from cab_core.tools import estimate, motion, observe
-from cab_core.tools import models as m
 from cab_core.tools.registry import ToolDef, tool
 
 # -- the catalog ---------------------------------------------------------------------------------
@@ -141,7 +140,7 @@ def test_a_handlers_argument_model_is_the_annotation_of_its_args_parameter():
 
 
 def test_a_handler_without_docstring_or_outside_the_catalog_is_refused():
-    def nameless(ctx, args: m.CaptureHeadArgs):
+    def nameless(ctx, args: observe.CaptureHeadArgs):
         pass
 
     with pytest.raises(TypeError, match="docstring"):

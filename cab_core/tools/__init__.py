@@ -1,55 +1,129 @@
 """The tool contract: the 29 robot tools of the paper plus ``run_code`` and ``done``.
 
-Each robot tool is declared once, next to its handler, with :func:`~cab_core.tools.registry.tool`
-(name, description, argument and result models, group, kind); :data:`CATALOG` below lists the
-handlers themselves in the order of the catalog, then the two tools the episode host serves.
-``TOOLS`` (built on first access by :func:`build_registry`, then cached) maps each name to its
-:class:`~cab_core.tools.registry.ToolDef`, whose ``handler`` is the function a call reaches. Schemas
-come from the pydantic models in :mod:`cab_core.tools.models`; building the registry refuses an
-argument without a description. :func:`validate_args` turns raw JSON arguments into the model or
-raises :class:`~cab_core.errors.ToolArgumentError` with a short message a model can act on.
+Each robot tool is declared once, in its handler's module (``observe``, ``estimate``, ``motion``):
+its argument and result models beside the handler, the handler declared with
+:func:`~cab_core.tools.registry.tool` (group, kind, result model; its name, docstring and ``args``
+annotation give the rest). :data:`CATALOG` below is the tool list, one line per tool in the order of
+the catalog: the robot tools by their handlers, then the two tools the episode host serves, declared
+here. ``TOOLS`` (built on first access by :func:`build_registry`, then cached) maps each name to its
+:class:`~cab_core.tools.registry.ToolDef`, whose ``handler`` is the function a call reaches; building
+the registry refuses an argument without a description. :func:`validate_args` turns raw JSON
+arguments into the model or raises :class:`~cab_core.errors.ToolArgumentError` with a short message a
+model can act on.
 """
 from __future__ import annotations
 
 import functools
 import types
 import typing
-from typing import Any, Callable, Iterable, Union
+from typing import Annotated, Any, Callable, Iterable, Optional, Union
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, Field, Strict, ValidationError
 
 from cab_core.errors import PluginError, ToolArgumentError
 from cab_core.tools import estimate, motion, observe
-from cab_core.tools import models as m
+from cab_core.tools.models import Args, Result
 from cab_core.tools.registry import ToolDef, ToolOutput
 
 __all__ = ["CATALOG", "TOOLS", "ToolDef", "ToolOutput", "build_registry", "schemas", "validate_args", "tool_names"]
 
-# The two tools the episode host serves itself (cab_core.attempt.serving.CallServer): no handler.
-# The catalog's group "termination" is the registry's "control".
+
+# -- the two tools the episode host serves itself (cab_core.attempt.serving.CallServer): no handler --
+class RunCodeArgs(Args):
+    code: Annotated[str, Strict()] = Field(
+        min_length=1, max_length=200_000,
+        description="Python source run in the persistent sandbox (numpy as np, math, load_image and every "
+                    "robot tool as a keyword-only function); assign `result` to return a value.")
+
+
+class TraceEntry(Result):
+    index: int = Field(description="Order of the internal call.")
+    tool: str = Field(description="Tool name.")
+    ok: bool = Field(description="The call returned without error.")
+    status: Optional[str] = Field(default=None, description="Action status if an action.")
+    action_id: Optional[str] = Field(default=None, description="Action id if an action.")
+    tick: Optional[int] = Field(default=None, description="Tick after the call.")
+    abort_reason: Optional[str] = Field(default=None, description="Abort reason if ABORTED.")
+    obs_ids: list[str] = Field(default_factory=list, description="Observations produced.")
+    error: Optional[str] = Field(default=None, description="Error text if the call failed.")
+
+
+class CodeResult(Result):
+    ok: bool = Field(description="The program ran to completion without an exception.")
+    error: Optional[str] = Field(default=None, description="Exception text, if any.")
+    stdout: str = Field(default="", description="Captured print output (capped at 8000 characters).")
+    value: Any = Field(default=None, description="The value assigned to `result`, JSON-encoded.")
+    result_assigned: bool = Field(default=False, description="Whether the program assigned `result`.")
+    tool_calls: int = Field(default=0, description="Internal tool calls made (not charged individually).")
+    obs_ids: list[str] = Field(default_factory=list, description="Observations produced by the program.")
+    internal_trace: list[TraceEntry] = Field(default_factory=list, description="One entry per internal tool call.")
+    filesystem_policy: str = Field(default="structurally_denied", description="Programs cannot reach a filesystem.")
+    namespace_reset: bool = Field(
+        default=False, description="True when a timeout or an aborted action reset the program state.")
+
+
 RUN_CODE = ToolDef(
-    name="run_code", group="composition", kind="code", args=m.RunCodeArgs, result=m.CodeResult,
+    name="run_code", group="composition", kind="code", args=RunCodeArgs, result=CodeResult,
     description="Runs a Python program in a confined, persistent sandbox: numpy as np, math, load_image(obs_id) and "
                 "every robot tool as a keyword-only function returning plain dicts. Variables persist across calls; a "
                 "timeout or an ABORTED action resets them. Returns stdout, the value of `result`, a trace of internal "
                 "tool calls and up to 6 images. Costs one call; robot actions inside still consume simulated time.")
+
+
+class DoneArgs(Args):
+    report: Annotated[str, Strict()] = Field(
+        max_length=20_000, description="Your account of what you did and the final state.")
+    success_claim: Optional[Annotated[bool, Strict()]] = Field(
+        default=None, description="Whether you judge the task accomplished (true/false).")
+
+
+class DoneResult(Result):
+    ok: bool = Field(description="Always true.")
+    note: str = Field(description="'episode ended; attempt recorded.' No verdict is returned.")
+
+
+# The catalog's group "termination" is the registry's "control".
 DONE = ToolDef(
-    name="done", group="control", kind="done", args=m.DoneArgs, result=m.DoneResult,
+    name="done", group="control", kind="done", args=DoneArgs, result=DoneResult,
     description="Ends the attempt with your report and your judgement of success. The verifier's outcome is never "
                 "returned. Free, usable once.")
 
-# Every tool, in catalog order: a robot tool by its handler (declared with @tool), a host tool by its ToolDef.
+
+# -- the tool list ------------------------------------------------------------------------------
+# Every tool, one line each, in catalog order: a robot tool by its handler (declared with @tool),
+# a host tool by its ToolDef. A new tool is its handler and models in its module, and a line here.
 CATALOG: tuple[Union[Callable, ToolDef], ...] = (
-    observe.get_world_frame, observe.get_embodiment, observe.get_camera_info, observe.get_arm_pose,
-    observe.get_gripper_state, observe.get_robot_state, observe.get_grasp_contact, observe.capture_head,
-    observe.capture_wrist, observe.capture_evidence_views, estimate.draw_marks,
-    estimate.ray, estimate.project, estimate.plane_intersect, motion.capture_motion_pair,
-    estimate.triangulate_correspondence, estimate.scale_from_object_size, estimate.scale_from_gripper,
-    estimate.grasp_quat_candidates, estimate.camera_aim_pose, estimate.preview_tcp_pose, estimate.compare_tcp_poses,
+    observe.get_world_frame,
+    observe.get_embodiment,
+    observe.get_camera_info,
+    observe.get_arm_pose,
+    observe.get_gripper_state,
+    observe.get_robot_state,
+    observe.get_grasp_contact,
+    observe.capture_head,
+    observe.capture_wrist,
+    observe.capture_evidence_views,
+    estimate.draw_marks,
+    estimate.ray,
+    estimate.project,
+    estimate.plane_intersect,
+    motion.capture_motion_pair,
+    estimate.triangulate_correspondence,
+    estimate.scale_from_object_size,
+    estimate.scale_from_gripper,
+    estimate.grasp_quat_candidates,
+    estimate.camera_aim_pose,
+    estimate.preview_tcp_pose,
+    estimate.compare_tcp_poses,
     motion.check_tcp_pose_reachability,
-    motion.reach_tcp, motion.reach_both_tcp, motion.move_delta, motion.move_both_delta, motion.probe_contact_along,
+    motion.reach_tcp,
+    motion.reach_both_tcp,
+    motion.move_delta,
+    motion.move_both_delta,
+    motion.probe_contact_along,
     motion.set_gripper,
-    RUN_CODE, DONE,
+    RUN_CODE,
+    DONE,
 )
 
 

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
 
 import numpy as np
+from pydantic import Field, Strict, model_validator
 
 from cab_core.errors import ToolArgumentError
 from cab_core.geometry import (MIN_DEPTH_M, back_project, camera_to_world, degenerate_direction, extrinsic_from_pose,
                                mat_to_quat, orientation_block, pixel_ray, pose_block, pose_inv, pose_mul, pose_to_mat,
                                project_points, quat_angle, quat_to_mat, rnd, world_to_camera)
-from cab_core.tools import models as m
-from cab_core.tools.models import WORKSPACE
+from cab_core.tools.models import (WORKSPACE, Args, Arm, CameraName, Direction3, Num, ObservationSummary, ObsId, Pixel,
+                                    PixelCoord, QuatWXYZ, Result, Vec3, WristCamera)
 from cab_core.tools.overlay import AXIS_COLOURS, PALETTE, Canvas, convex_hull, in_frame
 from cab_core.tools.registry import ToolOutput, observation_output, tool
 
@@ -28,11 +29,44 @@ if TYPE_CHECKING:  # pragma: no cover
 _PAR_TOL = 1e-6  # |cos| below which a ray counts as parallel to a plane
 MIN_BOX_EXTENT_PX = 1.0  # scale_from_object_size: a box extent below one pixel carries no scale
 MIN_ESTIMATE_DEPTH_M = 0.01  # a depth estimate nearer than this to the camera is degenerate
+MAX_MARKS = 12  # draw_marks: points (and labels) per call
+ORTHOGONALITY_TOL = 1e-6  # grasp_quat_candidates: |dot| of the normalised approach and opening axes
+FINGER_GAP_RANGE_M = (0.048, 0.142)  # preview_tcp_pose, compare_tcp_poses: FK distance between finger-link origins
+
+_D_GAP = "Finger-link origin gap to draw, metres (0.048-0.142); default the arm's live FK gap."
+_D_QUAT = "Proposed TCP orientation, world quaternion [w, x, y, z] (normalised internally)."
+_D_TCP = "Proposed TCP (nominal grasp centre) position, world metres."
 
 
 # ==============================================================================================
 # the shape of an estimate, and what it was computed from
 # ==============================================================================================
+class EstimateFailure(Result):
+    code: Literal["RAY_PARALLEL_TO_PLANE", "BEHIND_CAMERA", "DEGENERATE_GEOMETRY", "OUTSIDE_WORKSPACE",
+                  "ESTIMATE_UNAVAILABLE"] = Field(
+        description="Failure code. OUTSIDE_WORKSPACE: a point was computed (value kept) but lies outside the "
+                    "workspace envelope, so it cannot be on the table.")
+    message: str = Field(description="What went wrong.")
+
+
+class Estimate(Result):
+    """A geometric estimate: value plus its uncertainty and how it was obtained."""
+    value: Any = Field(
+        description="The estimate (pixel [u, v], ray {origin, dir}, world point [x, y, z] or depth), or null "
+                    "on failure.")
+    kind: Literal["pixel_point", "ray", "world_point", "depth"] = Field(description="What value is.")
+    uncertainty: Optional[dict[str, Any]] = Field(
+        description="Propagated 1-sigma terms from your declared sigmas; null when none applies.")
+    coarse: bool = Field(
+        description="True when the estimate rests on an assumption (a plane, a size prior) and needs checking.")
+    valid: bool = Field(description="False when value is null or its preconditions do not hold.")
+    frame: str = Field(description="Frame of value: 'world', 'image:<obs_id>' or 'camera:<obs_id>'.")
+    units: str = Field(description="Units of value: m or px.")
+    failure: Optional[EstimateFailure] = Field(default=None, description="Why value is null or invalid.")
+    provenance: dict[str, Any] = Field(
+        description="Inputs and intermediate quantities (rays, ranges, angles, Jacobians).")
+
+
 def estimate(value: Any, kind: str, *, frame: str, units: str, provenance: dict, uncertainty: dict | None = None,
              coarse: bool = False, valid: bool = True, failure: tuple[str, str] | None = None) -> dict:
     return {
@@ -77,8 +111,13 @@ def require_current(ctx: RobotContext, obs: Observation) -> None:
 # ==============================================================================================
 # project / ray / plane_intersect
 # ==============================================================================================
-@tool(group="geometry", kind="read", result=m.Estimate)
-def project(ctx: RobotContext, args: m.ProjectArgs) -> ToolOutput:
+class ProjectArgs(Args):
+    obs_id: ObsId = Field(description="Observation whose calibration snapshot (K, E) to project into.")
+    xyz: Vec3 = Field(description="World point [x, y, z] in metres.")
+
+
+@tool(group="geometry", kind="read", result=Estimate)
+def project(ctx: RobotContext, args: ProjectArgs) -> ToolOutput:
     """Projects a world point (m) into an observation's image with its calibration snapshot: value [u, v] in
     pixels, or null when the point is behind the camera; also its camera depth (m) and whether it falls in
     frame. Use it to check a 3D estimate against the image."""
@@ -95,8 +134,13 @@ def project(ctx: RobotContext, args: m.ProjectArgs) -> ToolOutput:
         failure=("BEHIND_CAMERA", "the point is behind the camera (camera depth <= 0)") if behind else None))
 
 
-@tool(group="geometry", kind="read", result=m.Estimate)
-def ray(ctx: RobotContext, args: m.RayArgs) -> ToolOutput:
+class RayArgs(Args):
+    obs_id: ObsId = Field(description="Observation whose calibration snapshot (K, E) defines the ray.")
+    px: Pixel = Field(description="Pixel [u, v] in that observation's image (u right, v down, zero-based).")
+
+
+@tool(group="geometry", kind="read", result=Estimate)
+def ray(ctx: RobotContext, args: RayArgs) -> ToolOutput:
     """Back-projects a pixel of an observation into a world-frame viewing ray: origin = camera centre (m), dir =
     unit direction. Direction only: an RGB pixel carries no depth. Uses the observation's calibration
     snapshot. Pixels are [u, v] in that observation's image (top-left origin, u right, v down)."""
@@ -114,8 +158,21 @@ def _ray_plane(C, d, p0, n) -> float:
     return float(np.dot(n, p0 - C) / np.dot(n, d))
 
 
-@tool(group="geometry", kind="read", result=m.Estimate)
-def plane_intersect(ctx: RobotContext, args: m.PlaneIntersectArgs) -> ToolOutput:
+class PlaneIntersectArgs(Args):
+    obs_id: ObsId = Field(description="Observation whose calibration snapshot defines the viewing ray.")
+    px: Pixel = Field(description="Pixel [u, v] in that observation's image.")
+    plane_point_xyz: Vec3 = Field(description="Any world point on the plane [x, y, z], metres.")
+    plane_normal_xyz: Direction3 = Field(
+        description="Plane normal in world coordinates (non-zero; normalised internally).")
+    plane_offset_sigma_m: Num(0.0, 10.0) = Field(
+        description="Your 1-sigma uncertainty of the plane's position along its normal, metres (>= 0).")
+    pixel_sigma_px: Num(0.0, 100.0) = Field(
+        default=2.0,
+        description="Your 1-sigma uncertainty of the pixel location, pixels (default 2.0).")
+
+
+@tool(group="geometry", kind="read", result=Estimate)
+def plane_intersect(ctx: RobotContext, args: PlaneIntersectArgs) -> ToolOutput:
     """Intersects a pixel's viewing ray with a plane you specify (point and normal, world m) and returns the 3D
     point with propagated 1-sigma uncertainty from your pixel and plane-offset sigmas, amplified by obliquity
     (1/|cos| of the ray-normal angle) and range. Always coarse: it is only as good as your plane. Fails with
@@ -211,8 +268,18 @@ def _triangulate_px(ob: Observation, oa: Observation, pb, pa):
     return _midpoint(C1, d1, C2, d2), (C1, d1, C2, d2)
 
 
-@tool(group="geometry", kind="read", result=m.Estimate)
-def triangulate_correspondence(ctx: RobotContext, args: m.TriangulateCorrespondenceArgs) -> ToolOutput:
+class TriangulateCorrespondenceArgs(Args):
+    pair_id: Annotated[str, Strict(), Field(min_length=1, max_length=64)] = Field(
+        description="pair_id returned by capture_motion_pair.")
+    px_before: Pixel = Field(description="Pixel [u, v] of the scene point in the pair's 'before' image.")
+    px_after: Pixel = Field(description="Pixel [u, v] of the same scene point in the pair's 'after' image.")
+    pixel_sigma_px: Num(0.0, 100.0) = Field(
+        default=2.0,
+        description="Your 1-sigma pixel uncertainty for both points, pixels (default 2.0).")
+
+
+@tool(group="geometry", kind="read", result=Estimate)
+def triangulate_correspondence(ctx: RobotContext, args: TriangulateCorrespondenceArgs) -> ToolOutput:
     """Triangulates one scene point from a motion pair: you give the pixel of the same point in the 'before' and
     'after' images; the two viewing rays from the measured camera poses are intersected by the two-ray
     midpoint method. Returns the world point (m) with 1-sigma uncertainty from your pixel sigma, the ray gap,
@@ -292,8 +359,28 @@ def triangulate_correspondence(ctx: RobotContext, args: m.TriangulateCorresponde
 # ==============================================================================================
 # scale_from_object_size
 # ==============================================================================================
-@tool(group="geometry", kind="read", result=m.Estimate)
-def scale_from_object_size(ctx: RobotContext, args: m.ScaleFromObjectSizeArgs) -> ToolOutput:
+class ScaleFromObjectSizeArgs(Args):
+    obs_id: ObsId = Field(description="Observation in which the object's bounding box was read.")
+    bbox: Annotated[list[PixelCoord], Field(min_length=4, max_length=4)] = Field(
+        description="Object bounding box [x1, y1, x2, y2] in pixels of that image (x1 < x2, y1 < y2).")
+    extent_axis: Literal["width", "height", "diagonal"] = Field(
+        description="Which box extent matches the known size: 'width' (u), 'height' (v) or 'diagonal'.")
+    known_extent_m: Num(1e-6, 10.0) = Field(
+        description="Your prior for the object's physical extent along that axis, metres.")
+    known_extent_sigma_m: Optional[Num(0.0, 10.0)] = Field(
+        default=None,
+        description="Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null.")
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        x1, y1, x2, y2 = self.bbox
+        if not (x2 > x1 and y2 > y1):
+            raise ValueError("bbox must be [x1, y1, x2, y2] with x1 < x2 and y1 < y2")
+        return self
+
+
+@tool(group="geometry", kind="read", result=Estimate)
+def scale_from_object_size(ctx: RobotContext, args: ScaleFromObjectSizeArgs) -> ToolOutput:
     """Coarse camera depth (m, along the optical axis) of an object from its pixel bounding box and your prior
     of its physical extent: Z = f * known_extent / pixel_extent. Assumes the extent is roughly parallel to
     the image plane. Uncertainty is null unless you give known_extent_sigma_m. Also reports the implied world
@@ -412,8 +499,14 @@ def _inner_tips_fk(ctx: RobotContext, arm: str) -> tuple[np.ndarray, np.ndarray,
 # ==============================================================================================
 # scale_from_gripper
 # ==============================================================================================
-@tool(group="geometry", kind="read", result=m.ObservationSummary, renders=True)
-def scale_from_gripper(ctx: RobotContext, args: m.ScaleFromGripperArgs) -> ToolOutput:
+class ScaleFromGripperArgs(Args):
+    camera: CameraName = Field(
+        description="Camera in which to measure the fingertips (a fresh image is captured).")
+    arm: Arm = Field(description="Arm whose fingertips serve as the metric reference.")
+
+
+@tool(group="geometry", kind="read", result=ObservationSummary, renders=True)
+def scale_from_gripper(ctx: RobotContext, args: ScaleFromGripperArgs) -> ToolOutput:
     """Captures a fresh image and marks the two inner fingertip points of an arm (from forward kinematics) in
     it: their true distance (m), pixel endpoints, in-frame flags, pixel span, camera depths and metres per
     pixel along the segment. A metric scale reference valid near the fingertips' depth. Does not move the
@@ -466,8 +559,27 @@ def scale_from_gripper(ctx: RobotContext, args: m.ScaleFromGripperArgs) -> ToolO
 # ==============================================================================================
 # draw_marks
 # ==============================================================================================
-@tool(group="observation", kind="read", result=m.ObservationSummary)
-def draw_marks(ctx: RobotContext, args: m.DrawMarksArgs) -> ToolOutput:
+class DrawMarksArgs(Args):
+    obs_id: ObsId = Field(
+        description="Observation to annotate (an obs_id from a capture tool). It is not modified; a new "
+                    "observation is returned.")
+    pixels: list[Pixel] = Field(
+        min_length=1, max_length=MAX_MARKS,
+        description="1-12 pixel points [u, v] in that observation's image (u right, v down, zero-based).")
+    labels: list[Annotated[str, Strict(), Field(max_length=40)]] = Field(
+        min_length=1, max_length=MAX_MARKS,
+        description="One short text label per pixel (same count as pixels, at most 40 characters each).")
+
+    @model_validator(mode="after")
+    def _same_length(self):
+        if len(self.pixels) != len(self.labels):
+            raise ValueError(f"labels must have one entry per pixel "
+                             f"(got {len(self.pixels)} pixels, {len(self.labels)} labels)")
+        return self
+
+
+@tool(group="observation", kind="read", result=ObservationSummary)
+def draw_marks(ctx: RobotContext, args: DrawMarksArgs) -> ToolOutput:
     """Draws 1-12 numbered, coloured markers with your labels at pixels of an existing observation and returns a
     new annotated observation (same camera, tick and calibration). Reports for each mark its colour, whether
     it is in frame and its label box. Pixels are [u, v] in that observation's image (top-left origin, u
@@ -503,8 +615,30 @@ def grasp_quats(approach, opening) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return q1, q2, a, o
 
 
+def _unit(v: list[float]) -> list[float]:
+    n = math.sqrt(sum(x * x for x in v))
+    return [x / n for x in v]
+
+
+class GraspQuatCandidatesArgs(Args):
+    approach_axis_world: Direction3 = Field(
+        description="World direction from the wrist toward the fingertips (gripper +x); normalised internally.")
+    opening_axis_world: Direction3 = Field(
+        description="World direction of the line along which the fingers open and close (gripper +y); "
+                    "normalised internally; must be orthogonal to the approach axis (|dot| <= 1e-6).")
+
+    @model_validator(mode="after")
+    def _orthogonal(self):
+        a, o = _unit(self.approach_axis_world), _unit(self.opening_axis_world)
+        d = abs(sum(x * y for x, y in zip(a, o)))
+        if d > ORTHOGONALITY_TOL:
+            raise ValueError(f"approach and opening axes must be orthogonal "
+                             f"(|dot| after normalising is {d:.3g} > 1e-6)")
+        return self
+
+
 @tool(group="geometry", kind="read")
-def grasp_quat_candidates(ctx: RobotContext | None, args: m.GraspQuatCandidatesArgs) -> ToolOutput:
+def grasp_quat_candidates(ctx: RobotContext | None, args: GraspQuatCandidatesArgs) -> ToolOutput:
     """Converts a gripper approach axis (wrist toward fingertips) and opening axis (finger line), both in world
     coordinates and orthogonal, into the two wxyz quaternions with TCP +x = approach and +y = +/- opening;
     they differ by a 180 degree roll about the approach axis. Pure conversion: unranked, no reachability
@@ -544,8 +678,21 @@ def camera_arm(ctx: RobotContext, camera: str) -> str:
     raise ToolArgumentError(f"no arm carries camera {camera!r}")
 
 
+class CameraAimPoseArgs(Args):
+    camera: WristCamera = Field(
+        description="Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm).")
+    target_xyz: Vec3 = Field(description="World point [x, y, z] (metres) the camera should look at.")
+    pitch: Num(60.0, 90.0) = Field(
+        default=80.0,
+        description="Approach tilt below horizontal, degrees (60-90, default 80; 90 = approach straight down, "
+                    "the top-down family); a rotation about world Y applied before the heading.")
+    standoff: Num(0.05, 1.0) = Field(
+        default=0.28,
+        description="Height of the TCP above the target's z, metres (default 0.28).")
+
+
 @tool(group="geometry", kind="read")
-def camera_aim_pose(ctx: RobotContext, args: m.CameraAimPoseArgs) -> ToolOutput:
+def camera_aim_pose(ctx: RobotContext, args: CameraAimPoseArgs) -> ToolOutput:
     """Pure geometry: computes a TCP pose that points a wrist camera at a world target from a given pitch
     (degrees; 90 = approach straight down) with the TCP `standoff` metres above the target, using the
     calibrated camera mount. Returns the target TCP pose and the target's predicted pixel and depth in that
@@ -727,8 +874,29 @@ _GRIPPER_NOTE = ("finger silhouettes are boxes from the embodiment's public fing
                  "collision or reachability verdict.")
 
 
-@tool(group="geometry", kind="read", result=m.ObservationSummary)
-def preview_tcp_pose(ctx: RobotContext, args: m.PreviewTcpPoseArgs) -> ToolOutput:
+class PreviewTcpPoseArgs(Args):
+    obs_id: ObsId = Field(
+        description="Observation to draw into; it must be from the current tick (capture a fresh one after "
+                    "any motion).")
+    arm: Arm = Field(description="Arm whose gripper geometry to draw.")
+    tcp_xyz: Vec3 = Field(description=_D_TCP)
+    quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
+    finger_gap_m: Optional[Num(*FINGER_GAP_RANGE_M)] = Field(default=None, description=_D_GAP)
+    reference_px: Optional[Pixel] = Field(
+        default=None, description="Optional pixel [u, v] to report offsets to; exclusive with reference_xyz_world.")
+    reference_xyz_world: Optional[Vec3] = Field(
+        default=None, description="Optional world point [x, y, z] (m) to report offsets to; exclusive with "
+                                  "reference_px.")
+
+    @model_validator(mode="after")
+    def _one_reference(self):
+        if self.reference_px is not None and self.reference_xyz_world is not None:
+            raise ValueError("give reference_px or reference_xyz_world, not both")
+        return self
+
+
+@tool(group="geometry", kind="read", result=ObservationSummary)
+def preview_tcp_pose(ctx: RobotContext, args: PreviewTcpPoseArgs) -> ToolOutput:
     """Draws the gripper at a proposed TCP pose (world m, wxyz) into a current-tick observation: finger
     silhouettes, inner-tip markers, grasp centre, approach arrow with 1 cm ticks and axes, and returns a new
     annotated observation with pixel positions, per-finger boxes, in-view flags and optional offsets to a
@@ -784,8 +952,21 @@ def _iou(a: list | None, b: list | None) -> float | None:
     return inter / union if union > 0 else 0.0
 
 
-@tool(group="geometry", kind="read", result=m.ObservationSummary)
-def compare_tcp_poses(ctx: RobotContext, args: m.CompareTcpPosesArgs) -> ToolOutput:
+class TcpCandidate(Args):
+    arm: Arm = Field(description="Arm this TCP pose is for.")
+    tcp_xyz: Vec3 = Field(description=_D_TCP)
+    quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
+    finger_gap_m: Optional[Num(*FINGER_GAP_RANGE_M)] = Field(default=None, description=_D_GAP)
+
+
+class CompareTcpPosesArgs(Args):
+    obs_id: ObsId = Field(description="Observation to draw into; it must be from the current tick.")
+    candidates: list[TcpCandidate] = Field(
+        min_length=2, max_length=4, description="2-4 proposed TCP poses, drawn and numbered 1..n in this order.")
+
+
+@tool(group="geometry", kind="read", result=ObservationSummary)
+def compare_tcp_poses(ctx: RobotContext, args: CompareTcpPosesArgs) -> ToolOutput:
     """Draws 2-4 proposed TCP poses (numbered) into a current-tick observation and compares them pairwise: grasp
     centre offset and distance (m), approach angle (deg), finger-box overlap and separation for different
     arms, projected overlap and which is nearer to the camera. No collision or reachability verdict."""

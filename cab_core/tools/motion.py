@@ -10,14 +10,15 @@ allowance. The agent gets no error figures: it reads ``commanded`` against ``obs
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, Optional
 
 import numpy as np
+from pydantic import Field
 
 from cab_core.errors import ToolArgumentError
 from cab_core.geometry import orientation_block, quat_angle, quat_normalize
-from cab_core.tools import models as m
-from cab_core.tools.models import CONTACT_IMPULSE_THRESHOLD, WORKSPACE
+from cab_core.tools.models import (CONTACT_IMPULSE_THRESHOLD, DELTA_LIMIT_M, WORKSPACE, Args, Arm, Delta, Delta3,
+                                    Direction3, Num, ObservationSummary, QuatWXYZ, Result, Vec3)
 from cab_core.tools.registry import ToolOutput, tool
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -188,6 +189,50 @@ def _planner_block(res) -> dict:
             "message": res.message[:240]}
 
 
+class Failure(Result):
+    stage: Optional[str] = Field(
+        default=None, description="Where it failed, e.g. planner_query, execution, workspace_prefilter.")
+    code: str = Field(description="Stable failure code, e.g. goal_pose_unreachable, stalled, RAY_PARALLEL_TO_PLANE.")
+    category: Optional[str] = Field(
+        default=None, description="planner / stall / deviation / allowance / workspace / contact / other.")
+    message: str = Field(default="", description="Short human-readable explanation.")
+
+
+class Planning(Result):
+    status: Literal["NOT_APPLICABLE", "NOT_RUN", "SUCCEEDED", "FAILED", "NOT_REPORTED"] = Field(
+        description="Planner outcome.")
+
+
+class Execution(Result):
+    status: Literal["NOT_STARTED", "COMPLETED", "INTERRUPTED", "FAILED", "UNKNOWN"] = Field(
+        description="Execution outcome.")
+    post_state_observed: bool = Field(description="Whether the robot state was read after execution.")
+    state_changed: bool = Field(description="Whether the robot measurably moved.")
+    physics_steps: int = Field(description="Physics steps consumed (1/250 s each).")
+    partial: bool = Field(default=False, description="Paired calls: one arm executed while the other did not.")
+
+
+class ActionResult(Result):
+    """Result of every motion and gripper tool (and the motion inside capture_motion_pair)."""
+    action_id: str = Field(description="Unique id of this action.")
+    status: Literal["SUCCESS", "FAILED", "ABORTED"] = Field(
+        description="SUCCESS: executed as specified; FAILED: refused or not achieved; ABORTED: stopped by a guard.")
+    abort_reason: Optional[str] = Field(
+        default=None, description="stalled / trajectory_deviation / leg_budget / arm_lock, when ABORTED.")
+    commanded: dict[str, Any] = Field(description="What was asked, after clamping (delta, target, path mode).")
+    achieved: dict[str, Any] = Field(
+        description="Measured outcome: guard, contact, stall evidence, planner status, mode details.")
+    resulting_pose: dict[str, Any] = Field(
+        description="Measured TCP pose(s) after the action: {tcp} or {left_tcp, right_tcp}.")
+    planning: Planning = Field(description="Planner outcome.")
+    execution: Execution = Field(description="Execution outcome.")
+    failure: Optional[Failure] = Field(default=None, description="Why it failed or aborted; null on SUCCESS.")
+    observed_before: dict[str, Any] = Field(description="Two-arm robot snapshot before the action.")
+    observed_after: dict[str, Any] = Field(description="Two-arm robot snapshot after the action.")
+    tick: int = Field(description="Actuation tick after the action.")
+    call_status: Literal["OK"] = Field(default="OK", description="The call itself was dispatched.")
+
+
 def _result(ctx: RobotContext, *, action_id: str, status: str, commanded: dict, achieved: dict, before: dict,
             arms: list[str], planning: str, execution: str, steps: int, partial: bool = False,
             failure: dict | None = None, abort_reason: str | None = None) -> ToolOutput:
@@ -336,8 +381,19 @@ def _clamp(delta: np.ndarray) -> tuple[np.ndarray, bool]:
 # ---------------------------------------------------------------------------------------------
 # tools
 # ---------------------------------------------------------------------------------------------
-@tool(group="motion", kind="act", result=m.ActionResult)
-def move_delta(ctx: RobotContext, args: m.MoveDeltaArgs) -> ToolOutput:
+class MoveDeltaArgs(Args):
+    arm: Arm = Field(description="Arm to move.")
+    dx: Delta = Field(default=0.0, description="TCP displacement along world +x (robot right), metres.")
+    dy: Delta = Field(default=0.0, description="TCP displacement along world +y (forward), metres.")
+    dz: Delta = Field(default=0.0, description="TCP displacement along world +z (up), metres.")
+    path: Literal["waypoint_legs", "single_plan"] = Field(
+        default="waypoint_legs",
+        description="'waypoint_legs': guarded legs of at most contact_leg_m (0.03 m), each re-aimed from the "
+                    "measured TCP; 'single_plan': one planned trajectory.")
+
+
+@tool(group="motion", kind="act", result=ActionResult)
+def move_delta(ctx: RobotContext, args: MoveDeltaArgs) -> ToolOutput:
     """Moves one arm's TCP by a world-frame displacement (m), holding the call-start orientation. The norm is
     clamped to 0.30 m (direction kept); by default it runs as guarded legs of at most 0.03 m that stop on
     stall or deviation. Returns an ActionResult. Consumes simulated time."""
@@ -375,8 +431,13 @@ def move_delta(ctx: RobotContext, args: m.MoveDeltaArgs) -> ToolOutput:
                    abort_reason=st["reason"] if st["status"] == "ABORTED" else None)
 
 
-@tool(group="motion", kind="act", result=m.ActionResult)
-def move_both_delta(ctx: RobotContext, args: m.MoveBothDeltaArgs) -> ToolOutput:
+class MoveBothDeltaArgs(Args):
+    left_delta: Delta3 = Field(description="Left TCP displacement [dx, dy, dz], world metres.")
+    right_delta: Delta3 = Field(description="Right TCP displacement [dx, dy, dz], world metres.")
+
+
+@tool(group="motion", kind="act", result=ActionResult)
+def move_both_delta(ctx: RobotContext, args: MoveBothDeltaArgs) -> ToolOutput:
     """Moves both TCPs by world-frame displacements (m) together. A FAILED result may still mean one arm moved
     (execution.partial). Returns an ActionResult with a sync block. Consumes simulated time."""
     deltas = {}
@@ -469,8 +530,17 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
                    arms=arms, planning="SUCCEEDED", execution="COMPLETED", steps=steps)
 
 
-@tool(group="motion", kind="act", result=m.ActionResult)
-def reach_tcp(ctx: RobotContext, args: m.ReachTcpArgs) -> ToolOutput:
+class ReachTcpArgs(Args):
+    arm: Arm = Field(description="Arm to move.")
+    target_xyz: Vec3 = Field(
+        description="Target TCP position, world metres (workspace x, y in [-0.8, 0.8], z in [0.4, 1.5]).")
+    target_quat: Optional[QuatWXYZ] = Field(
+        default=None,
+        description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the call-start one.")
+
+
+@tool(group="motion", kind="act", result=ActionResult)
+def reach_tcp(ctx: RobotContext, args: ReachTcpArgs) -> ToolOutput:
     """Moves one arm's TCP to an absolute world position (m) and optional orientation (wxyz; default keeps the
     call-start orientation): one full plan, then a guarded waypoint fallback and up to 2 correction plans.
     Returns an ActionResult; compare commanded with observed_after. Consumes simulated time."""
@@ -483,8 +553,17 @@ def reach_tcp(ctx: RobotContext, args: m.ReachTcpArgs) -> ToolOutput:
     return _plan_and_go(ctx, {arm: target}, ctx.next_action_id(), commanded, before)
 
 
-@tool(group="motion", kind="act", result=m.ActionResult)
-def reach_both_tcp(ctx: RobotContext, args: m.ReachBothTcpArgs) -> ToolOutput:
+class ReachBothTcpArgs(Args):
+    left_xyz: Vec3 = Field(description="Left arm target TCP position, world metres.")
+    right_xyz: Vec3 = Field(description="Right arm target TCP position, world metres.")
+    left_quat: Optional[QuatWXYZ] = Field(
+        default=None, description="Left target orientation [w, x, y, z]; default keeps the current one.")
+    right_quat: Optional[QuatWXYZ] = Field(
+        default=None, description="Right target orientation [w, x, y, z]; default keeps the current one.")
+
+
+@tool(group="motion", kind="act", result=ActionResult)
+def reach_both_tcp(ctx: RobotContext, args: ReachBothTcpArgs) -> ToolOutput:
     """Moves both TCPs to absolute world positions (m) with optional orientations, planned and executed
     together. A FAILED result may still mean one arm moved (execution.partial). Consumes simulated time."""
     before = robot_snapshot(ctx)
@@ -496,8 +575,17 @@ def reach_both_tcp(ctx: RobotContext, args: m.ReachBothTcpArgs) -> ToolOutput:
     return _plan_and_go(ctx, targets, ctx.next_action_id(), commanded, before)
 
 
-@tool(group="motion", kind="act", result=m.ActionResult)
-def probe_contact_along(ctx: RobotContext, args: m.ProbeContactAlongArgs) -> ToolOutput:
+class ProbeContactAlongArgs(Args):
+    arm: Arm = Field(description="Arm to move.")
+    direction_xyz: Direction3 = Field(description="World direction of travel (non-zero; normalised internally).")
+    distance_m: Num(0.0, DELTA_LIMIT_M, lo_open=True) = Field(
+        description="Maximum travel, metres (> 0; clamped to 0.30).")
+    step_m: Num(0.002, DELTA_LIMIT_M) = Field(
+        description="Step between contact checks, metres (>= 0.002; clamped to 0.03).")
+
+
+@tool(group="motion", kind="act", result=ActionResult)
+def probe_contact_along(ctx: RobotContext, args: ProbeContactAlongArgs) -> ToolOutput:
     """Moves one arm's TCP along a world direction in small steps until the set of fingers in contact changes or
     the distance is used up (distance clamped to 0.30 m, step to 0.03 m). SUCCESS means only that contact
     changed; the result reports the stop reason, transition and finger poses. Consumes simulated time."""
@@ -542,8 +630,14 @@ def probe_contact_along(ctx: RobotContext, args: m.ProbeContactAlongArgs) -> Too
                    steps=out["steps"], partial=False, failure=failure, abort_reason=reason)
 
 
-@tool(group="motion", kind="act", result=m.ActionResult)
-def set_gripper(ctx: RobotContext, args: m.SetGripperArgs) -> ToolOutput:
+class SetGripperArgs(Args):
+    arm: Arm = Field(description="Arm whose gripper to actuate.")
+    pos: Num(0.0, 1.0) = Field(
+        description="Normalised opening command: 1 = fully open, 0 = fully closed.")
+
+
+@tool(group="motion", kind="act", result=ActionResult)
+def set_gripper(ctx: RobotContext, args: SetGripperArgs) -> ToolOutput:
     """Drives one gripper to a normalised opening (1 = open, 0 = closed) over about 0.8 s. SUCCESS means the
     actuation completed, not that something is held: read finger_gap_m and contact in the result. Consumes
     simulated time."""
@@ -580,8 +674,16 @@ def set_gripper(ctx: RobotContext, args: m.SetGripperArgs) -> ToolOutput:
                    before=before, arms=[arm], planning="NOT_APPLICABLE", execution="COMPLETED", steps=steps)
 
 
+class CheckTcpPoseReachabilityArgs(Args):
+    arm: Arm = Field(description="Arm to plan for.")
+    target_xyz: Vec3 = Field(description="Target TCP position, world metres.")
+    target_quat: Optional[QuatWXYZ] = Field(
+        default=None,
+        description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the current one.")
+
+
 @tool(group="geometry", kind="plan")
-def check_tcp_pose_reachability(ctx: RobotContext, args: m.CheckTcpPoseReachabilityArgs) -> ToolOutput:
+def check_tcp_pose_reachability(ctx: RobotContext, args: CheckTcpPoseReachabilityArgs) -> ToolOutput:
     """Asks the motion planner for a trajectory from the current arm configuration to a TCP pose without moving:
     whether one was found, planner status and diagnostics. Only robot self-collision is modelled (no table,
     objects or other arm)."""
@@ -609,8 +711,39 @@ def check_tcp_pose_reachability(ctx: RobotContext, args: m.CheckTcpPoseReachabil
                        "stage": "planner_query", "reason": _planner_block(res)["meaning"]})
 
 
-@tool(group="geometry", kind="act", result=m.ObservationPair, renders=True)
-def capture_motion_pair(ctx: RobotContext, args: m.CaptureMotionPairArgs) -> ToolOutput:
+class PairValidity(Result):
+    motion_succeeded: bool = Field(description="The guarded motion returned SUCCESS.")
+    baseline_nonzero: bool = Field(description="The wrist camera actually moved (baseline above ~1 mm).")
+    contact_free: bool = Field(description="No finger or arm contact before, during or after the motion.")
+
+
+class ObservationPair(Result):
+    """Result of capture_motion_pair. The host keeps ``ctx.pairs[pair_id] = {"before": obs_id,
+    "after": obs_id, "valid": {motion_succeeded, baseline_nonzero, contact_free}}`` for
+    triangulate_correspondence."""
+    pair_id: str = Field(description="Pass to triangulate_correspondence.")
+    before: ObservationSummary = Field(description="Wrist observation before the motion.")
+    after: ObservationSummary = Field(description="Wrist observation after the motion.")
+    motion: ActionResult = Field(description="The guarded motion between the two images.")
+    camera_delta_world_m: list[float] = Field(description="Measured camera translation [dx, dy, dz], world m.")
+    camera_baseline_m: float = Field(description="Norm of the camera translation, m.")
+    camera_rotation_deg: float = Field(description="Camera rotation between the images, degrees.")
+    contact_evidence: dict[str, Any] = Field(
+        description="{contact_free, scope, before, after, motion_abort_reason}: anonymous contact around the motion.")
+    validity: PairValidity = Field(description="Preconditions for a triangulation from this pair.")
+    obs_ids: list[str] = Field(description="[before, after] obs_ids.")
+    images: list[str] = Field(description="obs_ids whose images are attached.")
+
+
+class CaptureMotionPairArgs(Args):
+    arm: Arm = Field(description="Arm to move; its wrist camera takes the before/after images.")
+    dx: Delta = Field(description="World-frame displacement along +x (robot right), metres.")
+    dy: Delta = Field(description="World-frame displacement along +y (forward), metres.")
+    dz: Delta = Field(description="World-frame displacement along +z (up), metres.")
+
+
+@tool(group="geometry", kind="act", result=ObservationPair, renders=True)
+def capture_motion_pair(ctx: RobotContext, args: CaptureMotionPairArgs) -> ToolOutput:
     """Moves one arm by a small world-frame displacement (dx, dy, dz in m) as a real guarded motion, capturing
     its wrist RGB before and after. Returns both observations, the motion's ActionResult, the measured camera
     translation and rotation, contact evidence and validity flags, and a pair_id for

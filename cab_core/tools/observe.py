@@ -5,15 +5,16 @@ Nothing here reads object state. Contact feedback names only the robot's own fin
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, Optional
 
 import numpy as np
+from pydantic import Field, model_validator
 
 from cab_core.contracts.simulator import ROBOT
 from cab_core.errors import SimulatorError
 from cab_core.geometry import orientation_block, pose_block, rnd
-from cab_core.tools import models as m
-from cab_core.tools.models import CAMERAS, CONTACT_IMPULSE_THRESHOLD, WORKSPACE
+from cab_core.tools.models import (CAMERAS, CONTACT_IMPULSE_THRESHOLD, WORKSPACE, Args, Arm, CameraName, EvidenceView,
+                                    ObservationSummary, Result)
 from cab_core.tools.registry import ToolOutput, observation_output, tool
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -33,8 +34,12 @@ def _param(ctx: RobotContext, key: str, default: float) -> float:
 # ==============================================================================================
 # get_world_frame
 # ==============================================================================================
-@tool(group="observation", kind="read", result=m.ObservationSummary, renders=True)
-def get_world_frame(ctx: RobotContext, args: m.GetWorldFrameArgs) -> ToolOutput:
+class GetWorldFrameArgs(Args):
+    """No arguments."""
+
+
+@tool(group="observation", kind="read", result=ObservationSummary, renders=True)
+def get_world_frame(ctx: RobotContext, args: GetWorldFrameArgs) -> ToolOutput:
     """Captures a fresh head-camera image with a display-only legend glyph in a screen corner and returns the
     world conventions: +x robot-right (left arm at -x, right arm at +x), +y forward away from the robot, +z
     up, metres, seconds, radians, wxyz quaternions, pixel convention. The legend is a schematic: it gives no
@@ -107,8 +112,12 @@ def _merge(dst: dict, src: dict) -> None:
             dst[k] = v
 
 
+class GetEmbodimentArgs(Args):
+    """No arguments."""
+
+
 @tool(group="observation", kind="read")
-def get_embodiment(ctx: RobotContext, args: m.GetEmbodimentArgs) -> ToolOutput:
+def get_embodiment(ctx: RobotContext, args: GetEmbodimentArgs) -> ToolOutput:
     """Describes the robot: arms and their sides, gripper geometry (max opening 0.08 m, finger-gap range,
     empty-close gap), the TCP convention (nominal grasp centre; flange behind it along the approach axis,
     fingertip plane ahead), gripper-local axes (+x approach, +y opening line), cameras (qualitatively),
@@ -171,8 +180,12 @@ def get_embodiment(ctx: RobotContext, args: m.GetEmbodimentArgs) -> ToolOutput:
 # ==============================================================================================
 # get_camera_info
 # ==============================================================================================
+class GetCameraInfoArgs(Args):
+    camera: CameraName = Field(description="Camera to describe: the fixed head camera or a wrist camera.")
+
+
 @tool(group="observation", kind="read")
-def get_camera_info(ctx: RobotContext, args: m.GetCameraInfoArgs) -> ToolOutput:
+def get_camera_info(ctx: RobotContext, args: GetCameraInfoArgs) -> ToolOutput:
     """Returns the current calibration of one camera: 3x3 pinhole K (pixels, no distortion), 3x4 extrinsic E =
     [R|t] mapping world to camera (p_cam = R p_world + t; camera +x right, +y down, +z forward) and image
     size [H, W]. Wrist cameras move with their arm, so E changes after motion. A read failure returns
@@ -203,8 +216,12 @@ def _arm_pose_block(ctx: RobotContext, arm: str) -> dict:
         return {"ee_pose": None, "tcp_pose": None, "orientation": None, "read_failures": 1}
 
 
+class GetArmPoseArgs(Args):
+    arm: Arm = Field(description="Arm to read: 'left' (at -x) or 'right' (at +x).")
+
+
 @tool(group="observation", kind="read")
-def get_arm_pose(ctx: RobotContext, args: m.GetArmPoseArgs) -> ToolOutput:
+def get_arm_pose(ctx: RobotContext, args: GetArmPoseArgs) -> ToolOutput:
     """Measured flange (ee_pose) and TCP pose of one arm, world frame [x,y,z,qw,qx,qy,qz], with an orientation
     block: approach_axis_world (gripper +x), opening_axis_world (gripper +y) and plain-text readings such as
     'approach points down (-z)'."""
@@ -225,8 +242,12 @@ def _gripper_block(ctx: RobotContext, arm: str) -> dict:
             "drive_commanded_closed": val < DRIVE_CLOSED_BELOW, "read_failures": fails}
 
 
+class GetGripperStateArgs(Args):
+    arm: Arm = Field(description="Arm whose gripper to read: 'left' or 'right'.")
+
+
 @tool(group="observation", kind="read")
-def get_gripper_state(ctx: RobotContext, args: m.GetGripperStateArgs) -> ToolOutput:
+def get_gripper_state(ctx: RobotContext, args: GetGripperStateArgs) -> ToolOutput:
     """Gripper readback of one arm: gripper_val (the last command, 1 = open, 0 = closed), opening_m = command x
     0.08 m, finger_gap_m (physical distance between finger-link origins from forward kinematics, metres) and
     drive_commanded_closed (command < 0.2). A closed command with a gap above the empty-close gap suggests
@@ -282,8 +303,12 @@ def _contact_summary(ctx: RobotContext, arm: str) -> dict:
             "total_impulse": rnd(c["total_impulse"], 8), "unit": "N*s", "threshold": CONTACT_IMPULSE_THRESHOLD}
 
 
+class GetGraspContactArgs(Args):
+    arm: Arm = Field(description="Arm whose finger contacts to read: 'left' or 'right'.")
+
+
 @tool(group="observation", kind="read")
-def get_grasp_contact(ctx: RobotContext, args: m.GetGraspContactArgs) -> ToolOutput:
+def get_grasp_contact(ctx: RobotContext, args: GetGraspContactArgs) -> ToolOutput:
     """Anonymous contact between one arm's fingers and anything that is not the robot, during the last physics
     step: total and per-finger impulse (N*s, threshold 1e-4), fingers_in_contact, and the world pose of each
     contacting finger link. Finger-finger and robot self-contact are excluded; the touched body is never
@@ -336,8 +361,20 @@ def _joint_state(ctx: RobotContext, arm: str) -> dict:
             "units": {"revolute": ["rad", "rad/s"], "prismatic": ["m", "m/s"]}, "read_failures": fails}
 
 
+class GetRobotStateArgs(Args):
+    arms: list[Arm] = Field(
+        default_factory=lambda: ["left", "right"], min_length=1, max_length=2,
+        description="Arms to include, 1 or 2 distinct names from 'left'/'right'; default both.")
+
+    @model_validator(mode="after")
+    def _unique(self):
+        if len(set(self.arms)) != len(self.arms):
+            raise ValueError("arms must not repeat a name")
+        return self
+
+
 @tool(group="observation", kind="read")
-def get_robot_state(ctx: RobotContext, args: m.GetRobotStateArgs) -> ToolOutput:
+def get_robot_state(ctx: RobotContext, args: GetRobotStateArgs) -> ToolOutput:
     """Combined state of one or both arms: flange and TCP poses with orientation blocks, gripper readback,
     anonymous finger contact summary and joint_state (names, types, positions in rad or m, velocities in
     rad/s or m/s). The only tool that returns joint positions and velocities. World frame: metres, +x
@@ -360,8 +397,12 @@ def get_robot_state(ctx: RobotContext, args: m.GetRobotStateArgs) -> ToolOutput:
 # ==============================================================================================
 # captures
 # ==============================================================================================
-@tool(group="observation", kind="read", result=m.ObservationSummary, renders=True)
-def capture_head(ctx: RobotContext, args: m.CaptureHeadArgs) -> ToolOutput:
+class CaptureHeadArgs(Args):
+    """No arguments."""
+
+
+@tool(group="observation", kind="read", result=ObservationSummary, renders=True)
+def capture_head(ctx: RobotContext, args: CaptureHeadArgs) -> ToolOutput:
     """Captures the fixed head camera (RGB, 640x480 in the benchmark) and returns the image with its obs_id,
     tick and calibration snapshot (K, E, size). No depth."""
     return observation_output(ctx.capture("head_camera"))
@@ -379,8 +420,32 @@ def _observation_set(ctx: RobotContext, shots: list[tuple[str, str]]) -> ToolOut
     return ToolOutput(payload=payload, obs_ids=ids)
 
 
-@tool(group="observation", kind="read", result=m.ObservationSet, renders=True)
-def capture_wrist(ctx: RobotContext, args: m.CaptureWristArgs) -> ToolOutput:
+class ObservationSet(Result):
+    set_id: str = Field(description="Identifier of this set.")
+    observations: list[ObservationSummary] = Field(description="The captured observations, same tick.")
+    roles: dict[str, str] = Field(description="Role (active/opposite or view name) -> obs_id.")
+    tick: int = Field(description="Actuation tick of all images.")
+    obs_ids: list[str] = Field(description="All obs_ids in order.")
+    images: list[str] = Field(description="obs_ids whose images are attached, in order.")
+
+
+class CaptureWristArgs(Args):
+    active_arm: Literal["left", "right", "none"] = Field(
+        description="Arm whose wrist camera is the 'active' view; 'none' only with views='both' "
+                    "(both wrists, no roles).")
+    views: Literal["active", "both"] = Field(
+        default="active",
+        description="'active': the active arm's wrist image only; 'both': also the opposite wrist.")
+
+    @model_validator(mode="after")
+    def _none_needs_both(self):
+        if self.active_arm == "none" and self.views != "both":
+            raise ValueError("active_arm='none' has no active wrist: pass views='both' or name an arm")
+        return self
+
+
+@tool(group="observation", kind="read", result=ObservationSet, renders=True)
+def capture_wrist(ctx: RobotContext, args: CaptureWristArgs) -> ToolOutput:
     """Captures wrist-camera RGB (320x240): the active arm's wrist, or with views='both' also the opposite wrist
     (roles active/opposite). active_arm='none' with views='both' captures both wrists without roles. Each
     image has its obs_id and calibration snapshot."""
@@ -395,8 +460,24 @@ def capture_wrist(ctx: RobotContext, args: m.CaptureWristArgs) -> ToolOutput:
     return _observation_set(ctx, shots)
 
 
-@tool(group="observation", kind="read", result=m.ObservationSet, renders=True)
-def capture_evidence_views(ctx: RobotContext, args: m.CaptureEvidenceViewsArgs) -> ToolOutput:
+class CaptureEvidenceViewsArgs(Args):
+    active_arm: Optional[Arm] = Field(
+        default=None,
+        description="Optional arm whose wrist view is also labelled role 'active' (the other 'opposite').")
+    views: list[EvidenceView] = Field(
+        default_factory=lambda: ["overview", "left_wrist", "right_wrist"], min_length=1, max_length=3,
+        description="Unique, non-empty subset of 'overview' (head camera), 'left_wrist', 'right_wrist'; "
+                    "captured at the same tick in the given order. Default all three.")
+
+    @model_validator(mode="after")
+    def _unique(self):
+        if len(set(self.views)) != len(self.views):
+            raise ValueError("views must be unique")
+        return self
+
+
+@tool(group="observation", kind="read", result=ObservationSet, renders=True)
+def capture_evidence_views(ctx: RobotContext, args: CaptureEvidenceViewsArgs) -> ToolOutput:
     """Captures several views at the same tick: 'overview' (head camera), 'left_wrist', 'right_wrist' (default
     all three, in that order), each with obs_id and calibration. Use it to check a state from several angles."""
     out = _observation_set(ctx, [(v, _VIEW_CAMERA[v]) for v in args.views])

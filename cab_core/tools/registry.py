@@ -1,17 +1,23 @@
 """What a tool is: its declaration (:class:`ToolDef`), made by :func:`tool` on the handler itself,
 and what a handler returns (:class:`ToolOutput`).
 
-A robot tool is declared once, on its handler, in the module of its kind (``observe``,
+A robot tool is declared once, on its handler, beside its models, in the module of its kind (``observe``,
 ``estimate``, ``motion``)::
+
+    class RayArgs(Args):
+        obs_id: ObsId = Field(description="Observation whose calibration snapshot (K, E) defines the ray.")
+        px: Pixel = Field(description="Pixel [u, v] in that observation's image (u right, v down, zero-based).")
+
 
     @tool(group="geometry", kind="read", result=Estimate)
     def ray(ctx: RobotContext, args: RayArgs) -> ToolOutput:
         \"\"\"Back-projects a pixel of an observation into a world-frame viewing ray: ...\"\"\"
 
-The tool's name is the function's, its argument model the annotation of its ``args`` parameter
-(read with :func:`typing.get_type_hints`, so the model must be defined, or imported, before the
-handler), its description (the text the agent reads) the function's docstring with every run of
-whitespace folded to one space, so the docstring may wrap freely but cannot carry a paragraph break. ``run_code`` and ``done`` are served by the episode host itself
+The tool's name is the function's; its argument model is the annotation of its ``args`` parameter
+(read with :func:`typing.get_type_hints`, so the model is defined, or imported, above the handler);
+its description (the text the agent reads) is the function's docstring with every run of whitespace
+folded to one space, so the docstring may wrap freely but cannot carry a paragraph break.
+``run_code`` and ``done`` are served by the episode host itself
 (:class:`~cab_core.attempt.serving.CallServer`): they are plain :class:`ToolDef` values without a
 handler. :mod:`cab_core.tools` lists every declaration in catalog order and builds the registry.
 
