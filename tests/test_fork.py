@@ -13,7 +13,10 @@ from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.cmdline import check_command_line
-from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkDiverged, ForkPoint, charged_calls, forks_of, recovery, transcript
+from cab_core.analysis.viewer import forks_of
+from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkDiverged, ForkPoint, charged_calls
+from cab_core.attempt.records.recovery import recovery
+from cab_core.kits.harness.conversation import transcript
 from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.errors import ConfigError
 

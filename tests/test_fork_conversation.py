@@ -1,5 +1,5 @@
 """A fork played by the reference harness goes on from its parent's conversation
-(cab_core.attempt.fork.transcript, ReferenceHarness._rebuild): the model's first request holds the
+(cab_core.kits.harness.conversation.transcript, ReferenceHarness._rebuild): the model's first request holds the
 turns the parent's model had up to the fork point and the results it was given, built as the live
 loop builds them. First with a fake episode whose records are written as an attempt writes them
 (no simulator), then with real MuJoCo attempts (a parent played through the harness by a scripted
@@ -13,7 +13,8 @@ import pytest
 
 from test_harness_reference import CANCELLED, FakeEpisode, ScriptedProvider  # first: it finds the plugin
 
-from cab_core.attempt.fork import ForkPoint, transcript
+from cab_core.attempt.fork import ForkPoint
+from cab_core.kits.harness.conversation import transcript
 from cab_harness_reference.loop import MALFORMED_KEY, NUDGE, ReferenceHarness
 from cab_harness_reference.types import Capabilities, Image, Text, ToolCall, ToolResult
 

@@ -12,7 +12,7 @@ from attempt_records import events
 from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
-from cab_core.attempt.fork import recovery
+from cab_core.attempt.records.recovery import recovery
 from cab_core.attempt.runner import attempt_spec, run_attempt
 
 CASES = {

@@ -25,7 +25,7 @@ When both are the same call, one fork serves both.
 attempt's own model as its records hold it (its model and harness configuration: a model-free
 agent such as ``scripted`` with its script, a reference-harness model with its settings; a provider
 model needs its key as any attempt does). A fork's outcome is
-:func:`cab_core.attempt.fork.recovery`'s (recovered; not recoverable, with the kind and reason the
+:func:`cab_core.attempt.records.recovery.recovery`'s (recovered; not recoverable, with the kind and reason the
 reference solution gave, or ``budget``; unexplained: it failed and gave no reason), or ``error``
 when no fork could be made (the records cannot be forked, the re-executed prefix diverged, every
 try failed for infrastructure reasons).
@@ -335,7 +335,7 @@ def finished(d: Path) -> bool:
 def read_fork(d: Path, at: int, rel: str, error: str | None = None, classify=None) -> dict:
     """A fork's outcome from its folder: ``{"dir", "at", "outcome", "kind", "reason", "fails_at"}``;
     outcome ``error`` (with the reason) when it did not finish."""
-    from cab_core.attempt.fork import recovery
+    from cab_core.attempt.records.recovery import recovery
 
     if not finished(d):
         return {"dir": rel, "at": at, "outcome": "error", "kind": None,

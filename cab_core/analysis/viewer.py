@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from cab_core.analysis.records import Attempt, attempt_dirs, read_jsonl
+from cab_core.attempt.fork import FORKS_FILE
 from cab_core.errors import CabError, RecordError
 
 def _json(obj) -> str:
@@ -220,11 +221,19 @@ def _margin_row(name: str, m: dict, g) -> dict:
             "threshold": g(m.get("threshold"))}
 
 
+def forks_of(attempt_dir: Path) -> list[dict]:
+    """The forks made of an attempt (its ``forks.jsonl``, :data:`cab_core.attempt.fork.FORKS_FILE`):
+    ``{"child": relative path, "at": K}``, those whose records still exist."""
+    p = Path(attempt_dir) / FORKS_FILE
+    if not p.is_file():  # none, or not a file the viewer can read
+        return []
+    return [f for f in read_jsonl(p) if isinstance(f.get("child"), str) and (Path(attempt_dir) / f["child"]).is_dir()]
+
+
 def fork_links(d: Path, fork: dict | None) -> dict:
     """The attempt an attempt was forked from (``fork``: its ``result.json`` or configuration's
     ``{parent, at}``) and the forks made of it (its ``forks.jsonl``), for the page's links:
     ``parent`` ({rel, at} or None) and ``children`` ([{rel, at, outcome}], by fork point)."""
-    from cab_core.attempt.fork import forks_of
 
     parent = None
     if isinstance(fork, dict) and isinstance(fork.get("parent"), str):

@@ -18,15 +18,16 @@ from pathlib import Path
 import numpy as np
 
 from cab_core.attempt.budget import BudgetLedger
-from cab_core.attempt.fork import ForkPoint, play
+from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkPoint, compare_prefix, link_parent
 from cab_core.attempt.finishing import VerdictTracker, attempt_checkpoints, versions
-from cab_core.attempt.record import RECORD_VERSION, AttemptRecord, MalformedRecord
+from cab_core.attempt.record import RECORD_VERSION, AttemptRecord, MalformedRecord, read_jsonl
 from cab_core.attempt.recording import Recorder
 from cab_core.attempt.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.spec import AttemptSpec
 from cab_core.attempt.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
 from cab_core.contracts.task import SceneInstance, Task
 from cab_core.contracts.verifier import WorldView
+from cab_core.errors import AttemptEnded
 from cab_core.tools import build_registry
 from cab_core.tools.context import ObservationStore, RobotContext
 
@@ -62,8 +63,7 @@ class Episode:
         self._fork_record: dict | None = None
         self._setup()
         if spec.fork:
-            self.fork = ForkPoint.load(self.out / spec.fork["parent"], spec.fork["at"])
-            made = play(self, self.fork)
+            made = self.replay_prefix(ForkPoint.load(self.out / spec.fork["parent"], spec.fork["at"]))
             self._fork_record = {k: made[k] for k in ("parent", "at", "calls_made_again", "exact", "max_tcp_error_m",
                                                       "max_object_error_m", "lineage")}
 
@@ -118,6 +118,37 @@ class Episode:
         self.recorder.event("attempt_start", task=spec.task, seed=spec.seed, attempt=spec.attempt,
                             instruction=self.task.info.instruction, budget=self.ledger.remaining(),
                             setup_seconds=round(self.setup_seconds, 3), config=spec.as_record())
+
+    def replay_prefix(self, point: ForkPoint, tolerance: float = FORK_TOLERANCE_M) -> dict:
+        """Make the parent's calls up to ``point.at`` again in this episode (just set up, a fork:
+        :mod:`cab_core.attempt.fork`), each event of them marked ``fork_prefix``; check the world
+        against the parent's records (:func:`~cab_core.attempt.fork.compare_prefix`, which raises
+        :class:`~cab_core.attempt.fork.ForkDiverged` when it differs); carry the parent's
+        wall-clock spend over; record the ``fork`` event and link the parent to this attempt.
+        Returns the ``fork`` event's fields."""
+        t0 = time.monotonic()
+        self.fork = point
+        self.recorder.tags = {"fork_prefix": True}
+        try:
+            for tool, args in point.calls():
+                try:
+                    self.call(tool, args)
+                except AttemptEnded:
+                    break
+        finally:
+            self.recorder.tags = {}
+        made = [e for e in read_jsonl(self.out / "events.jsonl") if e.get("fork_prefix")]
+        snaps = read_jsonl(self.out / "privileged" / "snapshots.jsonl")
+        compared = compare_prefix(point, made, snaps, self.server.calls, tolerance)
+        self.ledger.carry_wall(point.wall_seconds)
+        fields = {**point.as_record(self.out), "calls_made_again": len(point.calls()),
+                  "snapshots_compared": compared["snapshots_compared"], "exact": compared["exact"],
+                  "max_tcp_error_m": compared["max_tcp_error_m"], "max_object_error_m": compared["max_object_error_m"],
+                  "parent_wall_seconds": point.wall_seconds, "prefix_seconds": round(time.monotonic() - t0, 3),
+                  "lineage": point.lineage}
+        self.recorder.event("fork", **fields)
+        link_parent(point, self.out)
+        return fields
 
     def _video_frame(self, step: int) -> None:
         if step % self._video_every == 0 and self.recorder.video is not None:

@@ -16,31 +16,33 @@ write a saved state back into its world, see its plugin) and may cost a world re
 
 The child's records hold the prefix's events (marked ``"fork_prefix": true``) and snapshots, then
 a ``fork`` event, then its own agent's; ``result.json`` names the parent (a path relative to the
-child) and K. A fork of a fork replays the child's records, which already hold the first prefix."""
+child) and K. A fork of a fork replays the child's records, which already hold the first prefix.
+
+This module is the fork point (:class:`ForkPoint`: what the parent's records hold up to call K) and
+the comparison of a prefix made again with them (:func:`compare_prefix`). The episode makes the
+prefix again itself (:meth:`cab_core.attempt.engine.episode.Episode.replay_prefix`); a harness
+rebuilds its agent's conversation with :mod:`cab_core.kits.harness.conversation`; how a fork ended,
+as a recovery, is :mod:`cab_core.attempt.records.recovery`; the viewer lists the forks of an
+attempt with :func:`cab_core.analysis.viewer.forks_of`."""
 from __future__ import annotations
 
 import json
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from cab_core.attempt.record import read_json_object, read_jsonl
-from cab_core.errors import AttemptEnded, CabError, ConfigError, RecordError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from cab_core.attempt.episode import Episode
+from cab_core.errors import CabError, ConfigError, RecordError
+from cab_core.kits.harness.conversation import DIRECT
 
 FORK_TOLERANCE_M = 0.005
 #: the parent's settings a fork keeps: everything that decides the world and the budgets
 KEPT = ("task", "seed", "sim", "embodiment", "planner", "budget_tool_calls", "budget_sim_seconds",
         "budget_wall_seconds", "run_code_max_internal_calls", "sandbox", "sim_cfg", "planner_cfg",
         "embodiment_cfg", "perturb", "randomize")
-#: the event kinds that are direct calls of the agent, in the order it made them
-DIRECT = ("call", "call_refused")
 FORKS_FILE = "forks.jsonl"  # in the parent: one line per fork made of it (best effort)
 
 
@@ -179,27 +181,18 @@ def _same_state(a: dict, b: dict) -> bool:
             == {k: v.get("tcp_pose") for k, v in (b.get("arms") or {}).items()})
 
 
-def play(episode: "Episode", point: ForkPoint, tolerance: float = FORK_TOLERANCE_M) -> dict:
-    """Re-execute the parent's calls up to ``point.at`` in ``episode`` (just set up), check the
-    world against the parent's records, and carry the parent's wall-clock spend over. Returns the
-    ``fork`` event's fields. Raises :class:`ForkDiverged` when the world differs."""
-    t0 = time.monotonic()
-    rec = episode.recorder
-    rec.tags = {"fork_prefix": True}
-    try:
-        for tool, args in point.calls():
-            try:
-                episode.call(tool, args)
-            except AttemptEnded:
-                break
-    finally:
-        rec.tags = {}
+def compare_prefix(point: ForkPoint, made: list[dict], snapshots: list[dict], charged: int,
+                   tolerance: float = FORK_TOLERANCE_M) -> dict:
+    """Compare a prefix made again with the parent's records of it: ``made``, the events the
+    re-execution recorded (those marked ``fork_prefix``), ``snapshots``, the privileged snapshots it
+    took, ``charged``, the charged calls it made. Returns the comparison's fields of the ``fork``
+    event (``snapshots_compared``, ``exact``, ``max_tcp_error_m``, ``max_object_error_m``); raises
+    :class:`ForkDiverged` naming the first differences when the world is not the parent's."""
     problems: list[str] = []
-    if episode.server.calls != point.at:
-        problems.append(f"{episode.server.calls} charged calls made again, {point.at} asked for")
-    mine = [e for e in read_jsonl(episode.out / "events.jsonl") if e.get("fork_prefix")]
+    if charged != point.at:
+        problems.append(f"{charged} charged calls made again, {point.at} asked for")
     theirs = [e for e in point.events if e.get("kind") in DIRECT + ("internal_call",)]
-    ours = [e for e in mine if e.get("kind") in DIRECT + ("internal_call",)]
+    ours = [e for e in made if e.get("kind") in DIRECT + ("internal_call",)]
     if len(ours) != len(theirs):
         problems.append(f"{len(theirs)} calls in the parent's prefix, {len(ours)} made again")
     for i, (x, y) in enumerate(zip(theirs, ours)):
@@ -207,32 +200,24 @@ def play(episode: "Episode", point: ForkPoint, tolerance: float = FORK_TOLERANCE
             if x.get(key) != y.get(key):
                 problems.append(f"call {i + 1} ({x.get('tool')}): {key} {x.get(key)!r} in the parent, {y.get(key)!r} now")
                 break
-    snaps = read_jsonl(episode.out / "privileged" / "snapshots.jsonl")
     max_tcp = max_obj = 0.0
-    if len(snaps) != len(point.snapshots) and point.snapshots:
-        problems.append(f"{len(point.snapshots)} snapshots in the parent's prefix, {len(snaps)} now")
-    for x, y in zip(point.snapshots, snaps):
+    if len(snapshots) != len(point.snapshots) and point.snapshots:
+        problems.append(f"{len(point.snapshots)} snapshots in the parent's prefix, {len(snapshots)} now")
+    for x, y in zip(point.snapshots, snapshots):
         tcp, obj, missing = snapshot_deviation(x, y)
         max_tcp, max_obj = max(max_tcp, tcp), max(max_obj, obj)
         problems += [f"snapshot {x.get('label')}: {m} missing now" for m in missing]
     if max_tcp > tolerance or max_obj > tolerance:
         problems.append(f"the world is {1000 * max(max_tcp, max_obj):.1f} mm from the parent's "
                         f"(tolerance {1000 * tolerance:g} mm)")
-    exact = bool(point.snapshots) and len(snaps) >= len(point.snapshots) and all(
-        _same_state(x, y) for x, y in zip(point.snapshots, snaps))
+    exact = bool(point.snapshots) and len(snapshots) >= len(point.snapshots) and all(
+        _same_state(x, y) for x, y in zip(point.snapshots, snapshots))
     if problems:
         raise ForkDiverged(f"fork of {point.parent.name} at call {point.at}: the re-executed prefix differs "
                            f"from the parent's records: {'; '.join(problems[:5])}"
                            + (f" (and {len(problems) - 5} more)" if len(problems) > 5 else ""))
-    episode.ledger.carry_wall(point.wall_seconds)
-    fields = {**point.as_record(episode.out), "calls_made_again": len(point.calls()),
-              "snapshots_compared": min(len(snaps), len(point.snapshots)), "exact": exact,
-              "max_tcp_error_m": round(max_tcp, 6), "max_object_error_m": round(max_obj, 6),
-              "parent_wall_seconds": point.wall_seconds, "prefix_seconds": round(time.monotonic() - t0, 3),
-              "lineage": point.lineage}
-    rec.event("fork", **fields)
-    link_parent(point, episode.out)
-    return fields
+    return {"snapshots_compared": min(len(snapshots), len(point.snapshots)), "exact": exact,
+            "max_tcp_error_m": round(max_tcp, 6), "max_object_error_m": round(max_obj, 6)}
 
 
 def link_parent(point: ForkPoint, child: Path) -> bool:
@@ -244,106 +229,3 @@ def link_parent(point: ForkPoint, child: Path) -> bool:
         return True
     except OSError:
         return False
-
-
-def forks_of(attempt_dir: Path) -> list[dict]:
-    """The forks made of an attempt (its ``forks.jsonl``): ``{"child": relative path, "at": K}``,
-    those whose records still exist."""
-    p = Path(attempt_dir) / FORKS_FILE
-    if not p.is_file():  # none, or not a file the viewer can read
-        return []
-    return [f for f in read_jsonl(p) if isinstance(f.get("child"), str) and (Path(attempt_dir) / f["child"]).is_dir()]
-
-
-#: the event a harness records when it rebuilds a fork's conversation from its parent's records;
-#: its ``model_turns`` give the prefix's turns to :func:`transcript` when this fork is forked again
-REBUILT = "conversation_rebuilt"
-
-
-def transcript(events: list[dict]) -> list[dict]:
-    """The conversation an agent had up to the fork point, from the parent's events: turns of
-    ``{"text", "calls": [{"call_id", "name", "arguments", "raw_arguments", "result", "obs_ids",
-    "status", "made"}]}``, in order.
-
-    A parent played by a reference-harness model gives its model turns with the calls the model
-    asked for and their recorded results. ``arguments`` are the model's (None when it sent
-    malformed JSON, ``raw_arguments`` then its text: the call itself was made with the harness's
-    stand-in). A call cancelled because an earlier action of its turn aborted is kept with ``made``
-    False (no result): the model asked for it and was told it was cancelled. The turn of the fork
-    point is cut there: the calls the model asked for after it are left out (not the cancelled
-    ones: they were cancelled whatever came next).
-
-    The calls no model turn accounts for give one turn each (``call_0001``...): those of a parent
-    played by a model-free agent, an MCP client or a script, and the re-executed prefix of a parent
-    that was itself a fork, unless its harness recorded the prefix's turns it rebuilt (a
-    ``conversation_rebuilt`` event's ``model_turns``): a fork of a fork then has the first parent's
-    turns as well."""
-    calls = [e for e in events if e.get("kind") in DIRECT]
-    prefix = [e for e in calls if e.get("fork_prefix")]
-    own = calls[len(prefix):]
-    rebuilt = next((e.get("model_turns") for e in events if e.get("kind") == REBUILT), None)
-    model = [e for e in events if e.get("kind") == "model_turn"]
-
-    def one_each(made: list[dict], first: int) -> list[dict]:
-        return [{"text": "", "tool_calls": [{"call_id": f"call_{first + i + 1:04d}", "name": e.get("tool")}]}
-                for i, e in enumerate(made)]  # no "arguments": the call's own are the agent's
-
-    asked = ((rebuilt if prefix and isinstance(rebuilt, list) else one_each(prefix, 0))
-             + (model if model else one_each(own, len(prefix))))
-
-    def turn_call(asked_for: dict, e: dict | None) -> dict:
-        """One call of a turn: as the model asked for it, with the parent's record of it (``e``;
-        None: it was cancelled)."""
-        rec = e or {}
-        result = rec.get("result") if isinstance(rec.get("result"), dict) else {"result": rec.get("result")}
-        return {"call_id": str(asked_for.get("call_id")), "name": str(asked_for.get("name")),
-                "arguments": asked_for["arguments"] if "arguments" in asked_for else rec.get("arguments") or {},
-                "raw_arguments": asked_for.get("raw_arguments") or "", "result": None if e is None else result,
-                "obs_ids": list(rec.get("obs_ids") or []), "status": rec.get("status"), "made": e is not None}
-
-    out: list[dict] = []
-    queue, turns = list(calls), iter(asked)
-    while queue:
-        t = next(turns, None)
-        if t is None:  # a call no turn accounts for (records that lack a model turn): none is lost
-            t = one_each(queue[:1], len(calls) - len(queue))[0]
-        done: list[dict] = []
-        aborted = False
-        for c in t.get("tool_calls") or []:
-            if aborted:  # cancelled, in the parent as in the harness that rebuilds it
-                done.append(turn_call(c, None))
-            elif queue and queue[0].get("tool") == c.get("name"):
-                e = queue.pop(0)
-                done.append(turn_call(c, e))
-                aborted = e.get("status") == "ABORTED"
-            else:  # not made: the fork point (or the attempt's end) came first; nor any after it
-                break
-        out.append({"text": t.get("text") or "", "calls": done})
-    return out
-
-
-BUDGET_ENDINGS = ("tool_budget", "sim_budget", "wall_budget")
-
-
-def recovery(attempt_dir: Path) -> dict:
-    """How an attempt ended, as a recovery (a fork played by a stage-aware reference solution):
-    ``outcome`` "recovered" (the task succeeded), "not_recoverable" (with ``kind`` and ``reason``:
-    what the solution reported, or a budget that ran out) or "unexplained" (it failed and gave no
-    reason: a defect of the reference solution). The verdict decides: a fork whose solution said
-    "not recoverable" while the verifier judged the task solved (an event verifier latched before the
-    fork point, say) is "recovered", with what the solution said under ``oracle_said`` so that the
-    solution's mistaken stage check can be found."""
-    d = Path(attempt_dir)
-    result = read_json_object(d / "result.json")
-    term = result.get("termination") or {}
-    said = [e for e in read_jsonl(d / "events.jsonl") if e.get("kind") == "oracle_not_recoverable"]
-    if (result.get("verdict") or {}).get("success"):
-        out = {"outcome": "recovered", "kind": None, "reason": None}
-        if said:
-            out["oracle_said"] = {"kind": said[-1].get("reason_kind"), "reason": said[-1].get("reason")}
-        return out
-    if said:
-        return {"outcome": "not_recoverable", "kind": said[-1].get("reason_kind"), "reason": said[-1].get("reason")}
-    if term.get("reason") in BUDGET_ENDINGS:
-        return {"outcome": "not_recoverable", "kind": "budget", "reason": term.get("detail") or term.get("reason")}
-    return {"outcome": "unexplained", "kind": term.get("reason"), "reason": term.get("detail")}

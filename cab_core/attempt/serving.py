@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import time
 import traceback
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
 from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.faults import is_infrastructure_fault, tool_error_payload
+from cab_core.contracts.harness import ToolResponse
 from cab_core.errors import AttemptEnded, BudgetExhausted, ObservationUnavailable, ToolArgumentError
 from cab_core.sandbox.truncate import strict_payload
 from cab_core.tools import validate_args
@@ -18,16 +18,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from cab_core.attempt.recording import Recorder
     from cab_core.attempt.spec import AttemptSpec
     from cab_core.tools.context import RobotContext
-
-
-@dataclass
-class ToolResponse:
-    """What an agent gets back from one call."""
-    name: str
-    payload: dict
-    obs_ids: list[str]
-    ended: bool = False
-    status: str | None = None
 
 
 class StepClock:

@@ -9,10 +9,17 @@ attempt, and calls :meth:`Harness.run` with the running attempt seen as an :clas
 :class:`AttemptSession`; a model-free agent of the core's ``direct`` harness (hook ``cab_agents``)
 is a :class:`ModelFreeAgent` and gets the same session.
 
-Protocols only: nothing here runs, and this module imports nothing of cab at run time.
+The types the protocol names are this module's own: :class:`ToolResponse` (what a call returns),
+:class:`SessionSpec` (the attempt's settings a harness reads; the engine's
+:class:`cab_core.attempt.spec.AttemptSpec` has them) and :class:`ForkOrigin` (where a fork started;
+:class:`cab_core.attempt.fork.ForkPoint` is one), so nothing here points up into the engine.
+
+Protocols and one plain dataclass: nothing here runs, and this module imports nothing of cab at run
+time.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -20,11 +27,58 @@ if TYPE_CHECKING:  # pragma: no cover
 
     import numpy as np
 
-    from cab_core.attempt.fork import ForkPoint
-    from cab_core.attempt.serving import ToolResponse
-    from cab_core.attempt.spec import AttemptSpec
     from cab_core.contracts.task import Task
     from cab_core.contracts.verifier import WorldView
+
+
+@dataclass
+class ToolResponse:
+    """What an agent gets back from one call."""
+    name: str
+    payload: dict
+    obs_ids: list[str]
+    ended: bool = False
+    status: str | None = None
+
+
+@runtime_checkable
+class SessionSpec(Protocol):
+    """The resolved attempt, as far as a harness reads it (``session.spec``)."""
+
+    #: the task's name, the seed of its instance and the attempt's number at that seed
+    task: str
+    seed: int
+    attempt: int
+    #: the simulator's name
+    sim: str
+    #: the model's configuration name (``model=``), and its configuration (``model.*``)
+    model: str
+    model_cfg: dict
+    #: the harness's name
+    harness: str
+    #: the attempt's record directory
+    output_dir: Path
+    #: the tool-call and simulated-time budgets
+    budget_tool_calls: int
+    budget_sim_seconds: float
+    #: how many robot calls one ``run_code`` may make
+    run_code_max_internal_calls: int
+    #: the sandbox's settings (``sandbox.*``)
+    sandbox: dict
+
+
+@runtime_checkable
+class ForkOrigin(Protocol):
+    """Where a fork started: the parent's records up to and including its charged call ``at``."""
+
+    #: the parent's attempt directory
+    parent: Path
+    #: the parent's charged call the fork starts after
+    at: int
+    #: the parent's resolved configuration (its ``attempt_start`` event's ``config``)
+    config: dict
+    #: the parent's events up to and including charged call ``at``
+    events: list[dict]
 
 
 @runtime_checkable
@@ -76,7 +130,7 @@ class AttemptSession(Protocol):
     #: the attempt, fully resolved (task, seed, budgets, model config, sandbox settings...); read
     #: only, except ``spec.model``, which a harness that learns who played (an MCP client naming
     #: itself) may set before the attempt finishes
-    spec: AttemptSpec
+    spec: SessionSpec
     #: the attempt's record directory (a harness keeps its own logs there)
     out: Path
     #: True once the attempt has ended (an ending call, a spent budget, :meth:`end`)
@@ -100,8 +154,8 @@ class AttemptSession(Protocol):
     #: parent's first ``fork.at`` charged calls have been made again when :meth:`Harness.run` is
     #: called (the world is the parent's then, its observations re-taken under the same ids, so
     #: :meth:`image` shows them); a harness may rebuild its agent's context from ``fork.events``,
-    #: the parent's records up to there (:func:`cab_core.attempt.fork.transcript`)
-    fork: ForkPoint | None
+    #: the parent's records up to there (:func:`cab_core.kits.harness.conversation.transcript`)
+    fork: ForkOrigin | None
 
     @property
     def instruction(self) -> str:
@@ -153,7 +207,7 @@ class HarnessHooks(Protocol):
         simulator starts; raise :class:`cab_core.errors.ConfigError` naming what is missing."""
         ...
 
-    def before_build(self, spec: AttemptSpec) -> None:
+    def before_build(self, spec: SessionSpec) -> None:
         """Called with the attempt's spec after ``preflight`` and before the world is built (a server
         can start answering its client meanwhile)."""
         ...

@@ -419,7 +419,7 @@ def run_one(config: dict, out: str, settings) -> dict:
                 "error": f"infrastructure failure: {r['termination'].get('detail')}"}
     ck = r.get("checkpoints") or {}
     if "fork_at" in row:
-        from cab_core.attempt.fork import recovery
+        from cab_core.attempt.records.recovery import recovery
 
         row.update(recovery(Path(out)))
     return {

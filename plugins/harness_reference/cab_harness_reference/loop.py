@@ -12,7 +12,7 @@ import time
 from typing import TYPE_CHECKING
 
 from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
-from cab_core.attempt.fork import REBUILT, transcript
+from cab_core.kits.harness.conversation import REBUILT, transcript
 from cab_core.attempt.pricing import cost, usage_dict
 from cab_core.attempt.serving import ToolResponse
 from cab_core.errors import AttemptEnded, CabError, ConfigError
@@ -199,7 +199,7 @@ class ReferenceHarness:
         """A fork goes on from the conversation its parent's model had up to the fork point, not
         from the instruction alone: what the model asked for and was told must match the world the
         fork starts in, or it would act on a history it never saw. The turns come from the parent's
-        records (:func:`cab_core.attempt.fork.transcript`); their results are built by the same code
+        records (:func:`cab_core.kits.harness.conversation.transcript`); their results are built by the same code
         as live ones (:meth:`_run_calls`) from the recorded payloads and the observations the fork
         took again under the same ids, so the model sees them as it saw them then. Reasoning is not
         replayed: providers accept it only with the opaque token of the response it came from,
