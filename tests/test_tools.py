@@ -6,11 +6,9 @@ import json
 import math
 import sys
 import typing
-from importlib import resources
 
 import numpy as np
 import pytest
-import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
@@ -21,34 +19,37 @@ from cab_core.tools.context import ObservationStore, RobotContext
 from cab_core.contracts.simulator import Contact
 from cab_core.tools import CATALOG as DECLARED, DONE, RUN_CODE, TOOLS, build_registry, schemas, validate_args
 from cab_core.tools import estimate, motion, observe
+from cab_core.tools import models as m
 from cab_core.tools.registry import ToolDef, tool
 
-# -- the catalog ---------------------------------------------------------------------------------
-CATALOG = yaml.safe_load(resources.files("cab_suite_codeaction").joinpath("data/catalog.yaml").read_text())
-CATALOG_TOOLS = [t for t in CATALOG["tools"] if t["name"] not in ("run_code", "done")]
-PHYSICS = {"capture_motion_pair", "move_delta", "move_both_delta", "reach_tcp", "reach_both_tcp",
-           "probe_contact_along", "set_gripper"}
+# -- the tool list ---------------------------------------------------------------------------------
+# The core's list (tools/__init__.py CATALOG) is the registry's source; the suite's tests compare
+# their catalog with it (plugins/suite_codeaction/tests/test_catalog_tools.py).
+HOST_TOOLS = [RUN_CODE.name, DONE.name]  # served by the episode host: no handler
+ROBOT_TOOLS = [n for n in TOOLS if n not in HOST_TOOLS]
 
 
-def test_registry_has_exactly_the_catalog_tools_in_order():
-    assert len(CATALOG_TOOLS) == 29
-    assert list(TOOLS) == [t["name"] for t in CATALOG["tools"]]
-    assert list(TOOLS)[-2:] == ["run_code", "done"]
+def test_registry_is_the_core_tool_list_in_order():
+    assert list(TOOLS) == [e.name if isinstance(e, ToolDef) else e.__name__ for e in DECLARED]
+    assert len(TOOLS) == len(DECLARED) == len(ROBOT_TOOLS) + 2
+    assert list(TOOLS)[-2:] == HOST_TOOLS
 
 
-@pytest.mark.parametrize("entry", CATALOG["tools"], ids=lambda e: e["name"])
-def test_flags_follow_the_catalog(entry):
-    t = TOOLS[entry["name"]]
-    group = {"termination": "control"}.get(entry["group"], entry["group"])
-    assert t.group == group
-    assert t.advances_physics == (t.name in PHYSICS)
-    assert t.charged == (t.name != "done")
-    if t.name in PHYSICS:
+@pytest.mark.parametrize("name", list(TOOLS))
+def test_flags_follow_the_kind_and_group(name):
+    t = TOOLS[name]
+    assert t.charged == (t.kind != "done")
+    assert t.advances_physics == (t.kind == "act")
+    if t.group == "motion":  # every motion tool acts (consumes simulated time)
+        assert t.advances_physics
+    if t.advances_physics:
         assert t.destructive and not t.read_only
-    elif group in ("observation", "geometry"):
+    elif t.group in ("observation", "geometry"):
         assert t.read_only and not t.destructive
-    if t.name in ("run_code", "done"):  # served by the episode host
-        assert t.handler is None
+    if t.renders:  # a fresh image: an observation tool, or a geometry tool that captures one
+        assert t.group in ("observation", "geometry") and t.result is not None
+    if name in HOST_TOOLS:  # served by the episode host
+        assert t.handler is None and t.kind in ("code", "done")
     else:
         assert t.handler.__name__ == t.name and t.handler.tool_def is t
 
@@ -111,6 +112,18 @@ def test_each_tool_is_declared_once_next_to_its_handler():
     declared = {f.__name__ for mod in (observe, estimate, motion) for f in vars(mod).values()
                 if callable(f) and isinstance(getattr(f, "tool_def", None), ToolDef)}
     assert declared == {h.__name__ for h in handlers}  # no declared handler left out of the catalog
+
+
+def test_each_tools_models_sit_beside_its_handler():
+    """A tool's argument model is defined in its handler's module, and so is its result model unless
+    several modules share it (tools/models.py); run_code's and done's beside their declarations."""
+    for name in ROBOT_TOOLS:
+        t = TOOLS[name]
+        assert t.args.__module__ == t.handler.__module__, name
+        if t.result is not None:
+            assert t.result.__module__ in (t.handler.__module__, m.__name__), name
+    for t in (RUN_CODE, DONE):
+        assert t.args.__module__ == t.result.__module__ == "cab_core.tools"
 
 
 def test_a_handlers_argument_model_is_the_annotation_of_its_args_parameter():
