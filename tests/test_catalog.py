@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from cab_suite_codeaction import catalog
+from cab_suite_codeaction.tasks import TASK_MODULES
 from cab_core.errors import ConfigError
 from cab_core.contracts.task import TaskInfo
 
@@ -20,10 +21,10 @@ def test_packaged_copy_equals_shared_spec():
     assert PACKAGED.read_bytes() == SHARED.read_bytes(), "cab_suite_codeaction/data/catalog.yaml drifted from shared/spec"
 
 
-def test_25_unique_tasks():
+def test_the_catalog_names_each_task_module_once():
     names = catalog.task_names()
-    assert len(names) == 25
-    assert len(set(names)) == 25
+    assert len(names) == len(set(names))
+    assert sorted(names) == sorted(TASK_MODULES)
 
 
 @pytest.mark.parametrize("name", catalog.task_names())
@@ -78,8 +79,9 @@ def test_unknown_task_lists_choices():
 
 def test_load_catalog_returns_a_copy():
     a = catalog.load_catalog()
+    n = len(a["tasks"])
     a["tasks"].clear()
-    assert len(catalog.load_catalog()["tasks"]) == 25
+    assert len(catalog.load_catalog()["tasks"]) == n > 0
 
 
 def test_core_lookups_come_from_the_installed_suite():

@@ -85,7 +85,7 @@ def test_every_installed_task_has_a_generated_task_option():
     from hydra.core.config_store import ConfigStore
 
     names = plugins.task_names()
-    assert len(names) == 25
+    assert names and len(names) == len(set(names))
     _compose()
     stored = ConfigStore.instance().repo["task"]
     for name in names:

@@ -1,8 +1,8 @@
 """Property-based fuzzing of every tool (issue 12, item 3): the call contract holds for any arguments.
 
 One MuJoCo attempt per module serves the cases (``done``'s refusals get their own attempt, since a
-wrongly accepted ``done`` ends its attempt). For each of the 31 tools, hypothesis draws arguments of
-four kinds, from the tool's own JSON schema (``TOOLS[name].json_schema()``):
+wrongly accepted ``done`` ends its attempt). For each tool of the registry, hypothesis draws arguments
+of four kinds, from the tool's own JSON schema (``TOOLS[name].json_schema()``):
 
 * ``valid``: hypothesis-jsonschema's ``from_schema``; an ``obs_id``/``pair_id`` is a live id of the
   attempt, the newest one, a well-formed id that does not exist, or the schema's random string;
@@ -13,7 +13,7 @@ four kinds, from the tool's own JSON schema (``TOOLS[name].json_schema()``):
 * ``structure``: an unknown field (one or 300), a required field dropped, or arguments that are not
   an object (a list, a string, a number, a boolean, null).
 
-Each case is sent directly (``Episode.call``) and, for the 29 robot tools, from ``run_code``: many
+Each case is sent directly (``Episode.call``) and, for every robot tool, from ``run_code``: many
 cases per program, each call guarded so one failure does not stop the batch, the kwargs written as
 Python literals (``float('nan')``, ``'x' * 1000000``). Every answer must satisfy the contract:
 
@@ -75,7 +75,7 @@ from cab_core.tools import TOOLS, validate_args  # noqa: E402
 ROBOT_TOOLS = [n for n in TOOLS if n not in ("run_code", "done")]
 MOTION = {n for n, t in TOOLS.items() if t.advances_physics}
 ACTIONS = MOTION - {"capture_motion_pair"}  # their successes are ActionResults with a status
-RENDERS = {"get_world_frame", "capture_head", "capture_wrist", "capture_evidence_views", "scale_from_gripper"}
+RENDERS = {n for n, t in TOOLS.items() if t.renders}
 ESTIMATE_KINDS = {"pixel_point", "ray", "world_point", "depth"}
 ID_FIELDS = ("obs_id", "pair_id")
 

