@@ -50,14 +50,11 @@ def extend_search_path(search_path: Any) -> None:
 def register_task_configs(search_path: Any) -> list[str]:
     """An option ``task/<name>`` (``{name: <name>}``) in Hydra's ConfigStore for every installed task
     that no config dir on ``search_path`` ships a yaml for; returns the names registered."""
-    from hydra._internal.config_repository import ConfigRepository
     from hydra.core.config_store import ConfigStore
-    from hydra.core.object_type import ObjectType
 
     from cab_core.plugins import task_names
 
-    files = ConfigRepository(config_search_path=search_path)  # the file sources only: ConfigStore comes after
-    shipped = set(files.get_group_options("task", ObjectType.CONFIG)) if files.group_exists("task") else set()
+    shipped = {name for e in search_path.get_path() for name in shipped_options(e.path, "task")}
     store = ConfigStore.instance()
     names = [n for n in task_names() if n not in shipped]
     group = store.repo.get("task", {})
@@ -66,6 +63,27 @@ def register_task_configs(search_path: Any) -> list[str]:
     for name in names:
         store.store(group="task", name=name, node={"name": name}, provider="cab")
     return names
+
+
+def shipped_options(path: str, group: str) -> list[str]:
+    """The options of ``group`` that the config dir ``path`` of a search path entry ships as yaml
+    files (``file://<dir>`` or ``pkg://<module>``; a module that is not installed ships none, as
+    Hydra finds none there; ConfigStore's ``structured://`` is not a config dir)."""
+    import importlib.resources
+    from pathlib import Path
+
+    if path.startswith("file://"):
+        folder: Any = Path(path[len("file://"):]) / group
+    elif path.startswith("pkg://"):
+        try:
+            folder = importlib.resources.files(path[len("pkg://"):].replace("/", ".")).joinpath(group)
+        except (ImportError, TypeError):  # not installed, or not a package
+            return []
+    else:
+        return []
+    if not folder.is_dir():
+        return []
+    return sorted(p.name[:-len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml") and p.is_file())
 
 
 DEFAULT_GROUPS = ("sim", "embodiment", "planner")

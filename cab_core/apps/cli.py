@@ -3,6 +3,7 @@ Only this module talks to a person."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 from hydra.experimental.callback import Callback
@@ -28,13 +29,36 @@ def wants_stdio_protocol(argv: list[str]) -> bool:
     return bool(getattr(registry("harnesses").get(sel[-1]), "speaks_on_stdio", False))
 
 
-# Set while Hydra prepares a single run: HYDRA_FULL_ERROR makes Hydra raise what fails before the
-# task function starts (e.g. an output folder that cannot be created) instead of printing its
-# traceback, so that main() can say it in one line. The task function restores the variable (the
-# attempt's child processes see the user's value) first thing.
-_HYDRA_FULL_ERROR_BY_CAB = False
-_HYDRA_FULL_ERROR_BEFORE: str | None = None
-_TASK_STARTED = False
+class HydraRaises:
+    """``with HydraRaises():`` sets HYDRA_FULL_ERROR=1, which makes Hydra raise what fails before the
+    task function starts (e.g. an output folder that cannot be created) instead of printing its
+    traceback, so that the caller can say it in one line; the user's value comes back on leaving,
+    or earlier with :meth:`release` (a single run's task function releases it first thing: the
+    attempt's child processes see the user's value). ``task_started``: the task function ran."""
+
+    VARIABLE = "HYDRA_FULL_ERROR"
+
+    def __init__(self) -> None:
+        self.before: str | None = None
+        self.held = False
+        self.task_started = False
+
+    def __enter__(self) -> HydraRaises:
+        self.before = os.environ.get(self.VARIABLE)
+        os.environ[self.VARIABLE] = "1"
+        self.held = True
+        return self
+
+    def release(self) -> None:
+        if self.held:
+            if self.before is None:
+                os.environ.pop(self.VARIABLE, None)
+            else:
+                os.environ[self.VARIABLE] = self.before
+            self.held = False
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 def _refuse(message: str, status: int = 2) -> None:
@@ -48,7 +72,7 @@ def _before_task(e: Exception) -> str | None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from cab_core.apps.cmdline import one_line
+    from cab_core.conf.schema import one_line
 
     if isinstance(e, OSError) and e.filename:
         return f"cannot create the output folder {e.filename} (hydra.run.dir): {e.strerror or e}"
@@ -82,9 +106,6 @@ def version_lines() -> list[str]:
 def main() -> None:
     """``cab``: a command-line mistake is one line on stderr and exit status 2, before Hydra
     composes, creates a folder or starts anything (cab_core.apps.cmdline)."""
-    global _HYDRA_FULL_ERROR_BY_CAB, _HYDRA_FULL_ERROR_BEFORE
-    import os
-
     from cab_core.apps.cmdline import check_command_line, expand_seed_set
     from cab_core.errors import ConfigError, PluginError
 
@@ -111,18 +132,14 @@ def main() -> None:
             return
         _sweep_entry()
         return
-    _HYDRA_FULL_ERROR_BEFORE = os.environ.get("HYDRA_FULL_ERROR")
-    os.environ["HYDRA_FULL_ERROR"] = "1"
-    _HYDRA_FULL_ERROR_BY_CAB = True
-    try:
-        _hydra_entry()
-    except Exception as e:
-        line = None if _TASK_STARTED else _before_task(e)
-        if line is None:
-            raise
-        _refuse(line)
-    finally:
-        _restore_hydra_full_error()
+    with HydraRaises() as raises:
+        try:
+            _hydra_entry(raises)
+        except Exception as e:
+            line = None if raises.task_started else _before_task(e)
+            if line is None:
+                raise
+            _refuse(line)
 
 
 _SWEEP_DIR: str | None = None  # the sweep's folder, once its manifest is open
@@ -143,53 +160,33 @@ def _sweep_entry() -> None:
     line (a job's records are the supervisor's to write; Hydra's own writes for the next job, its
     .hydra/ files and log, fail here: HYDRA_FULL_ERROR makes Hydra raise them instead of printing
     a traceback); any other error keeps its traceback."""
-    import os
-
-    before = os.environ.get("HYDRA_FULL_ERROR")
-    os.environ["HYDRA_FULL_ERROR"] = "1"
-    try:
-        _hydra_entry()
-    except Exception as e:
-        full = _full_disk(e)
-        if full is None:
-            raise
-        where = full.filename or (f"in the sweep folder {_SWEEP_DIR}" if _SWEEP_DIR else "in the sweep folder")
-        _refuse(f"cannot write {where}: {full.strerror}; finished attempts are kept: "
-                "free space, then run the same command again to resume", status=1)
-    finally:
-        if before is None:
-            os.environ.pop("HYDRA_FULL_ERROR", None)
-        else:
-            os.environ["HYDRA_FULL_ERROR"] = before
+    with HydraRaises():  # held for the whole sweep: its jobs too
+        try:
+            _hydra_entry()
+        except Exception as e:
+            full = _full_disk(e)
+            if full is None:
+                raise
+            where = full.filename or (f"in the sweep folder {_SWEEP_DIR}" if _SWEEP_DIR else "in the sweep folder")
+            _refuse(f"cannot write {where}: {full.strerror}; finished attempts are kept: "
+                    "free space, then run the same command again to resume", status=1)
 
 
-def _restore_hydra_full_error() -> None:
-    global _HYDRA_FULL_ERROR_BY_CAB
-    import os
-
-    if _HYDRA_FULL_ERROR_BY_CAB:
-        if _HYDRA_FULL_ERROR_BEFORE is None:
-            os.environ.pop("HYDRA_FULL_ERROR", None)
-        else:
-            os.environ["HYDRA_FULL_ERROR"] = _HYDRA_FULL_ERROR_BEFORE
-        _HYDRA_FULL_ERROR_BY_CAB = False
-
-
-def _hydra_entry() -> None:
+def _hydra_entry(raises: HydraRaises | None = None) -> None:
+    """Hydra's app; ``raises``: a single run's :class:`HydraRaises`, released when the task function starts."""
     import hydra
 
     @hydra.main(version_base=None, config_path="../conf", config_name="config")
     def _app(cfg) -> None:
-        global _TASK_STARTED
-
-        _TASK_STARTED = True
-        _restore_hydra_full_error()  # from here on, Hydra reports failures itself; children see the user's value
+        if raises is not None:
+            raises.task_started = True
+            raises.release()  # from here on, Hydra reports failures itself; children see the user's value
 
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
 
-        from cab_core.errors import CabError, ConfigError, MissingDependency, RendererUnavailable
         from cab_core.attempt.runner import attempt_spec, run_attempt
+        from cab_core.errors import CabError, ConfigError, MissingDependency, RendererUnavailable
 
         hc = HydraConfig.get()
         out = hc.runtime.output_dir
@@ -243,7 +240,6 @@ class RunFolderCallback(Callback):
 
     def on_run_start(self, config, **kwargs) -> None:
         global _RUN_FOLDER
-        import os
         import tempfile
 
         from omegaconf import OmegaConf
@@ -261,14 +257,12 @@ class RunFolderCallback(Callback):
                 with tempfile.TemporaryFile(dir=folder):
                     pass
             except OSError as e:
-                _restore_hydra_full_error()
                 _refuse(f"cannot write in the output folder {folder} (hydra.run.dir): {e.strerror or e}")
 
 
 def _remove_refused_run_folder(out: str) -> None:
     """After a refusal before the attempt's record began: remove what Hydra created for the run
     (its job log, its ``.hydra`` folder, the folder and the parents it made), nothing else."""
-    import os
     import shutil
     from pathlib import Path
 
@@ -303,8 +297,8 @@ class SweepManifestCallback(Callback):
     exceptions into warnings, so a refusal ends the process here, with the reason on stderr."""
 
     def on_multirun_start(self, config, **kwargs) -> None:
-        from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest
         from cab_core.sweep.layout import SweepJobsCollide
+        from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest
 
         global _SWEEP_DIR
         try:

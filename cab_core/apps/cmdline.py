@@ -1,45 +1,41 @@
-"""Checks of a ``cab`` command line before Hydra composes or launches anything.
+"""Checks of a ``cab`` command line before Hydra composes or launches anything, and their one line.
 
 Hydra reports a misspelled option or key in several lines and exit status 1, and a key added with
 ``+`` (``+budget.tool_calsl=5``) is composed and then ignored. :func:`check_command_line` refuses
 such mistakes with a :class:`~cab_core.errors.ConfigError` of one line naming the closest valid
 names, for a single run and for every job of a sweep alike (before a sweep directory or an attempt
-directory exists). It reads the config groups and their options from Hydra's own config search path
-(``--config-dir``, ``hydra.searchpath`` and Hydra search-path plugins included).
+directory exists). The config groups and their options come from Hydra's own config search path
+(``--config-dir``, ``hydra.searchpath`` and Hydra search-path plugins included), read through
+Hydra's compose API.
 
 What is checked:
 
 * the option of every config group (``task=``, ``sim=``, ``model=``..., each value of a sweep);
-* keys under ``budget``, ``sandbox``, ``record``, ``perturb``, ``sweep`` (the primary config's), ``sim`` and
-  ``harness`` (the selected option's config, for each option a sweep selects), with or without
-  ``+``/``++``; an empty mapping of an option (``sim.physics: {}``) is open: the names in it are
-  the plugin's to check when it is created, before its simulator starts;
-* top-level keys (``+seeds=3`` is refused: ``seed`` exists);
-* budget values: a positive number, or null (the catalog's budget; for
-  ``run_code_max_internal_calls`` the default, 500).
+* cab's own keys and values (``seed``, ``attempt``, ``budget.*``, ``sandbox.*``, ``record.*``,
+  ``perturb.*``, ``fork.*``, ``sweep.*``; top-level keys: ``+seeds=3`` is refused, ``seed``
+  exists), with or without ``+``/``++``: OmegaConf refuses them against the schema
+  (:mod:`cab_core.conf.schema`), every value of a sweep;
+* keys under ``sim`` and ``harness``: those the selected option's config declares (each option a
+  sweep selects); an empty mapping of an option (``sim.physics: {}``) is open: the names in it
+  are the plugin's to check when it is created, before its simulator starts.
 
-Keys under the other groups (``model.*``, ``task.*``...) are not checked here.
+Keys under the other groups (``model.*``, ``task.*``...) are not checked here: they are open.
 """
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import itertools
 import os
+from collections.abc import Iterator
 from typing import Any
 
-from cab_core.attempt.budget import BUDGET_KEYS, check_budget_value
+from cab_core.conf.schema import one_line
 from cab_core.errors import CabError, ConfigError, closest
 
-CHECKED_SECTIONS = ("budget", "sandbox", "record", "perturb", "sweep", "sim", "harness")
 OPTION_SECTIONS = ("sim", "harness")  # their keys are the selected option's
-MAIN_CONFIG_MODULE = "cab_core.apps.cli"  # the module of the Hydra app (its config_path is relative to it)
-MAIN_CONFIG_PATH = "../conf"  # cab_core/conf
-
-
-def one_line(e: BaseException) -> str:
-    lines = [l.strip() for l in str(e).splitlines() if l.strip() and not l.strip().startswith("See https://")]
-    return ": ".join(lines) if lines else type(e).__name__
+CONFIG_MODULE = "cab_core.conf"  # the Hydra app's primary config dir (cab_core.apps.cli: config_path="../conf")
 
 
 def _values(o) -> list:
@@ -103,147 +99,187 @@ def _interpolated(v) -> bool:
     return isinstance(v, str) and "${" in v
 
 
-def _loader(args):
-    """Hydra's config loader over the search path the app uses (as ``hydra._internal.utils._run_hydra``
-    builds it)."""
-    from hydra._internal.config_loader_impl import ConfigLoaderImpl
-    from hydra._internal.utils import create_automatic_config_search_path
-    from hydra.core.config_search_path import SearchPathQuery
-
-    search_path = create_automatic_config_search_path(None, MAIN_CONFIG_MODULE, args.config_path or MAIN_CONFIG_PATH)
-    if args.config_dir is not None:
-        d = os.path.abspath(args.config_dir)
-        if not os.path.isdir(d):
-            raise ConfigError(f"config directory {d} (--config-dir) does not exist")
-        search_path.prepend(provider="command-line", path=f"file://{d}", anchor=SearchPathQuery(provider="schema"))
-    return ConfigLoaderImpl(config_search_path=search_path)
-
-
-def parse_args(argv: list[str]):
-    """Hydra's own reading of the command line, or None where it cannot read it (Hydra then says why)."""
-    from hydra._internal.utils import get_args_parser
-
+def parse_args(argv: list[str]) -> argparse.Namespace | None:
+    """The options of Hydra's command line that decide what the check reads (the others are left to
+    Hydra), or None where the command line cannot be read (Hydra then says why)."""
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("overrides", nargs="*")
+    for flag in ("--help", "-h"), ("--hydra-help",), ("--multirun", "-m"), ("--resolve",), ("--version",):
+        ap.add_argument(*flag, action="store_true")
+    for flag in (("--cfg", "-c"), ("--package", "-p"), ("--shell-completion", "-sc"), ("--config-path", "-cp"),
+                 ("--config-name", "-cn"), ("--config-dir", "-cd"), ("--experimental-rerun",)):
+        ap.add_argument(*flag)
+    ap.add_argument("--run", "-r", action="store_true")
+    ap.add_argument("--info", "-i", nargs="?", const="all")
     with contextlib.redirect_stderr(io.StringIO()):
         try:
-            args, _ = get_args_parser().parse_known_args(argv)
+            args, _ = ap.parse_known_args(argv)
         except SystemExit:
             return None
     return args
 
 
+@contextlib.contextmanager
+def config_loader(args: argparse.Namespace) -> Iterator[Any]:
+    """Hydra's config loader over the search path the app uses (the compose API's)."""
+    from hydra import initialize_config_dir, initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+
+    if args.config_path:
+        here = os.path.dirname(os.path.abspath(__file__))  # the app's config_path is relative to cab_core/apps
+        init = initialize_config_dir(os.path.normpath(os.path.join(here, args.config_path)), job_name="cab",
+                                     version_base=None)
+    else:
+        init = initialize_config_module(CONFIG_MODULE, job_name="cab", version_base=None)
+    with init:
+        yield GlobalHydra.instance().config_loader()
+
+
+def search_path_overrides(args: argparse.Namespace, overrides: list) -> list[str]:
+    """``hydra.searchpath=[...]`` as the command line gives it, with ``--config-dir`` first (Hydra
+    puts both after the app's and the plugins' config dirs)."""
+    paths = [p for o in overrides if o.get_key_element() == "hydra.searchpath" for p in (o.value() or [])]
+    if args.config_dir is not None:
+        d = os.path.abspath(args.config_dir)
+        if not os.path.isdir(d):
+            raise ConfigError(f"config directory {d} (--config-dir) does not exist")
+        paths.insert(0, f"file://{d}")
+    return ["hydra.searchpath=[" + ",".join(repr(str(p)) for p in paths) + "]"] if paths else []
+
+
 def check_command_line(argv: list[str]):
-    """Refuse (ConfigError, one line) an unknown group option, an unknown key or a non-positive
-    budget on this ``cab`` command line. Returns Hydra's parsed arguments (None where Hydra
-    cannot parse them, or nothing is run: ``--help``, ``--info``, shell completion)."""
+    """Refuse (ConfigError, one line) an unknown group option, an unknown key or a value the schema
+    refuses on this ``cab`` command line. Returns the parsed arguments (None where they cannot be
+    parsed, or nothing is run: ``--help``, ``--info``, shell completion)."""
     args = parse_args(argv)
     if args is None or args.help or args.hydra_help or args.info or args.shell_completion:
         return None
-    from hydra.core.object_type import ObjectType
     from hydra.core.override_parser.overrides_parser import OverridesParser
-    from hydra.core.override_parser.types import ValueType
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
     try:
         overrides = OverridesParser.create().parse_overrides(args.overrides)
+        searchpath = search_path_overrides(args, overrides)
+        with config_loader(args) as loader:
+            check = Check(loader, args.config_name or "config", searchpath)
+            choices, keys = check.options(overrides)
+            _check_fork(choices, keys)
+            if keys:
+                check.keys(choices, keys)
     except (HydraException, OmegaConfBaseException) as e:
         raise ConfigError(one_line(e)) from None
-    config_name = args.config_name or "config"
-    loader = _loader(args)
-    searchpath = [o.input_line for o in overrides if o.get_key_element() == "hydra.searchpath"]
-    try:
-        top_groups = {g for g in loader.list_groups("") if g != "hydra"}
-    except (HydraException, OmegaConfBaseException) as e:
-        raise ConfigError(one_line(e)) from None
+    return args
 
-    def is_group(key: str) -> bool:
-        return key in top_groups or ("/" in key and key.split("/")[0] in top_groups)
 
-    choices: dict[str, list[str]] = {}  # group -> the options the command selects (a sweep: several)
-    keys = []
-    for o in overrides:
+class Check:
+    """The checks of one command line over Hydra's config loader."""
+
+    def __init__(self, loader: Any, config_name: str, searchpath: list[str]) -> None:
+        self.loader, self.config_name, self.searchpath = loader, config_name, searchpath
+        self.groups = sorted(g for g in loader.list_groups("") if g != "hydra")
+        self.views: dict[tuple, Any] = {}
+
+    def is_group(self, key: str) -> bool:
+        return key.split("/")[0] in self.groups
+
+    def options(self, overrides: list) -> tuple[dict[str, list[str]], list]:
+        """Each group's options the command selects (several in a sweep), each refused in one line
+        where the group has no such option; and the key overrides."""
+        choices: dict[str, list[str]] = {}
+        keys = []
+        for o in overrides:
+            key = o.key_or_group
+            if o.package is not None or key.startswith("hydra") or o.is_delete():
+                continue
+            if not self.is_group(key):
+                keys.append(o)
+            elif values := self.selected(o):
+                choices[key] = values
+        return choices, keys
+
+    def selected(self, o) -> list[str]:
+        from hydra.core.object_type import ObjectType
+        from hydra.core.override_parser.types import ValueType
+
         key = o.key_or_group
-        if o.package is not None or key.startswith("hydra"):
-            continue
-        if is_group(key):
-            if o.is_delete():
-                continue
-            try:
-                options = loader.get_group_options(key, ObjectType.CONFIG, config_name, searchpath)
-            except (HydraException, OmegaConfBaseException) as e:
-                raise ConfigError(one_line(e)) from None
-            if o.value_type == ValueType.GLOB_CHOICE_SWEEP:  # task=glob(*): the options it matches
-                values = list(o.value().filter(options))
-            else:
-                values = [str(v) for v in _values(o) if v is not None and not _interpolated(v)]
-            if not values:
-                continue
-            for v in values:
-                if v not in options:
-                    if key == "task":  # a name two suites define: say so, not "unknown"
-                        from cab_core.plugins import task_conflict
+        options = self.loader.get_group_options(key, ObjectType.CONFIG, self.config_name, self.searchpath)
+        if o.value_type == ValueType.GLOB_CHOICE_SWEEP:  # task=glob(*): the options it matches
+            return list(o.value().filter(options))
+        values = [str(v) for v in _values(o) if v is not None and not _interpolated(v)]
+        for v in values:
+            if v not in options:
+                raise unknown_option(key, v, options)
+        return values
 
-                        if (conflict := task_conflict(v)) is not None:
-                            raise conflict
-                    near = closest(v, options)
-                    hint = f"did you mean {' or '.join(near)}?" if near else f"valid: {', '.join(options)}"
-                    raise ConfigError(f"unknown {key} {v!r}; {hint}")
-            choices[key] = values
-        elif not o.is_delete():
-            keys.append(o)
-    _check_fork(choices, keys)
-    if not keys:
-        return args
-
-    composed: dict[tuple, dict] = {}
-
-    def base(selection: tuple) -> dict:
-        """The config these group choices compose to, without the key overrides."""
-        if selection not in composed:
+    def view(self, selection: tuple) -> Any:
+        """The typed view (:func:`cab_core.conf.schema.checked_view`) of the config these group
+        choices compose to, without the key overrides; the keys of a selected ``sim`` and ``harness``
+        option closed, an empty mapping in them open."""
+        if selection not in self.views:
             from hydra.types import RunMode
-            from omegaconf import OmegaConf
+            from omegaconf import DictConfig, OmegaConf
+
+            from cab_core.conf.schema import OWN_KEYS, checked_view
 
             picked = [f"{g}={v}" for g, v in selection]
-            try:
-                cfg = loader.load_configuration(config_name, picked + searchpath, RunMode.RUN)
-            except (HydraException, OmegaConfBaseException) as e:
-                raise ConfigError(one_line(e)) from None
+            cfg = self.loader.load_configuration(self.config_name, picked + self.searchpath, RunMode.RUN)
             plain = OmegaConf.to_container(cfg, resolve=False)
             plain.pop("hydra", None)
-            composed[selection] = plain
-        return composed[selection]
+            extra = {k: v for k, v in plain.items() if k not in OWN_KEYS and k not in self.groups}
+            view = checked_view(plain, {**extra, **{g: plain.get(g) for g in self.groups}})
+            for key in [*extra, *self.groups]:
+                if isinstance(view[key], DictConfig):
+                    OmegaConf.set_struct(view[key], key in OPTION_SECTIONS)
+            for key in OPTION_SECTIONS:
+                for node in _mappings(view.get(key))[1:]:
+                    OmegaConf.set_struct(node, bool(node))
+            self.views[selection] = view
+        return self.views[selection]
 
-    others = tuple((g, vs[0]) for g, vs in choices.items() if g not in OPTION_SECTIONS)
-    per_option = [[(g, v) for v in choices[g]] for g in OPTION_SECTIONS if g in choices]
-    selections = [others + combo for combo in itertools.product(*per_option)]
-    for o in keys:
-        parts = o.key_or_group.split(".")
-        top = parts[0]
-        if top in top_groups and top not in OPTION_SECTIONS:
-            continue  # model.*, task.*...: that option's business
-        for sel in selections:
-            cfg = base(sel)
-            if top not in cfg:
-                if top in top_groups:
-                    continue  # a group removed from the defaults
-                valid = [k for k in cfg if k not in top_groups] + sorted(top_groups)
-                near = closest(top, valid)
-                hint = f"did you mean {' or '.join(near)}? " if near else ""
-                raise ConfigError(f"unknown key {top!r}; {hint}valid top-level keys: {', '.join(valid)}")
-            if top in CHECKED_SECTIONS:
-                section = cfg[top]
-                option = section.get("name") if top in OPTION_SECTIONS and isinstance(section, dict) else None
-                _check_path(section, parts, option)
-        _check_settings(o, parts)
-        if top == "budget" and len(parts) == 2 and parts[1] in BUDGET_KEYS:
-            for v in _values(o):
-                if not _interpolated(v):
-                    check_budget_value(parts[1], v)
-        if parts == ["record", "observers"] and not o.is_delete() and not o.is_sweep_override():
-            from cab_core.plugins import select_record_observers as select
+    def keys(self, choices: dict[str, list[str]], keys: list) -> None:
+        """Every value of every key override against the view of every selection a sweep makes of
+        the ``sim`` and ``harness`` options (the other groups: their first option)."""
+        from cab_core.conf.schema import check_value
 
-            select({"observers": o.value()})  # an observer no plugin registers: refused here
-    return args
+        others = tuple((g, vs[0]) for g, vs in choices.items() if g not in OPTION_SECTIONS)
+        per_option = [[(g, v) for v in choices[g]] for g in OPTION_SECTIONS if g in choices]
+        selections = [others + combo for combo in itertools.product(*per_option)]
+        for o in keys:
+            key = o.key_or_group
+            top = key.split(".")[0]
+            if top in self.groups and top not in OPTION_SECTIONS:
+                continue  # model.*, task.*...: open, that option's business
+            for view in map(self.view, selections):
+                if top in OPTION_SECTIONS and view.get(top) is None:
+                    continue  # the group is unset
+                option = view[top].get("name") if top in OPTION_SECTIONS else None
+                for v in _override_values(o):
+                    check_value(view, key, v, option)
+            if key == "record.observers" and not o.is_sweep_override():
+                from cab_core.plugins import select_record_observers
+
+                select_record_observers({"observers": o.value()})  # an observer no plugin registers: refused here
+
+
+def _mappings(node) -> list:
+    """``node`` and every mapping below it."""
+    from omegaconf import DictConfig
+
+    if not isinstance(node, DictConfig):
+        return []
+    return [node] + [m for k in node for m in _mappings(node[k])]
+
+
+def unknown_option(group: str, value: str, options: list[str]) -> ConfigError:
+    if group == "task":  # a name two suites define: say so, not "unknown"
+        from cab_core.plugins import task_conflict
+
+        if (conflict := task_conflict(value)) is not None:
+            return conflict
+    near = closest(value, options)
+    hint = f"did you mean {' or '.join(near)}?" if near else f"valid: {', '.join(options)}"
+    return ConfigError(f"unknown {group} {value!r}; {hint}")
 
 
 def _override_values(o) -> list:
@@ -254,23 +290,6 @@ def _override_values(o) -> list:
         return []
     values = list(o.sweep_iterator()) if o.is_sweep_override() else [o.value()]
     return [v for v in values if not _interpolated(v)]
-
-
-def _check_settings(o, parts: list[str]) -> None:
-    """``seed``, ``attempt``, ``sandbox.*``, ``record.*``: each value of the override against its
-    declared valid values (cab_core.attempt.spec.SETTINGS); one line naming the key and the range."""
-    from cab_core.attempt.spec import SETTINGS
-
-    if len(parts) == 1 and parts[0] in SETTINGS[""].model_fields:
-        for v in _override_values(o):
-            SETTINGS[""].check_value(parts[0], v)
-    elif parts[0] in SETTINGS and parts[0]:
-        model = SETTINGS[parts[0]]
-        for v in _override_values(o):
-            if len(parts) == 2:
-                model.check_value(parts[1], v)
-            elif len(parts) == 1 and isinstance(v, dict):
-                model.check(v)
 
 
 #: what a fork keeps from its parent: groups compared by option name, keys by value
@@ -309,25 +328,3 @@ def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
             raise ConfigError(f"a fork keeps its parent's seed ({parent.get('seed')}); drop seed={o.value()}")
         if top in _FORK_KEPT_SECTIONS:
             raise ConfigError(f"a fork keeps its parent's {top} settings; drop {o.key_or_group}=...")
-
-
-def _check_path(node: Any, parts: list[str], option: str | None) -> None:
-    """``parts`` (``["budget", "tool_calls"]``) must name keys that exist below ``node`` (the
-    section's config). An empty mapping below the section is open (``sim.physics``: the plugin
-    checks its names); a list or a value ends the walk (Hydra refuses what does not fit it)."""
-    for depth in range(1, len(parts)):
-        if not isinstance(node, dict):
-            return
-        name = parts[depth]
-        if name in node:
-            node = node[name]
-            continue
-        if depth > 1 and not node:
-            return
-        where = ".".join(parts[:depth])
-        valid = list(node)
-        near = closest(name, valid)
-        hint = f"did you mean {' or '.join(f'{where}.{n}' for n in near)}? " if near else ""
-        of = f" ({parts[0]}={option})" if option else ""
-        raise ConfigError(f"unknown key {'.'.join(parts)!r}; {hint}valid keys under {where}{of}: "
-                          f"{', '.join(map(str, valid)) or '(none)'}")

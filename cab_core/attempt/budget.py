@@ -7,29 +7,16 @@
 - wall seconds: checked at each dispatch (``wall_budget``); time the host reports as provider
   outage is credited back, capped at one extra wall budget.
 - internal calls: a cap on tool calls inside one run_code program (not charged to the episode).
+
+The values a configuration may give (``budget.*``: positive, or null for the task's catalog budget)
+are the schema's (cab_core.conf.schema.BudgetConfig).
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
-from cab_core.errors import BudgetExhausted, ConfigError
-
-# the keys of ``budget.*`` and their kinds (null: the task's budget from its suite's catalog)
-BUDGET_KEYS = {"tool_calls": int, "sim_seconds": float, "wall_seconds": float, "run_code_max_internal_calls": int}
-
-
-def check_budget_value(key: str, value: Any) -> None:
-    """``budget.<key>`` must be null or positive (an integer for counts; bools refused)."""
-    if value is None:
-        return
-    kind = BUDGET_KEYS[key]
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not number or not value > 0 or (kind is int and not isinstance(value, int)):
-        what = "integer" if kind is int else "number"
-        default = "the default, 500" if key == "run_code_max_internal_calls" else "the catalog's budget for the task"
-        raise ConfigError(f"budget.{key} must be a positive {what} or null ({default}), got {value!r}")
+from cab_core.errors import BudgetExhausted
 
 
 @dataclass
@@ -60,7 +47,7 @@ class BudgetLedger:
 
     @classmethod
     def create(cls, tool_calls: int, sim_seconds: float, wall_seconds: float, dt: float,
-               run_code_internal_calls: int = 500) -> "BudgetLedger":
+               run_code_internal_calls: int = 500) -> BudgetLedger:
         return cls(Limit("tool_calls", tool_calls), Limit("sim_seconds", sim_seconds),
                    Limit("wall_seconds", wall_seconds), run_code_internal_calls, dt)
 

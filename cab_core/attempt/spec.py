@@ -6,17 +6,12 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, ValidationError
-
-from cab_core.attempt.budget import BUDGET_KEYS, check_budget_value
 from cab_core.attempt.perturb import Perturbation
 from cab_core.attempt.randomize import Randomization
+from cab_core.conf.schema import checked_view
 from cab_core.errors import ConfigError
-
-MIN_SANDBOX_MEMORY_MB = 256  # below this the run_code process cannot start Python with numpy
-VIDEO_SIDE = (8, 4096)  # pixels, each side of the record video
 
 
 @dataclass
@@ -55,71 +50,6 @@ class AttemptSpec:
         return {k: v for k, v in asdict(self).items() if k != "output_dir"}
 
 
-# --- the valid values of the settings a command line may give, declared once ---------------------
-# cab_core.apps.cmdline checks each ``sandbox.*``, ``record.*``, ``seed`` and ``attempt`` value of a
-# command line against these models before Hydra composes anything; :func:`attempt_spec` checks the
-# composed config against them (values an experiment's or a project's yaml sets). A value out of
-# range is one line naming the key and what it must be (each field's ``description``).
-
-class Settings(BaseModel):
-    """A config section's keys, each with its valid values; ``SECTION`` its name ('' for top-level keys)."""
-    model_config = ConfigDict(strict=True, extra="forbid")
-    SECTION: ClassVar[str] = ""
-
-    @classmethod
-    def key(cls, name: str) -> str:
-        return f"{cls.SECTION}.{name}" if cls.SECTION else name
-
-    @classmethod
-    def check(cls, values: dict) -> None:
-        """Refuse (ConfigError, one line) the first key of ``values`` whose value is not valid. Keys
-        this model does not declare are not its business (the command line refuses unknown keys)."""
-        values = {k: v for k, v in values.items() if k in cls.model_fields}
-        try:
-            cls.model_validate(values)
-        except ValidationError as e:
-            name = str(e.errors()[0]["loc"][0])
-            raise ConfigError(f"{cls.key(name)} must be {cls.model_fields[name].description}, "
-                              f"got {values[name]!r}") from None
-
-    @classmethod
-    def check_value(cls, name: str, value: Any) -> None:
-        """One key's value (the others at their defaults)."""
-        if name in cls.model_fields:
-            cls.check({name: value})
-
-
-class RunSettings(Settings):
-    """Top-level keys of one attempt."""
-    seed: Annotated[StrictInt | None, Field(ge=0, description="a non-negative integer, or null (the task's fixed seed)")] = None
-    attempt: Annotated[StrictInt, Field(ge=1, description="a positive integer (1, 2, ...: the repetition of the attempt)")] = 1
-
-
-class SandboxSettings(Settings):
-    """``sandbox.*``: how run_code is confined (cab_core.sandbox.SandboxConfig takes these)."""
-    SECTION: ClassVar[str] = "sandbox"
-    mode: Annotated[Literal["required", "auto", "off"], Field(description="one of required, auto, off")] = "auto"
-    timeout_s: Annotated[float, Field(gt=0, allow_inf_nan=False,
-                                      description="a positive number of seconds (wall clock per run_code program)")] = 180
-    memory_mb: Annotated[StrictInt, Field(ge=MIN_SANDBOX_MEMORY_MB, description=(
-        f"an integer of at least {MIN_SANDBOX_MEMORY_MB} (MiB: the address space of the run_code process)"))] = 2048
-
-
-class RecordSettings(Settings):
-    """``record.*``: what an attempt's record holds besides its events (``observers``: cab_core.plugins)."""
-    SECTION: ClassVar[str] = "record"
-    video: Annotated[StrictBool, Field(description="true or false")] = True
-    video_every_steps: Annotated[StrictInt, Field(ge=1, description=(
-        "a positive integer (physics steps per video frame; record.video=false records no video)"))] = 25
-    video_size: Annotated[list[Annotated[StrictInt, Field(ge=VIDEO_SIDE[0], le=VIDEO_SIDE[1])]], Field(
-        min_length=2, max_length=2, strict=False,
-        description=f"[width, height]: two integers from {VIDEO_SIDE[0]} to {VIDEO_SIDE[1]} (pixels)")] = [320, 240]
-
-
-#: per section, the model of its values
-SETTINGS: dict[str, type[Settings]] = {"": RunSettings, "sandbox": SandboxSettings, "record": RecordSettings}
-
-
 def _plain(cfg: Any) -> dict:
     try:
         from omegaconf import OmegaConf
@@ -152,11 +82,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
             raise ConfigError(f"no {key} selected: add {key}=<option> ({_installed(key)})")
         if not isinstance(c[key], dict) or not c[key].get("name"):
             raise ConfigError(f"config group {key!r} has no name")
-    for section, model in SETTINGS.items():
-        values = c if not section else c.get(section)
-        if values is not None and not isinstance(values, dict):
-            raise ConfigError(f"{section} must be a mapping of its keys, got {values!r}")
-        model.check(values or {})
+    checked_view(c)  # cab's own keys against the schema (cab_core.conf.schema): one line for the first mistake
     info = task_info(c["task"]["name"])
     b = c.get("budget") or {}
     seed = c.get("seed")
@@ -168,11 +94,6 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
         if not harness:
             raise ConfigError(f"model {c['model']['name']!r} names no harness (model.harness); "
                               "give one with harness=<name> (cab-plugins lists the installed harnesses)")
-    unknown = sorted(set(b) - set(BUDGET_KEYS))
-    if unknown:
-        raise ConfigError(f"unknown budget key(s) {', '.join(unknown)}; valid: {', '.join(BUDGET_KEYS)}")
-    for k in BUDGET_KEYS:  # null: the catalog's (0 is no budget: refused, never the catalog's)
-        check_budget_value(k, b.get(k))
     tool_calls = info.budget_tool_calls if b.get("tool_calls") is None else b["tool_calls"]
     sim_s = info.budget_sim_s if b.get("sim_seconds") is None else b["sim_seconds"]
     wall_s = info.budget_wall_s if b.get("wall_seconds") is None else b["wall_seconds"]
