@@ -6,7 +6,7 @@ import pytest
 
 from cab_core.contracts.checkpoints import SpatialRule, annulus, box, cylinder, sphere
 
-from cab_core.attempt.checkpoints import evaluate
+from cab_core.attempt.engine.checkpoint_scoring import evaluate
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
 
 

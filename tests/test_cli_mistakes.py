@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from cab_core.attempt.builtin import ScriptedAgent
+from cab_core.attempt.engine.builtin import ScriptedAgent
 from cab_core.apps.cmdline import check_command_line
 from cab_core.errors import ConfigError
 

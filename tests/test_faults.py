@@ -17,11 +17,11 @@ from hydra import compose, initialize_config_module
 
 from cab_core.attempt import faults
 from cab_core.apps.cli import normalise_overrides
-from cab_core.attempt.episode import Episode
+from cab_core.attempt.engine.episode import Episode
 from cab_core.errors import InfrastructureFault, SimulatorError
 from cab_core.plugins import all_tasks, create
 from cab_core import geometry
-from cab_core.attempt.runner import attempt_spec
+from cab_core.attempt.engine.runner import attempt_spec
 from cab_core.tools import TOOLS, validate_args
 
 pytestmark = pytest.mark.sim

@@ -180,7 +180,7 @@ def spec_for(out: Path, *overrides: str, fork: dict | None = None):
 
 def play(spec, script):
     """The attempt ``spec``, played by the reference harness answered by ``script``."""
-    from cab_core.attempt.episode import Episode
+    from cab_core.attempt.engine.episode import Episode
 
     prov = ScriptedProvider(script)
     with Episode.open(spec) as ep:
@@ -235,7 +235,7 @@ def test_fork_of_a_model_attempt_rebuilds_its_conversation(tmp_path):
 
 @pytest.mark.sim
 def test_fork_of_an_oracle_attempt_gives_one_turn_per_call(tmp_path):
-    from cab_core.attempt.runner import run_attempt
+    from cab_core.attempt.engine.runner import run_attempt
 
     assert run_attempt(spec_for(tmp_path / "parent", "model=oracle"))["termination"]["reason"] == "done"
     calls = recorded_calls(tmp_path / "parent")[:3]

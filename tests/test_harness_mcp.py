@@ -136,7 +136,7 @@ def test_model_config_of_a_served_attempt():
     model.name names the configuration; the vendor launchers keep their own names."""
     from cab_harness_mcp.harness import attempt_model_name, configured_name
 
-    from cab_core.attempt.agent_record import ClientInfo
+    from cab_core.kits.harness.agent_info import ClientInfo
 
     assert compose_model("+harness=mcp") == {"model": {"name": "mcp_client", "harness": "mcp"}, "harness": "mcp"}
     assert compose_model("+harness=mcp", "model.name=my-agent")["model"] == {"name": "my-agent", "harness": "mcp"}

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cab_core.attempt.episode import Episode
+from cab_core.attempt.engine.episode import Episode
 from cab_core.contracts.harness import (AttemptSession, CallLimit, EventLog, Harness, HarnessHooks, ModelFreeAgent,
                                         SessionLedger)
 
@@ -59,7 +59,7 @@ def test_the_episode_class_has_the_session_methods_with_their_signatures():
 
 
 def test_cabs_harnesses_and_agents_follow_the_protocol():
-    from cab_core.attempt.builtin import DirectHarness, IdleAgent, OracleAgent
+    from cab_core.attempt.engine.builtin import DirectHarness, IdleAgent, OracleAgent
 
     assert isinstance(DirectHarness({}), Harness)
     assert isinstance(IdleAgent({}), ModelFreeAgent) and isinstance(OracleAgent({}), ModelFreeAgent)
@@ -81,7 +81,7 @@ def test_a_real_episode_is_an_attempt_session(tmp_path):
     from hydra import compose, initialize_config_module
 
     from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.runner import attempt_spec
+    from cab_core.attempt.engine.runner import attempt_spec
 
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         cfg = compose(config_name="config", overrides=normalise_overrides(

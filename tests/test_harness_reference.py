@@ -76,10 +76,10 @@ def test_retry_bounded_with_growing_caps():
 
 def test_prompt_states_facts_and_both_budgets():
     from cab_core.tools.motion import HARNESS_PARAMETERS
-    from cab_core.attempt.agent_io import first_user_message, system_prompt
+    from cab_core.kits.harness.prompts import first_user_message, system_prompt
 
     budget = {"tool_calls_remaining": 42, "tool_calls_limit": 42, "sim_seconds_remaining": 60.0, "sim_seconds_limit": 60.0}
-    s = system_prompt(budget)
+    s = system_prompt(budget, HARNESS_PARAMETERS)
     assert "no depth sensor" in s and "achieved" in s and "Tool calls: 42" in s and "Simulated time: 60.0 s" in s
     assert json.dumps(HARNESS_PARAMETERS, sort_keys=True, default=str) in s
     assert '"max_images_per_result": 6' in s and "done(report, success_claim)" in s
@@ -185,7 +185,7 @@ def test_context_overflow_raises():
 # --- the loop, with a scripted provider and a fake episode -------------------------------------
 import numpy as np  # noqa: E402
 
-from cab_core.attempt.episode import ToolResponse  # noqa: E402
+from cab_core.attempt.engine.episode import ToolResponse  # noqa: E402
 from cab_harness_reference.loop import CANCELLED, ReferenceHarness  # noqa: E402
 from cab_harness_reference.loop import NUDGE  # noqa: E402
 from cab_harness_reference.types import Provider, Response, Usage  # noqa: E402
@@ -421,7 +421,7 @@ def test_loop_wall_budget_checked_per_turn():
 
 def test_pricing_rates_and_validation():
     from cab_core.errors import ConfigError
-    from cab_core.attempt.pricing import cost, rates
+    from cab_core.kits.harness.pricing import cost, rates
 
     assert cost(Usage(1000, 10), None) == {"usd": None}
     r = rates({"input_per_mtok": 2.0, "output_per_mtok": 8.0})

@@ -30,8 +30,8 @@ pytest.importorskip("mujoco")
 from hydra import compose, initialize_config_module  # noqa: E402
 
 from cab_core.apps.cli import normalise_overrides  # noqa: E402
-from cab_core.apps.stdio import StdioChannel  # noqa: E402
-from cab_core.attempt.episode import Episode  # noqa: E402
+from cab_core.kits.harness.stdio import StdioChannel  # noqa: E402
+from cab_core.attempt.engine.episode import Episode  # noqa: E402
 from cab_core.attempt.spec import attempt_spec  # noqa: E402
 from cab_core.plugins import all_tasks, create  # noqa: E402
 from cab_harness_mcp.bridge import CallBridge  # noqa: E402

@@ -22,7 +22,7 @@ import sys
 import numpy as np
 import pytest
 
-from cab_core.attempt.record import dumps, write_json_atomic
+from cab_core.attempt.records.schema import dumps, write_json_atomic
 from cab_core.sandbox import Sandbox, SandboxConfig
 from cab_core.sandbox import guest
 
@@ -295,7 +295,7 @@ def test_a_scripted_attempt_gets_refusals_and_strict_json_records(tmp_path):
     assert not any(s["namespace_reset"] for s in seen)
     assert not ADDRESS.search("\n".join(lines))
     # a record whose measurements went NaN (a body blown away) is still a valid, strict record
-    from cab_core.attempt.record import AttemptRecord
+    from cab_core.attempt.records.schema import AttemptRecord
 
     result["verdict"]["values"] = {"distance": float("nan")}
     result["verdict"]["margins"] = {"p": {"slack": float("nan"), "scale": 0.01, "fraction": float("-inf"), "unit": "m"}}

@@ -220,7 +220,7 @@ def _cells(page: str, th: str) -> list[list[str]]:
 
 @pytest.mark.sim
 def test_a_latched_subgoal_says_at_which_call(latched):
-    from cab_core.analysis.records import Attempt
+    from cab_core.analysis.attempts import Attempt
 
     r = json.loads((latched / "result.json").read_text())
     v = r["verdict"]
@@ -243,7 +243,7 @@ def test_a_latched_subgoal_says_at_which_call(latched):
 
 @pytest.mark.sim
 def test_margins_measured_at_the_final_state_say_so(latched, tmp_path):
-    from cab_core.analysis.records import Attempt
+    from cab_core.analysis.attempts import Attempt
 
     d = tmp_path / "final"
     shutil.copytree(latched, d, symlinks=True)

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from cab_core.sweep.manifest import MANIFEST, progress_line
-from cab_core.sweep.records import check_attempt, infrastructure_failures, log_infrastructure_failure
+from cab_core.sweep.attempt_state import check_attempt, infrastructure_failures, log_infrastructure_failure
 from test_sweep import CAB
 
 LOOKING = [{"tool": "capture_head", "args": {}}] * 60 + [

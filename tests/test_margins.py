@@ -101,7 +101,7 @@ class Rising(Verifier):
 
 
 def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
-    from cab_core.attempt.episode import VerdictTracker
+    from cab_core.attempt.engine.episode import VerdictTracker
 
     v = Rising()
     t = VerdictTracker(v, world=None, timestep=0.01)  # the window: 1 simulated second, 100 steps
@@ -119,7 +119,7 @@ def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
 
 
 def test_an_event_that_never_latched_has_no_deciding_margin():
-    from cab_core.attempt.episode import VerdictTracker
+    from cab_core.attempt.engine.episode import VerdictTracker
 
     v = Rising()
     t = VerdictTracker(v, world=None, timestep=0.01)

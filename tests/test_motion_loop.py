@@ -195,7 +195,7 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
 
 
 def _scripted(sim_name: str, out: Path, video: str, frames: list) -> dict:
-    from cab_core.attempt.episode import AttemptSpec, Episode
+    from cab_core.attempt.engine.episode import AttemptSpec, Episode
     from cab_core.plugins import all_tasks, create
 
     task = "beat_block_hammer"
@@ -266,8 +266,8 @@ def test_latch_polling_answers_as_evaluate(task, tmp_path, monkeypatch):
     from hydra import compose, initialize_config_module
 
     from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.episode import VerdictTracker
-    from cab_core.attempt.runner import attempt_spec, run_attempt
+    from cab_core.attempt.engine.episode import VerdictTracker
+    from cab_core.attempt.engine.runner import attempt_spec, run_attempt
 
     seen = {True: 0, False: 0}
     poll = VerdictTracker.poll

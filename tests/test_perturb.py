@@ -1,4 +1,4 @@
-"""Small perturbations of an instance (cab_core.attempt.perturb): bounded, in the table plane, drawn from
+"""Small perturbations of an instance (cab_core.attempt.variation.perturb): bounded, in the table plane, drawn from
 (perturb seed, scene seed), recorded; the config section is checked before anything starts."""
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cab_core.errors import ConfigError
-from cab_core.attempt.perturb import Perturbation, perturb_scene
+from cab_core.attempt.variation.perturb import Perturbation, perturb_scene
 from cab_core.plugins import all_tasks
 
 from suite_helpers import _cache  # noqa: F401  (autouse: generated assets in a temp cache)

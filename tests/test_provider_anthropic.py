@@ -183,7 +183,7 @@ def test_paper_config_preflight_names_the_variable(name, env, monkeypatch):
     import yaml
 
     from cab_harness_reference.loop import ReferenceHarness
-    from cab_core.attempt.pricing import rates
+    from cab_core.kits.harness.pricing import rates
 
     cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
     assert cfg["harness"] == "reference" and cfg["provider"] == "anthropic" and cfg["max_output_tokens"] == 128000
@@ -202,9 +202,9 @@ def test_full_attempt_with_sapien(server, monkeypatch, tmp_path):
     from hydra import compose, initialize_config_module
 
     from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.episode import Episode
+    from cab_core.attempt.engine.episode import Episode
     from cab_core.plugins import all_tasks, create
-    from cab_core.attempt.runner import attempt_spec
+    from cab_core.attempt.engine.runner import attempt_spec
     from cab_harness_reference.loop import ReferenceHarness
 
     monkeypatch.setenv("ANTHROPIC_API_KEY", "sk-test")

@@ -13,7 +13,7 @@ from attempt_records import PLAN, TASKS, attempt_dir, events, results, shared_sw
 
 from cab_core.analysis import report as rep
 from cab_core.analysis.measures import wilson
-from cab_core.sweep.records import annotate_result, set_aside, write_infrastructure_result
+from cab_core.sweep.attempt_state import annotate_result, set_aside, write_infrastructure_result
 
 pytestmark = pytest.mark.sim
 
@@ -219,7 +219,7 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     assert problems[f"{TASKS[0]}/oracle/seed-0/attempt-2"].startswith("result.json is not valid JSON")
     assert problems[f"{TASKS[1]}/idle/seed-0/attempt-1"] == "result.json lacks 'verdict'"
     assert problems[f"{TASKS[1]}/scripted/seed-0/attempt-1"].startswith("events.jsonl line 3 is not valid JSON")
-    # refused when read: the record's model (cab_core.attempt.record) names what the checkpoint lacks
+    # refused when read: the record's model (cab_core.attempt.records.schema) names what the checkpoint lacks
     assert problems[f"{TASKS[0]}/idle/seed-0/attempt-2"].startswith("result.json lacks 'checkpoints.spatial[0].name'")
     assert "result.json lacks 'checkpoints.spatial[0].attained'" in problems[f"{TASKS[0]}/idle/seed-0/attempt-2"]
     assert r["attempts"] == len(results(sweep)) - 6

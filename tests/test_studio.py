@@ -455,7 +455,8 @@ def played(site):
 
 @pytest.mark.sim
 def test_a_person_plays_click_bell_to_success(site, played):
-    from cab_core.attempt.agent_io import first_user_message, system_prompt
+    from cab_core.kits.harness.prompts import first_user_message, system_prompt
+    from cab_core.tools.motion import HARNESS_PARAMETERS
     from cab_core.plugins import task_info
 
     d = played["dir"]
@@ -463,7 +464,7 @@ def test_a_person_plays_click_bell_to_success(site, played):
     # what the page showed: the prompt every harness gives, the budgets, every tool
     limit = r["budget"]["tool_calls_limit"]
     budget = {"tool_calls_limit": limit, "sim_seconds_limit": r["budget"]["sim_seconds_limit"]}
-    assert played["prompt"] == system_prompt(budget).strip()
+    assert played["prompt"] == system_prompt(budget, HARNESS_PARAMETERS).strip()
     assert played["instruction"] == first_user_message(task_info(TASK).instruction)
     assert played["tools"] == len(TOOLS)
     assert played["budget0"] == f"tool calls left: {limit} / {limit}"

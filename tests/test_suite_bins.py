@@ -25,7 +25,7 @@ from suite_helpers import (  # noqa: F401 (_cache: autouse)
     world_view,
 )
 
-from cab_core.attempt.episode import VerdictTracker
+from cab_core.attempt.engine.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
 from cab_core.kits.scene import yaw_of
 from cab_suite_codeaction import assets_bins

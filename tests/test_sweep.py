@@ -19,7 +19,7 @@ from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.sweep.manifest import MANIFEST, config_diff, fingerprint
-from cab_core.sweep.records import check_attempt, infrastructure_failures, is_infrastructure_failure
+from cab_core.sweep.attempt_state import check_attempt, infrastructure_failures, is_infrastructure_failure
 from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig
 
 CAB = os.path.join(os.path.dirname(sys.executable), "cab")
@@ -203,7 +203,7 @@ def attempt_in_flight(root: int) -> tuple[Path, int] | None:
     that is recording: found by the event log it holds open."""
     for proc in Path("/proc").iterdir():
         try:
-            if not proc.name.isdigit() or b"cab_core.sweep.child" not in (proc / "cmdline").read_bytes():
+            if not proc.name.isdigit() or b"cab_core.sweep.worker" not in (proc / "cmdline").read_bytes():
                 continue
             if not _descends_from(int(proc.name), root):
                 continue

@@ -98,7 +98,7 @@ def test_texture_image(tmp_path):
 
 def test_pattern_texture_is_srgb_encoded():
     """The light parts of a procedural texture are its colour as an image shows it (sRGB)."""
-    from cab_core.attempt.randomize import pattern_texture
+    from cab_core.attempt.variation.randomize import pattern_texture
 
     rgb = (0.2, 0.5, 0.8)
     with Image.open(pattern_texture("checks", rgb, 7)) as im:

@@ -7,9 +7,10 @@ import shutil
 import pytest
 from attempt_records import RAISING_PROGRAM, TASKS, attempt_dir, events, shared_sweep
 
-from cab_core.analysis.records import Attempt
+from cab_core.analysis.attempts import Attempt
 from cab_core.errors import RecordError
-from cab_core.analysis.viewer import main, render, write_view
+from cab_core.analysis.viewer import render, write_view
+from cab_core.apps.view import main
 
 pytestmark = pytest.mark.sim
 

@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError
-from cab_core.sweep.records import infrastructure_failures, is_infrastructure_failure
+from cab_core.sweep.attempt_state import infrastructure_failures, is_infrastructure_failure
 from cab_core.sweep.supervisor import _WORKERS, AttemptSupervisor, SupervisorConfig, close_workers
 
 

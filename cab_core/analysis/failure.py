@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cab_core.analysis.records import Attempt, read_json
+from cab_core.analysis.attempts import Attempt, read_json
 
 STAGES = ("arrival", "object_control", "subgoal_outcome", "state_loss", "final_condition", "unresolved")
 LABELS = {"arrival": "Unconfirmed arrival", "object_control": "Unconfirmed object control",
@@ -80,7 +80,7 @@ def transport_lost(snaps: list[dict], grip: Grip) -> bool:
 def final_subgoals(task, emb, info: dict, snaps: list[dict]) -> list[bool]:
     """The task's subgoal predicates on the recorded final snapshot."""
     from cab_core.contracts.verifier import WorldView
-    from cab_core.attempt.checkpoints import SnapshotState
+    from cab_core.attempt.engine.checkpoint_scoring import SnapshotState
 
     last = snaps[-1]
     w = WorldView(SnapshotState(last, emb), emb, {a: last["arms"][a]["gripper_cmd"] for a in last["arms"]}, info)

@@ -30,7 +30,7 @@ from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
 from statistics import median
 
-from cab_core.analysis.records import Attempt
+from cab_core.analysis.attempts import Attempt
 from cab_core.analysis.stats import pass_k_curve
 
 STOPPING = ("done", "tool", "phys", "other")
@@ -141,7 +141,7 @@ class AttemptMeasures:
     margin_predicate: str | None = None
     borderline: bool | None = None  # None: a record written before margins were recorded
     seed: int | None = None  # the task instance's seed: attempts on the same (task, seed) are paired
-    randomize: str = "none"  # the appearance randomisation option (cab_core.attempt.randomize)
+    randomize: str = "none"  # the appearance randomisation option (cab_core.attempt.variation.randomize)
 
     @classmethod
     def of(cls, a: Attempt) -> "AttemptMeasures":

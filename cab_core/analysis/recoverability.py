@@ -41,7 +41,7 @@ not-recoverable reasons by kind.
 
 **Where the forks are**: ``<folder>/<attempt, relative to the report's directory>/at-<K>/oracle`` and
 ``.../model-<i>``, ``<folder>`` by default ``recoverability/`` in the report's output folder (a
-folder of that name is never scanned as part of the sweep: :data:`cab_core.analysis.records.FORKS_FOLDER`).
+folder of that name is never scanned as part of the sweep: :data:`cab_core.analysis.attempts.FORKS_FOLDER`).
 A fork whose ``result.json`` is there (and is no infrastructure failure) is not run again: a report
 that was interrupted, or is run again with more repeats, makes only the forks that are missing.
 
@@ -322,9 +322,9 @@ def fork_folders(rec: dict | None, out: Path) -> list[Path]:
 # ---------------------------------------------------------------------------------------------
 def finished(d: Path) -> bool:
     """Whether a fork folder holds a finished fork (``result.json`` that is no infrastructure failure)."""
-    from cab_core.attempt.record import read_json_object
+    from cab_core.attempt.records.schema import read_json_object
     from cab_core.errors import CabError
-    from cab_core.sweep.records import is_infrastructure_failure
+    from cab_core.sweep.attempt_state import is_infrastructure_failure
 
     try:
         return not is_infrastructure_failure(read_json_object(d / "result.json"))
@@ -342,7 +342,7 @@ def read_fork(d: Path, at: int, rel: str, error: str | None = None, classify=Non
                 "reason": error or "the fork left no result.json", "fails_at": None}
     out = {"dir": rel, "at": at, **recovery(d), "fails_at": None}
     if out["outcome"] != "recovered":
-        from cab_core.analysis.records import Attempt
+        from cab_core.analysis.attempts import Attempt
 
         try:
             a = Attempt.load(d)
@@ -361,7 +361,7 @@ def run(root: Path, r: dict, folder: Path, out: Path, repeats: int = 0, jobs: in
     run now), ``cases`` (one per failed attempt: its
     points, first failed stage and each fork's outcome) and ``configs`` (:func:`summarize`)."""
     from cab_core.analysis.failure import Classifier
-    from cab_core.analysis.records import read_json
+    from cab_core.analysis.attempts import read_json
     from cab_core.sweep.supervisor import fork_configs, run_configs
 
     root, folder, out = Path(root), Path(folder), Path(out)

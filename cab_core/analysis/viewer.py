@@ -15,10 +15,9 @@ of an attempt that was forked (its ``forks.jsonl``) links to each fork's page. T
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
-from cab_core.analysis.records import Attempt, attempt_dirs, read_jsonl
+from cab_core.analysis.attempts import Attempt, attempt_dirs, read_jsonl
 from cab_core.attempt.fork import FORKS_FILE
 from cab_core.errors import CabError, RecordError
 
@@ -351,17 +350,3 @@ def write_view(attempt_dir: Path) -> Path:
     page = d / "view.html"
     page.write_text(html_text)
     return page
-
-
-def main(argv: list[str] | None = None) -> None:
-    import argparse
-
-    ap = argparse.ArgumentParser(prog="cab-view", description="Write view.html for one attempt directory.")
-    ap.add_argument("dir", help="an attempt directory (finished, running or interrupted)")
-    a = ap.parse_args(argv)
-    try:
-        page = write_view(Path(a.dir))
-    except CabError as e:
-        print(f"cab-view: {e}", file=sys.stderr)
-        sys.exit(2)
-    print(page)

@@ -40,7 +40,7 @@ def _pct(xs: list[float], p: float) -> float:
 def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
     from cab_core.config import default_selection
     from cab_core.plugins import task_info
-    from cab_core.attempt.episode import Episode
+    from cab_core.attempt.engine.episode import Episode
     from cab_core.attempt.spec import AttemptSpec
 
     info = task_info(task)

@@ -26,7 +26,7 @@ def _fresh_process(config: dict, out: Path, cache: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "MESA_SHADER_CACHE_DIR"}
     env["CAB_CACHE_DIR"] = str(cache)
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "cab_core.sweep.child"], input=json.dumps(
+    r = subprocess.run([sys.executable, "-m", "cab_core.sweep.worker"], input=json.dumps(
         {"config": config, "output_dir": str(out)}), text=True, capture_output=True, env=env)
     wall = time.perf_counter() - t0
     if r.returncode != 0:

@@ -143,7 +143,7 @@ def _key(rel: str, d: Path) -> str:
 
 def attempt_row(a, key: str) -> dict:
     """One row of attempts.parquet (:data:`ATTEMPT_COLUMNS`) from a finished attempt
-    (:class:`cab_core.analysis.records.Attempt`)."""
+    (:class:`cab_core.analysis.attempts.Attempt`)."""
     from cab_core.analysis.measures import AttemptMeasures
 
     r, m = a.result, AttemptMeasures.of(a)
@@ -246,7 +246,7 @@ def _write_parquet(rows: list[dict], columns, path: Path) -> None:
 def export_parquet(root: Path, out: Path | None = None) -> dict:
     """``attempts.parquet`` and ``calls.parquet`` of every finished attempt below ``root`` (written
     to ``out``, default ``root``). Returns what was written and what was left out."""
-    from cab_core.analysis.records import scan
+    from cab_core.analysis.attempts import scan
 
     _require_pyarrow()
     s = scan(root)
@@ -282,7 +282,7 @@ def export_each(export: Callable, root: Path, out: Path | None = None, echo=prin
     """``export(attempt_dir, out_dir)`` for every finished attempt below ``root``: ``out_dir`` is the
     attempt's folder, or under ``out`` its path relative to ``root``. An attempt it fails on is one
     line and the others go on (``failed``)."""
-    from cab_core.analysis.records import scan
+    from cab_core.analysis.attempts import scan
 
     s = scan(root)
     written, failed = [], []

@@ -1,5 +1,5 @@
 """``cab-gallery``: the head-camera image of every task's initial scene (catalog seed), with a
-Markdown page that shows the suite at a glance. ``--randomize OPTION`` (``cab_core.attempt.randomize``)
+Markdown page that shows the suite at a glance. ``--randomize OPTION`` (``cab_core.attempt.variation.randomize``)
 adds, beside each plain image, the same scene under that appearance randomisation, drawn from
 ``--seed`` as an attempt at that seed draws it."""
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 def _randomization(option: str | None):
     if option is None:
         return None
-    from cab_core.attempt.randomize import Randomization
+    from cab_core.attempt.variation.randomize import Randomization
     from cab_core.config import composed
 
     return Randomization.from_cfg(composed([f"randomize={option}"]).get("randomize"))
@@ -44,7 +44,7 @@ def render_all(out: Path, tasks: list[str] | None = None, sim_name: str | None =
             inst = task.build(s, emb)
             built = emb
             if r is not None:
-                from cab_core.attempt.randomize import randomize_instance
+                from cab_core.attempt.variation.randomize import randomize_instance
 
                 built, _ = randomize_instance(inst.scene, emb, r, s, name, task.info.instruction,
                                               task.distractor_slots(inst) if "distractors" in r.parts else [])

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cab_core.analysis.records import Attempt
+from cab_core.analysis.attempts import Attempt
 from cab_core.errors import AttemptEnded, CabError, RecordError
 
 TOLERANCE_M = 0.005
@@ -97,7 +97,7 @@ def _spec(attempt: Attempt, out: Path):
 
 def execute(attempt: Attempt, out: Path) -> ReplayAgent:
     """Run the replay episode into ``out``; returns the agent (for calls left unplayed)."""
-    from cab_core.attempt.episode import Episode
+    from cab_core.attempt.engine.episode import Episode
     from cab_core.plugins import task_names
 
     spec = _spec(attempt, out)
@@ -203,7 +203,7 @@ def replay(attempt_dir: Path, out: Path | None = None, tol: float = TOLERANCE_M)
 def regrade(attempt_dir: Path) -> dict:
     """Checkpoints, claim correctness and failure stage recomputed from the records alone, each
     beside the recorded value. No simulator runs."""
-    from cab_core.attempt.checkpoints import evaluate_attempt
+    from cab_core.attempt.engine.checkpoint_scoring import evaluate_attempt
     from cab_core.analysis.failure import Classifier
     from cab_core.analysis.measures import claim_category
 

@@ -6,7 +6,7 @@ implements
     def spatial_checkpoints(self, info: dict) -> list[SpatialRule]   # catalog order
 
 Conditions are in centimetres as in the catalog; deltas are TCP minus reference. They are evaluated
-from an attempt's records by :mod:`cab_core.attempt.checkpoints`.
+from an attempt's records by :mod:`cab_core.attempt.engine.checkpoint_scoring`.
 """
 from __future__ import annotations
 

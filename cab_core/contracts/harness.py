@@ -2,10 +2,10 @@
 harnesses and the attempt.
 
 A harness (hook ``cab_harnesses``: ``{name: factory(cfg)}``, :class:`HarnessFactory`) runs an agent
-through one attempt. The runner (:func:`cab_core.attempt.runner.run_attempt`) creates it, calls the
+through one attempt. The runner (:func:`cab_core.attempt.engine.runner.run_attempt`) creates it, calls the
 optional members it has (:class:`HarnessHooks`: ``preflight``, then ``before_build``), builds the
 attempt, and calls :meth:`Harness.run` with the running attempt seen as an :class:`AttemptSession`
-(:class:`cab_core.attempt.episode.Episode` is one). A harness uses nothing of the attempt beyond
+(:class:`cab_core.attempt.engine.episode.Episode` is one). A harness uses nothing of the attempt beyond
 :class:`AttemptSession`; a model-free agent of the core's ``direct`` harness (hook ``cab_agents``)
 is a :class:`ModelFreeAgent` and gets the same session.
 
@@ -140,7 +140,7 @@ class AttemptSession(Protocol):
     #: ``result.json`` as written once :meth:`finish` has run, else None
     result: dict | None
     #: who played, when the harness knows more than the config (``result.json`` ``agent``, the
-    #: shape of :class:`cab_core.attempt.agent_record.AgentRecord`); set by the harness, None if unknown
+    #: shape of :class:`cab_core.kits.harness.agent_info.AgentRecord`); set by the harness, None if unknown
     agent: dict | None
     #: the budgets (:class:`SessionLedger`)
     ledger: SessionLedger
@@ -195,7 +195,7 @@ class Harness(Protocol):
     def run(self, session: AttemptSession, model_cfg: dict) -> None:
         """Drive the agent through the attempt until it has ended (or end it: :meth:`AttemptSession.end`).
         ``model_cfg``: the model's configuration (``model.*``). An exception ends the attempt as
-        ``harness_error`` (``host_fault`` for an infrastructure fault, :mod:`cab_core.attempt.faults`)."""
+        ``harness_error`` (``host_fault`` for an infrastructure fault, :mod:`cab_core.attempt.engine.faults`)."""
         ...
 
 

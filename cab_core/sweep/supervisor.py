@@ -35,7 +35,7 @@ from typing import Callable
 
 from cab_core.errors import ConfigError
 from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV, kill_group
-from cab_core.sweep.records import (INFRA_LOG, INFRA_TERMINATIONS, annotate_result, check_attempt,
+from cab_core.sweep.attempt_state import (INFRA_LOG, INFRA_TERMINATIONS, annotate_result, check_attempt,
                                     infrastructure_failures, infrastructure_record, is_infrastructure_failure,
                                     log_infrastructure_failure, record_entries, set_aside,
                                     write_infrastructure_result)
@@ -111,11 +111,11 @@ def _rss_mb(pid: int) -> float:
 
 
 class WarmWorker:
-    """A ``cab_core.sweep.child --worker`` process: attempts one after another (see there)."""
+    """A ``cab_core.sweep.worker --worker`` process: attempts one after another (see there)."""
 
     def __init__(self, env: dict, first_log: Path):
         with open(first_log, "ab") as log:  # what the worker says before its first job lands there
-            self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.child", "--worker"],
+            self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.worker", "--worker"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
                                          start_new_session=True)
         self.attempts = 0
@@ -231,7 +231,7 @@ class AttemptSupervisor:
             return self._run_in_worker(try_no)
         env = self._env()
         with open(self.dir / CHILD_LOG, "ab") as log:
-            proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.child"], stdin=subprocess.PIPE,
+            proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.worker"], stdin=subprocess.PIPE,
                                     stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
         if self.on_child is not None:
             self.on_child(proc, try_no)
@@ -446,8 +446,8 @@ def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | 
     worker process that runs its attempts one after another (``sweep.warm_workers``), renderer
     tables read from the cache folder. ``cold``: a fresh process per attempt and no cache folder, as a
     ``cab -m`` sweep ran attempts before warm workers, for comparison. ``randomize``: the appearance
-    randomisation option of every attempt (``cab_core.attempt.randomize``). ``perturb``: each attempt
-    ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.attempt.perturb``). ``seeds``: one
+    randomisation option of every attempt (``cab_core.attempt.variation.randomize``). ``perturb``: each attempt
+    ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.attempt.variation.perturb``). ``seeds``: one
     list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
     from cab_core.plugins import task_info
 

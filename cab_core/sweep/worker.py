@@ -33,7 +33,7 @@ def run(job: dict) -> int:
     """Run one job's attempt; the status above (exceptions other than configuration and renderer
     problems propagate)."""
     from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
-    from cab_core.attempt.runner import attempt_spec, run_attempt
+    from cab_core.attempt.engine.runner import attempt_spec, run_attempt
 
     try:
         run_attempt(attempt_spec(job["config"], Path(job["output_dir"])))

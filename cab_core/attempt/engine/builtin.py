@@ -1,5 +1,5 @@
 """cab's own plugin: the ``direct`` harness and the model-free agents (oracle, idle, scripted, and
-``human``: a person playing from cab-studio, :mod:`cab_core.attempt.human`).
+``human``: a person playing from cab-studio, :mod:`cab_core.attempt.engine.human`).
 Registered through the same entry point group as third-party plugins."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from cab_core.errors import AttemptEnded, ConfigError
 from cab_core.contracts.hookspecs import hookimpl
-from cab_core.attempt.human import HumanAgent
+from cab_core.attempt.engine.human import HumanAgent
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.harness import AttemptSession

@@ -1,9 +1,9 @@
 """One attempt, in three parts a reader finds by name:
 
-* building the world: :class:`~cab_core.attempt.world.BuiltWorld` (instance, simulator, planner,
+* building the world: :class:`~cab_core.attempt.engine.world.BuiltWorld` (instance, simulator, planner,
   robot at home, settled);
-* serving the agent's calls under budgets: :class:`~cab_core.attempt.serving.CallServer`;
-* finishing: the hidden verdict (:class:`~cab_core.attempt.finishing.VerdictTracker`), the
+* serving the agent's calls under budgets: :class:`~cab_core.attempt.engine.serving.CallServer`;
+* finishing: the hidden verdict (:class:`~cab_core.attempt.engine.finishing.VerdictTracker`), the
   checkpoints and ``result.json``.
 
 :class:`Episode` puts them together and is what harnesses talk to (the protocol
@@ -19,12 +19,12 @@ import numpy as np
 
 from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkPoint, compare_prefix, link_parent
-from cab_core.attempt.finishing import VerdictTracker, attempt_checkpoints, versions
-from cab_core.attempt.record import RECORD_VERSION, AttemptRecord, MalformedRecord, read_jsonl
-from cab_core.attempt.recording import Recorder
-from cab_core.attempt.serving import CallServer, StepClock, ToolResponse
+from cab_core.attempt.engine.finishing import VerdictTracker, attempt_checkpoints, versions
+from cab_core.attempt.records.schema import RECORD_VERSION, AttemptRecord, MalformedRecord, read_jsonl
+from cab_core.attempt.records.writer import Recorder
+from cab_core.attempt.engine.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.spec import AttemptSpec
-from cab_core.attempt.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
+from cab_core.attempt.engine.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
 from cab_core.contracts.task import SceneInstance, Task
 from cab_core.contracts.verifier import WorldView
 from cab_core.errors import AttemptEnded
@@ -57,7 +57,7 @@ class Episode:
         self.termination: dict | None = None
         self.result: dict | None = None  # result.json as written (AttemptRecord.dump())
         self.record: AttemptRecord | None = None  # the same, typed
-        self.agent: dict | None = None  # who played, when the harness knows (cab_core.attempt.agent_record)
+        self.agent: dict | None = None  # who played, when the harness knows (cab_core.kits.harness.agent_info)
         self._t_start = time.monotonic()
         self.fork: ForkPoint | None = None  # where a fork started (cab_core.attempt.fork)
         self._fork_record: dict | None = None

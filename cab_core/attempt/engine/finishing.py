@@ -12,7 +12,7 @@ from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, decidin
 if TYPE_CHECKING:  # pragma: no cover
     from pathlib import Path
 
-    from cab_core.attempt.world import BuiltWorld
+    from cab_core.attempt.engine.world import BuiltWorld
 
 
 class VerdictTracker:
@@ -103,7 +103,7 @@ def attempt_checkpoints(world: "BuiltWorld", out: "Path", verdict: dict) -> dict
     declares none)."""
     if not hasattr(world.task, "subgoals"):
         return None
-    from cab_core.attempt.checkpoints import evaluate, load_snapshots
+    from cab_core.attempt.engine.checkpoint_scoring import evaluate, load_snapshots
 
     try:
         latched = bool((verdict.get("latch") or {}).get("latched"))

@@ -1,6 +1,6 @@
 """The ``human`` agent (``model=human``): a person plays an attempt from cab-studio's play page.
 
-The attempt runs through the normal runner (:func:`cab_core.attempt.runner.run_attempt`) under the
+The attempt runs through the normal runner (:func:`cab_core.attempt.engine.runner.run_attempt`) under the
 core's ``direct`` harness, in a child process of the studio of its own
 (:mod:`cab_core.apps.studio.child`, started by :mod:`cab_core.apps.studio.play`) that owns the
 simulator, planner and records, so that a simulator's crash ends that attempt only. The person's
@@ -10,17 +10,17 @@ the studio's :class:`PlayBridge` to the play's process over a
 named below :class:`Job`), where :class:`HumanAgent`, the attempt's owner, reads them from its
 :class:`ChildBridge` in arrival order, executes each with ``episode.call`` and sends back what a
 model would get: the payload, the images the result carries
-(:func:`cab_core.attempt.agent_io.result_images`, at most ``max_images_per_result``, as PNG bytes)
+(:func:`cab_core.kits.harness.prompts.result_images`, at most ``max_images_per_result``, as PNG bytes)
 and the budgets left; a thread of the studio per play reads the answers and resolves each call's
 future. The page shows the prompt every harness gives (:meth:`ChildBridge.publish`: the system
-prompt and the task instruction of :mod:`cab_core.attempt.agent_io`) and nothing privileged: no
+prompt and the task instruction of :mod:`cab_core.kits.harness.prompts`) and nothing privileged: no
 verdict until the attempt has ended and ``result.json`` is written. If the play's process dies
 before the attempt ended, every call waiting and every later one is answered that it ended
 unexpectedly (:func:`crash_error`, ``attempt_ended``).
 
 The records are those of any attempt (the same event kinds, the same verifier); ``result.json``
 ``model`` is ``human`` (the config's name) and its ``agent`` block names the person
-(:mod:`cab_core.attempt.agent_record`: kind ``human``, the handle as the client's name).
+(:mod:`cab_core.kits.harness.agent_info`: kind ``human``, the handle as the client's name).
 
 The agent finds its bridge by ``model.session`` in its process's :data:`SESSIONS`, which only the
 studio's play process fills (before it starts the attempt); from the command line
@@ -36,10 +36,11 @@ from dataclasses import asdict, dataclass, field
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
-from cab_core.attempt.agent_io import (continuation_note, first_user_message, result_images, run_code_limits,
+from cab_core.kits.harness.prompts import (continuation_note, first_user_message, result_images, run_code_limits,
                                        system_prompt)
-from cab_core.attempt.agent_record import AgentRecord, ClientInfo
+from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
+from cab_core.tools.motion import HARNESS_PARAMETERS
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.harness import AttemptSession
@@ -234,7 +235,7 @@ class ChildBridge:
         spec = episode.spec
         self.budget = dict(episode.ledger.remaining())
         info = {
-            "system_prompt": system_prompt(self.budget, run_code=run_code_limits(spec)),
+            "system_prompt": system_prompt(self.budget, HARNESS_PARAMETERS, run_code=run_code_limits(spec)),
             "instruction": first_user_message(episode.instruction) + continuation_note(getattr(spec, "fork", None)),
             "tools": episode.tool_specs(),
             "task": spec.task, "seed": spec.seed, "sim": spec.sim, "attempt": spec.attempt,

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import logging
 
-from cab_core.attempt.episode import Episode
-from cab_core.attempt.faults import is_infrastructure_fault
+from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.engine.faults import is_infrastructure_fault
 from cab_core.attempt.spec import AttemptSpec, attempt_spec  # noqa: F401  (attempt_spec: a composed config's spec)
 from cab_core.errors import ConfigError
 
@@ -36,7 +36,7 @@ def run_attempt(spec: AttemptSpec) -> dict:
     try:
         try:
             harness.run(episode, spec.model_cfg)
-        except Exception as e:  # the fault rule (cab_core.attempt.faults): only a broken host is not scored
+        except Exception as e:  # the fault rule (cab_core.attempt.engine.faults): only a broken host is not scored
             log.exception("harness failed")
             episode.end("host_fault" if is_infrastructure_fault(e) else "harness_error", f"harness: {e!r}")
         return episode.finish()

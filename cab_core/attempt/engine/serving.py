@@ -8,14 +8,14 @@ import traceback
 from typing import TYPE_CHECKING, Any, Callable
 
 from cab_core.attempt.budget import BudgetLedger
-from cab_core.attempt.faults import is_infrastructure_fault, tool_error_payload
+from cab_core.attempt.engine.faults import is_infrastructure_fault, tool_error_payload
 from cab_core.contracts.harness import ToolResponse
 from cab_core.errors import AttemptEnded, BudgetExhausted, ObservationUnavailable, ToolArgumentError
 from cab_core.sandbox.truncate import strict_payload
 from cab_core.tools import validate_args
 
 if TYPE_CHECKING:  # pragma: no cover
-    from cab_core.attempt.recording import Recorder
+    from cab_core.attempt.records.writer import Recorder
     from cab_core.attempt.spec import AttemptSpec
     from cab_core.tools.context import RobotContext
 
@@ -51,7 +51,7 @@ class CallServer:
         self.spec, self.registry, self.ctx, self.ledger, self.clock = spec, registry, ctx, ledger, clock
         self.recorder, self._image, self._end, self._on_physics, self._ended = recorder, image, on_end, on_physics, ended
         self.calls = 0  # charged direct calls
-        self.tool_errors = 0  # exceptions raised while serving the agent's calls (cab_core.attempt.faults)
+        self.tool_errors = 0  # exceptions raised while serving the agent's calls (cab_core.attempt.engine.faults)
         self.claim: dict = {"success_claim": None, "report": None}
         self.sandbox = None
 
@@ -78,7 +78,7 @@ class CallServer:
         try:
             payload, out_obs, status = self._invoke(name, args, direct=True)
             payload = strict_payload(payload)  # what the agent sees is strict JSON (NaN: null, noted)
-        except Exception as e:  # only an infrastructure fault gets here (cab_core.attempt.faults)
+        except Exception as e:  # only an infrastructure fault gets here (cab_core.attempt.engine.faults)
             self.recorder.event("host_fault", tool=name, arguments=args, error=repr(e), traceback=traceback.format_exc())
             self._end("host_fault", f"{name}: {e!r}")
             payload = {"error": "the host failed (not your doing); the attempt has ended", "attempt_ended": True}
@@ -100,7 +100,7 @@ class CallServer:
         return ToolResponse(name, payload, out_obs, ended=ended, status=status)
 
     def _invoke(self, name: str, args: Any, direct: bool) -> tuple[dict, list[str], str | None]:
-        """Validate and run one tool; the fault rule of :mod:`cab_core.attempt.faults` applies. Argument
+        """Validate and run one tool; the fault rule of :mod:`cab_core.attempt.engine.faults` applies. Argument
         errors and any other exception raised while serving the call become the typed error payload
         the agent sees (recorded, the attempt goes on); only an infrastructure fault propagates.
         Inside programs, run_code and done do not exist."""

@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cab_core.attempt.perturb import Perturbation, perturb_scene
-from cab_core.attempt.randomize import Randomization, randomize_instance
+from cab_core.attempt.variation.perturb import Perturbation, perturb_scene
+from cab_core.attempt.variation.randomize import Randomization, randomize_instance
 from cab_core.contracts.scene import CameraSpec
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationErr
 from pydantic_core import PydanticCustomError
 
 from cab_core.errors import RecordError
+from cab_core.kits.jsonfiles import read_json_object, read_jsonl  # noqa: F401  (read here and by the records' readers)
 from cab_core.sandbox.truncate import NON_FINITE_KEY, finite_json, non_finite_note
 
 RECORD_VERSION = "cab-record/1"  # what this cab writes
@@ -210,7 +211,7 @@ class Sandbox(Block):
 
 
 class Versions(Block):
-    """What ran the attempt (:func:`cab_core.attempt.finishing.versions`); empty in an infrastructure
+    """What ran the attempt (:func:`cab_core.attempt.engine.finishing.versions`); empty in an infrastructure
     result."""
     cab: str | None = None
     python: str | None = None
@@ -248,7 +249,7 @@ class SpatialCheckpoint(Block):
 
 
 class Checkpoints(Block):
-    """Subgoal and spatial checkpoints (:mod:`cab_core.attempt.checkpoints`), or ``error`` when they
+    """Subgoal and spatial checkpoints (:mod:`cab_core.attempt.engine.checkpoint_scoring`), or ``error`` when they
     could not be evaluated."""
     subgoals: list[Subgoal] | None = None
     spatial: list[SpatialCheckpoint] | None = None
@@ -277,7 +278,7 @@ class ClientInfo(Block):
 
 
 class Agent(Block):
-    """Who played (:mod:`cab_core.attempt.agent_record`): optional, written by harnesses that know."""
+    """Who played (:mod:`cab_core.kits.harness.agent_info`): optional, written by harnesses that know."""
     kind: str
     named_by: Literal["config", "client", "placeholder"]
     client: ClientInfo | None = None
@@ -285,7 +286,7 @@ class Agent(Block):
 
 
 class Perturbation(Block):
-    """What ``perturb.seed`` drew (:mod:`cab_core.attempt.perturb`): the settings and, per object,
+    """What ``perturb.seed`` drew (:mod:`cab_core.attempt.variation.perturb`): the settings and, per object,
     the shift, turn and parameter scales."""
     seed: int
     position_m: Num | None = None
@@ -295,7 +296,7 @@ class Perturbation(Block):
 
 
 class Randomization(Block):
-    """What appearance randomisation drew (:mod:`cab_core.attempt.randomize`): the option, its
+    """What appearance randomisation drew (:mod:`cab_core.attempt.variation.randomize`): the option, its
     parts' parameters and, per part, the draws."""
     omit_if_none = ("lighting", "textures", "camera", "distractors")
     name: str
@@ -455,40 +456,6 @@ def parse_record(obj: Any, name: str = RESULT_FILE) -> AttemptRecord:
         return AttemptRecord.model_validate(obj)
     except ValidationError as e:
         raise MalformedRecord(problems_of(e, name)) from None
-
-
-def read_json_object(path: Path) -> dict:
-    """One JSON object from ``path``; a missing or unparsable file is a RecordError."""
-    path = Path(path)
-    try:
-        obj = json.loads(path.read_text())
-    except FileNotFoundError as e:
-        raise RecordError(f"{path.name} is missing") from e
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise RecordError(f"{path.name} is not valid JSON: {e}") from e
-    if not isinstance(obj, dict):
-        raise RecordError(f"{path.name} does not hold a JSON object")
-    return obj
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    """Every line of an append-only log. A torn last line (a process killed mid-write) is
-    dropped; a bad line anywhere else is a RecordError."""
-    try:
-        lines = Path(path).read_text().splitlines()
-    except FileNotFoundError as e:
-        raise RecordError(f"{Path(path).name} is missing") from e
-    out = []
-    for i, line in enumerate(lines):
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError as e:
-            if i == len(lines) - 1:
-                break
-            raise RecordError(f"{Path(path).name} line {i + 1} is not valid JSON: {e}") from e
-    return out
 
 
 def read_record(path: Path) -> AttemptRecord:

@@ -21,8 +21,8 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from cab_core.attempt.observers import Observers
-from cab_core.attempt.record import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
+from cab_core.attempt.records.observers import Observers
+from cab_core.attempt.records.schema import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
 
 class VideoWriter:
     """H.264 MP4 through imageio-ffmpeg, frames pushed as they are rendered. The frames go to
@@ -58,8 +58,8 @@ class VideoWriter:
 
 
 class Recorder:
-    """Writes one attempt's record. ``observers`` (:class:`cab_core.attempt.observers.ObserverSpec`) are
-    created once the folder exists and follow the record as it is written (:mod:`cab_core.attempt.observers`)."""
+    """Writes one attempt's record. ``observers`` (:class:`cab_core.attempt.records.observers.ObserverSpec`) are
+    created once the folder exists and follow the record as it is written (:mod:`cab_core.attempt.records.observers`)."""
 
     def __init__(self, root: Path, observers: Iterable[Any] = ()):
         self.root = Path(root)

@@ -29,11 +29,11 @@ def _budget_lines(budget: dict) -> list[str]:
     ]
 
 
-def system_prompt(budget: dict, harness_parameters: dict | None = None, run_code: dict | None = None) -> str:
-    """``budget`` is ``episode.ledger.remaining()``; ``run_code`` holds the sandbox limits
-    (``timeout_s``, ``max_internal_calls``, ``max_images``, ``result_cap_bytes``, ``stdout_cap``)."""
-    if harness_parameters is None:
-        from cab_core.tools.motion import HARNESS_PARAMETERS as harness_parameters
+def system_prompt(budget: dict, harness_parameters: dict, run_code: dict | None = None) -> str:
+    """``budget`` is ``episode.ledger.remaining()``; ``harness_parameters`` the motion tools' rules
+    the prompt states (:data:`cab_core.tools.motion.HARNESS_PARAMETERS`); ``run_code`` holds the
+    sandbox limits (``timeout_s``, ``max_internal_calls``, ``max_images``, ``result_cap_bytes``,
+    ``stdout_cap``)."""
     rc = {"timeout_s": 180, "max_internal_calls": 500, "max_images": 6, "result_cap_bytes": 32768, "stdout_cap": 8000}
     rc.update({k: v for k, v in (run_code or {}).items() if v is not None})
     params = json.dumps(harness_parameters, sort_keys=True, default=str)

@@ -55,7 +55,7 @@ CALL_KINDS = {"call": "log/calls", "internal_call": "log/internal_calls"}
 
 
 def _read_jsonl(path: Path) -> list[dict]:
-    from cab_core.attempt.record import read_jsonl
+    from cab_core.kits.jsonfiles import read_jsonl
 
     return read_jsonl(path) if path.exists() else []
 
@@ -249,7 +249,7 @@ def convert(attempt_dir: str | os.PathLike, out: str | os.PathLike | None = None
     file and renamed, so a reader never sees half a file). Returns the path written."""
     import rerun as rr
 
-    from cab_core.attempt.record import read_json_object
+    from cab_core.kits.jsonfiles import read_json_object
 
     root = Path(attempt_dir)
     out = Path(out) if out is not None else root / FILE

@@ -18,7 +18,7 @@ answer (and the video). The attempt's records are the same as under the referenc
 
 Who played: every client identity of the MCP handshake (``clientInfo`` name and version, per MCP
 session) is recorded as an ``mcp_client`` event when first seen and in ``result.json``'s ``agent``
-block (:mod:`cab_core.attempt.agent_record`). The attempt's configuration name (``model``) is the one the
+block (:mod:`cab_core.kits.harness.agent_info`). The attempt's configuration name (``model``) is the one the
 user gave (``model.name=my-agent``, or a model config of its own such as a vendor launcher's);
 unnamed (the ``mcp_client`` placeholder that ``harness=mcp`` selects, or an in-process agent's
 config, e.g. ``model=oracle``, that plays no part here) it is ``mcp:<client name>`` after the first
@@ -39,10 +39,11 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cab_core.apps import stdio
-from cab_core.attempt.agent_io import continuation_note, first_user_message, result_images, run_code_limits, system_prompt
-from cab_core.attempt.agent_record import AgentRecord, ClientInfo
+from cab_core.kits.harness.prompts import continuation_note, first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
+from cab_core.kits.harness import stdio
+from cab_core.tools.motion import HARNESS_PARAMETERS
 
 from .bridge import CallBridge, Job
 from .server import build_server, instructions_text, tool_list, tool_result
@@ -193,7 +194,7 @@ class McpHarness:
         from cab_core.plugins import task_info
 
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
-        self.task_prompt = instructions_text(system_prompt(budget, run_code=run_code_limits(spec)),
+        self.task_prompt = instructions_text(system_prompt(budget, HARNESS_PARAMETERS, run_code=run_code_limits(spec)),
                                              first_user_message(task_info(spec.task).instruction)
                                              + continuation_note(getattr(spec, "fork", None)))
         self.tools = tool_list()

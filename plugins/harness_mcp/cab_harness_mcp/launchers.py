@@ -205,7 +205,7 @@ class VendorLauncher(McpHarness):
                                                  "cache_read_tokens", "cache_write_tokens")}
         usd = usage.get("usd")
         if usd is None:
-            from cab_core.attempt.pricing import Usage, cost
+            from cab_core.kits.harness.pricing import Usage, cost
 
             usd = cost(Usage(**totals), self.model_cfg.get("pricing")).get("usd")
         episode.recorder.event("model_usage_total", **totals, usd=usd, waited_s=0.0,

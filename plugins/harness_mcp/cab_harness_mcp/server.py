@@ -73,7 +73,7 @@ def client_of(ctx) -> SeenClient | None:
 
 
 def instructions_text(system: str, instruction: str) -> str:
-    """What a client is told at initialisation: the system prompt every harness gives (cab_core.attempt.agent_io), then the task."""
+    """What a client is told at initialisation: the system prompt every harness gives (cab_core.kits.harness.prompts), then the task."""
     return f"{system}\n\n# Task\n{instruction}\n"
 
 

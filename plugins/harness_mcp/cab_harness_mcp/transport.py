@@ -3,7 +3,7 @@
 Each runs the MCP server's event loop in a daemon thread (:class:`ServerThread`); the attempt's
 owner thread never blocks on the network.
 
-stdio serves on the channel of :mod:`cab_core.apps.stdio` (claimed before any simulator exists, so
+stdio serves on the channel of :mod:`cab_core.kits.harness.stdio` (claimed before any simulator exists, so
 nothing but protocol frames reaches stdout). The framing (newline-delimited JSON-RPC) is this
 package's own rather than the SDK's ``stdio_server`` for one reason: a line that is not JSON, or not
 a JSON-RPC message, is answered with a JSON-RPC error (-32700 parse error, -32600 invalid request)
@@ -35,7 +35,7 @@ import pydantic_core
 from mcp.shared.message import SessionMessage
 
 from cab_core.errors import ConfigError, SimulatorError
-from cab_core.apps.stdio import StdioChannel
+from cab_core.kits.harness.stdio import StdioChannel
 
 log = logging.getLogger(__name__)
 

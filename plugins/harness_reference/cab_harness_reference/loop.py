@@ -11,11 +11,12 @@ import json
 import time
 from typing import TYPE_CHECKING
 
-from cab_core.attempt.agent_io import first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.kits.harness.conversation import REBUILT, transcript
-from cab_core.attempt.pricing import cost, usage_dict
-from cab_core.attempt.serving import ToolResponse
+from cab_core.kits.harness.pricing import cost, usage_dict
+from cab_core.kits.harness import ToolResponse
 from cab_core.errors import AttemptEnded, CabError, ConfigError
+from cab_core.tools.motion import HARNESS_PARAMETERS
 
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
@@ -107,7 +108,7 @@ class ReferenceHarness:
         max_images = int(getattr(policy, "max_images_per_result", 6))  # per tool result (FACTS A.7/A.10)
         tools = self._tools(episode)
         rc = run_code_limits(getattr(episode, "spec", None))
-        system = system_prompt(episode.ledger.remaining(), run_code=rc)
+        system = system_prompt(episode.ledger.remaining(), HARNESS_PARAMETERS, run_code=rc)
         fixed = int((len(system) + len(json.dumps([t.__dict__ for t in tools]))) / 4)
         history: list[Message] = [Message("user", [Text(first_user_message(episode.instruction))])]
         self._rebuild(episode, history, caps, max_images)

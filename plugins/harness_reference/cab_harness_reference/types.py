@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal, Union
 
-from cab_core.attempt.pricing import Usage  # noqa: F401  (a Response's usage; providers import it from here)
+from cab_core.kits.harness.pricing import Usage  # noqa: F401  (a Response's usage; providers import it from here)
 
 Role = Literal["system", "user", "assistant", "tool"]
 
