@@ -1,14 +1,20 @@
 """The house a newcomer meets: ``cab_core`` in wings, measured on its import graph.
 
 The graph is grimp's (the library behind import-linter): every import of one ``cab_core`` module by
-another that Python executes, at module level or inside a function; imports under
-``if TYPE_CHECKING:`` are left out (they never run). On it:
+another, at module level or inside a function, and the imports under ``if TYPE_CHECKING:`` too (a
+type a module names is a dependency a reader follows, even though it never runs). On it:
 
 * no import loop anywhere;
-* at most 7 levels: a module that imports no other ``cab_core`` module is on level 1, any other on
-  one more than the highest module it imports;
 * the wings are layered: a module imports only from its own wing or the wings below it
-  (:data:`WINGS`, top to bottom), never back up.
+  (:data:`WINGS`, top to bottom), never back up;
+* every module is in a wing.
+
+The levels are counted on the imports Python executes (type-only imports left out): a module that
+imports no other ``cab_core`` module is on level 1, any other on one more than the highest module it
+imports; at most 7. Counted with the type-only imports as well, the chain is longer (14 on
+2026-11-27) only because the contracts name one another's types for the type checker
+(``contracts.task -> verifier -> simulator -> embodiment -> scene``), which costs no start-up time
+and forms no loop.
 """
 from __future__ import annotations
 
@@ -36,6 +42,13 @@ WINGS = (
 
 @pytest.fixture(scope="module")
 def graph():
+    """Every import, type-only ones included."""
+    return grimp.build_graph(PACKAGE, exclude_type_checking_imports=False)
+
+
+@pytest.fixture(scope="module")
+def run_graph():
+    """The imports Python executes (type-only ones left out): what the levels count."""
     return grimp.build_graph(PACKAGE, exclude_type_checking_imports=True)
 
 
@@ -81,7 +94,7 @@ def test_no_import_loop_in_any_package_of_the_tree():
     assert not missing, f"not installed: {missing}"
     assert len(names) >= 10
     for name in names:
-        g = grimp.build_graph(name, exclude_type_checking_imports=True)
+        g = grimp.build_graph(name, exclude_type_checking_imports=False)
         ours = "hydra_plugins.cab_searchpath" if name == "hydra_plugins" else name  # a namespace shared with others
         imports = {m: {t for t in ts if t.startswith(ours)} for m, ts in _imports(g).items() if m.startswith(ours)}
         try:
@@ -90,11 +103,11 @@ def test_no_import_loop_in_any_package_of_the_tree():
             pytest.fail(f"import loop in {name}: {' -> '.join(e.args[1])}")
 
 
-def test_at_most_seven_levels(graph):
-    lv = levels(graph)
-    chain = longest_chain(graph, lv)
+def test_at_most_seven_levels(run_graph):
+    lv = levels(run_graph)
+    chain = longest_chain(run_graph, lv)
     assert max(lv.values()) <= MAX_LEVELS, f"{max(lv.values())} levels: {' -> '.join(chain)}"
-    assert len(graph.modules) > 60  # the whole core was measured
+    assert len(run_graph.modules) > 60  # the whole core was measured
 
 
 def test_no_arrow_back_up(graph):
