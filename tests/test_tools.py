@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
 
+from cab_core import geometry as gt
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
+from cab_core.contracts.simulator import Contact
 from cab_core.errors import PluginError, ToolArgumentError
 from cab_core.geometry import intrinsics, mat_to_quat, pose_mul, pose_to_mat, quat_to_mat
-from cab_core import geometry as gt
-from cab_core.tools.context import ObservationStore, RobotContext
-from cab_core.contracts.simulator import Contact
-from cab_core.tools import CATALOG as DECLARED, DONE, RUN_CODE, TOOLS, build_registry, schemas, validate_args
-from cab_core.tools import estimate, motion, observe
+from cab_core.tools import CATALOG as DECLARED
+from cab_core.tools import DONE, RUN_CODE, TOOLS, build_registry, estimate, motion, observe, schemas, validate_args
 from cab_core.tools import models as m
+from cab_core.tools.context import ObservationStore, RobotContext
 from cab_core.tools.registry import ToolDef, tool
 
 # -- the tool list ---------------------------------------------------------------------------------
@@ -61,7 +61,7 @@ def test_schema_generates_and_documents_every_field(name):
     for prop, body in s.get("properties", {}).items():
         assert body.get("description"), f"{name}.{prop} has no description"
     for sub in s.get("$defs", {}).values():
-        for prop, body in sub["properties"].items():
+        for body in sub["properties"].values():
             assert body.get("description")
     assert len(TOOLS[name].description) > 80
 

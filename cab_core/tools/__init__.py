@@ -16,7 +16,8 @@ from __future__ import annotations
 import functools
 import types
 import typing
-from typing import Annotated, Any, Callable, Iterable, Optional, Union
+from collections.abc import Callable, Iterable
+from typing import Annotated, Any
 
 from pydantic import BaseModel, Field, Strict, ValidationError
 
@@ -40,17 +41,17 @@ class TraceEntry(Result):
     index: int = Field(description="Order of the internal call.")
     tool: str = Field(description="Tool name.")
     ok: bool = Field(description="The call returned without error.")
-    status: Optional[str] = Field(default=None, description="Action status if an action.")
-    action_id: Optional[str] = Field(default=None, description="Action id if an action.")
-    tick: Optional[int] = Field(default=None, description="Tick after the call.")
-    abort_reason: Optional[str] = Field(default=None, description="Abort reason if ABORTED.")
+    status: str | None = Field(default=None, description="Action status if an action.")
+    action_id: str | None = Field(default=None, description="Action id if an action.")
+    tick: int | None = Field(default=None, description="Tick after the call.")
+    abort_reason: str | None = Field(default=None, description="Abort reason if ABORTED.")
     obs_ids: list[str] = Field(default_factory=list, description="Observations produced.")
-    error: Optional[str] = Field(default=None, description="Error text if the call failed.")
+    error: str | None = Field(default=None, description="Error text if the call failed.")
 
 
 class CodeResult(Result):
     ok: bool = Field(description="The program ran to completion without an exception.")
-    error: Optional[str] = Field(default=None, description="Exception text, if any.")
+    error: str | None = Field(default=None, description="Exception text, if any.")
     stdout: str = Field(default="", description="Captured print output (capped at 8000 characters).")
     value: Any = Field(default=None, description="The value assigned to `result`, JSON-encoded.")
     result_assigned: bool = Field(default=False, description="Whether the program assigned `result`.")
@@ -73,7 +74,7 @@ RUN_CODE = ToolDef(
 class DoneArgs(Args):
     report: Annotated[str, Strict()] = Field(
         max_length=20_000, description="Your account of what you did and the final state.")
-    success_claim: Optional[Annotated[bool, Strict()]] = Field(
+    success_claim: Annotated[bool, Strict()] | None = Field(
         default=None, description="Whether you judge the task accomplished (true/false).")
 
 
@@ -92,7 +93,7 @@ DONE = ToolDef(
 # -- the tool list ------------------------------------------------------------------------------
 # Every tool, one line each, in catalog order: a robot tool by its handler (declared with @tool),
 # a host tool by its ToolDef. A new tool is its handler and models in its module, and a line here.
-CATALOG: tuple[Union[Callable, ToolDef], ...] = (
+CATALOG: tuple[Callable | ToolDef, ...] = (
     observe.get_world_frame,
     observe.get_embodiment,
     observe.get_camera_info,
@@ -150,7 +151,7 @@ def check_documented(model: type[BaseModel], _seen: set | None = None) -> None:
             check_documented(sub, seen)
 
 
-def declaration(entry: Union[Callable, ToolDef]) -> ToolDef:
+def declaration(entry: Callable | ToolDef) -> ToolDef:
     """A catalog entry's ToolDef: the host tool itself, or the declaration a handler carries."""
     if isinstance(entry, ToolDef):
         return entry
@@ -168,7 +169,7 @@ def check_tool(td: ToolDef) -> ToolDef:
     return td
 
 
-def build_registry(entries: Iterable[Union[Callable, ToolDef]] = CATALOG) -> dict[str, ToolDef]:
+def build_registry(entries: Iterable[Callable | ToolDef] = CATALOG) -> dict[str, ToolDef]:
     """Build the registry from the catalog (in its order); refuse duplicates and undocumented arguments."""
     tools: dict[str, ToolDef] = {}
     for entry in entries:

@@ -6,8 +6,9 @@ Handlers must never put privileged data (object names or poses, verifier state) 
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -99,7 +100,7 @@ class RobotContext:
     time, polls latches and feeds the video; ``clock.steps`` is the number of physics steps so far.
     """
 
-    def __init__(self, sim: "Simulator", planner: "Planner", emb: "EmbodimentSpec", clock: Any,
+    def __init__(self, sim: Simulator, planner: Planner, emb: EmbodimentSpec, clock: Any,
                  obs: ObservationStore, params: dict | None = None):
         self.sim = sim
         self.planner = planner
@@ -154,7 +155,7 @@ class RobotContext:
         return float(g.gap_at_zero_m + g.gap_per_unit * float(np.sum(self.finger_qpos(arm))))
 
     def finger_link_poses(self, arm: str) -> dict[str, np.ndarray]:
-        return {l: self.sim.get_link_pose(l) for l in self.arm(arm).gripper.finger_links}
+        return {link: self.sim.get_link_pose(link) for link in self.arm(arm).gripper.finger_links}
 
     # -- cameras ------------------------------------------------------------------------------
     def camera_K(self, camera: str) -> np.ndarray:

@@ -9,17 +9,47 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, Strict, model_validator
 
 from cab_core.errors import ToolArgumentError
-from cab_core.geometry import (MIN_DEPTH_M, back_project, camera_to_world, degenerate_direction, extrinsic_from_pose,
-                               mat_to_quat, orientation_block, pixel_ray, pose_block, pose_inv, pose_mul, pose_to_mat,
-                               project_points, quat_angle, quat_to_mat, rnd, world_to_camera)
-from cab_core.tools.models import (WORKSPACE, Args, Arm, CameraName, Direction3, Num, ObservationSummary, ObsId, Pixel,
-                                    PixelCoord, QuatWXYZ, Result, Vec3, WristCamera)
+from cab_core.geometry import (
+    MIN_DEPTH_M,
+    back_project,
+    camera_to_world,
+    degenerate_direction,
+    extrinsic_from_pose,
+    mat_to_quat,
+    orientation_block,
+    pixel_ray,
+    pose_block,
+    pose_inv,
+    pose_mul,
+    pose_to_mat,
+    project_points,
+    quat_angle,
+    quat_to_mat,
+    rnd,
+    world_to_camera,
+)
+from cab_core.tools.models import (
+    WORKSPACE,
+    Args,
+    Arm,
+    CameraName,
+    Direction3,
+    Num,
+    ObservationSummary,
+    ObsId,
+    Pixel,
+    PixelCoord,
+    QuatWXYZ,
+    Result,
+    Vec3,
+    WristCamera,
+)
 from cab_core.tools.overlay import AXIS_COLOURS, PALETTE, Canvas, convex_hull, in_frame
 from cab_core.tools.registry import ToolOutput, observation_output, tool
 
@@ -55,14 +85,14 @@ class Estimate(Result):
         description="The estimate (pixel [u, v], ray {origin, dir}, world point [x, y, z] or depth), or null "
                     "on failure.")
     kind: Literal["pixel_point", "ray", "world_point", "depth"] = Field(description="What value is.")
-    uncertainty: Optional[dict[str, Any]] = Field(
+    uncertainty: dict[str, Any] | None = Field(
         description="Propagated 1-sigma terms from your declared sigmas; null when none applies.")
     coarse: bool = Field(
         description="True when the estimate rests on an assumption (a plane, a size prior) and needs checking.")
     valid: bool = Field(description="False when value is null or its preconditions do not hold.")
     frame: str = Field(description="Frame of value: 'world', 'image:<obs_id>' or 'camera:<obs_id>'.")
     units: str = Field(description="Units of value: m or px.")
-    failure: Optional[EstimateFailure] = Field(default=None, description="Why value is null or invalid.")
+    failure: EstimateFailure | None = Field(default=None, description="Why value is null or invalid.")
     provenance: dict[str, Any] = Field(
         description="Inputs and intermediate quantities (rays, ranges, angles, Jacobians).")
 
@@ -367,7 +397,7 @@ class ScaleFromObjectSizeArgs(Args):
         description="Which box extent matches the known size: 'width' (u), 'height' (v) or 'diagonal'.")
     known_extent_m: Num(1e-6, 10.0) = Field(
         description="Your prior for the object's physical extent along that axis, metres.")
-    known_extent_sigma_m: Optional[Num(0.0, 10.0)] = Field(
+    known_extent_sigma_m: Num(0.0, 10.0) | None = Field(
         default=None,
         description="Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null.")
 
@@ -438,7 +468,7 @@ class GripperGeometry:
     flange_behind_m: float  # flange (EE) behind the TCP
 
     @classmethod
-    def of(cls, ctx: RobotContext, arm: str) -> "GripperGeometry":
+    def of(cls, ctx: RobotContext, arm: str) -> GripperGeometry:
         """Read the embodiment's declared finger facts (``facts["gripper"]``), with the FACTS §A.4
         numbers as fallbacks."""
         spec = ctx.arm(arm).gripper
@@ -490,7 +520,7 @@ def _inner_tips_fk(ctx: RobotContext, arm: str) -> tuple[np.ndarray, np.ndarray,
     o = T[:3, 1]
     links = list(ctx.arm(arm).gripper.finger_links)
     poses = ctx.finger_link_poses(arm)
-    ys = np.array([float(np.dot(np.asarray(poses[l], float)[:3] - tcp[:3], o)) for l in links])
+    ys = np.array([float(np.dot(np.asarray(poses[link], float)[:3] - tcp[:3], o)) for link in links])
     mean = float(ys.mean())
     tips = np.array([_to_world(T, geo.inner_tip_local(y, 1.0 if y >= mean else -1.0)[None])[0] for y in ys])
     return tips, tcp, links
@@ -672,7 +702,7 @@ def _rot_z(th: float) -> np.ndarray:
 
 
 def camera_arm(ctx: RobotContext, camera: str) -> str:
-    for name, arm in ctx.emb.arms.items():
+    for name in ctx.emb.arms:
         if camera.startswith(name):
             return name
     raise ToolArgumentError(f"no arm carries camera {camera!r}")
@@ -881,10 +911,10 @@ class PreviewTcpPoseArgs(Args):
     arm: Arm = Field(description="Arm whose gripper geometry to draw.")
     tcp_xyz: Vec3 = Field(description=_D_TCP)
     quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
-    finger_gap_m: Optional[Num(*FINGER_GAP_RANGE_M)] = Field(default=None, description=_D_GAP)
-    reference_px: Optional[Pixel] = Field(
+    finger_gap_m: Num(*FINGER_GAP_RANGE_M) | None = Field(default=None, description=_D_GAP)
+    reference_px: Pixel | None = Field(
         default=None, description="Optional pixel [u, v] to report offsets to; exclusive with reference_xyz_world.")
-    reference_xyz_world: Optional[Vec3] = Field(
+    reference_xyz_world: Vec3 | None = Field(
         default=None, description="Optional world point [x, y, z] (m) to report offsets to; exclusive with "
                                   "reference_px.")
 
@@ -956,7 +986,7 @@ class TcpCandidate(Args):
     arm: Arm = Field(description="Arm this TCP pose is for.")
     tcp_xyz: Vec3 = Field(description=_D_TCP)
     quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
-    finger_gap_m: Optional[Num(*FINGER_GAP_RANGE_M)] = Field(default=None, description=_D_GAP)
+    finger_gap_m: Num(*FINGER_GAP_RANGE_M) | None = Field(default=None, description=_D_GAP)
 
 
 class CompareTcpPosesArgs(Args):

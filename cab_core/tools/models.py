@@ -18,7 +18,7 @@ call. Result models document payloads; they allow extra keys so handlers can add
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal, Optional, get_args
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict
 
@@ -106,6 +106,6 @@ class ObservationSummary(Result):
     tick: int = Field(description="Actuation tick at capture.")
     cam_pose_snapshot: CamPoseSnapshot = Field(description="Calibration at capture.")
     image: dict[str, Any] = Field(description="{attached, size_hw}.")
-    annotation: Optional[dict[str, Any]] = Field(default=None, description="Tool-specific overlay data.")
-    source_obs_id: Optional[str] = Field(default=None, description="For annotated copies: the observation drawn on.")
+    annotation: dict[str, Any] | None = Field(default=None, description="Tool-specific overlay data.")
+    source_obs_id: str | None = Field(default=None, description="For annotated copies: the observation drawn on.")
 

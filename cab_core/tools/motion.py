@@ -10,15 +10,28 @@ allowance. The agent gets no error figures: it reads ``commanded`` against ``obs
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Literal, Optional
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import Field
 
 from cab_core.errors import ToolArgumentError
 from cab_core.geometry import orientation_block, quat_angle, quat_normalize
-from cab_core.tools.models import (CONTACT_IMPULSE_THRESHOLD, DELTA_LIMIT_M, WORKSPACE, Args, Arm, Delta, Delta3,
-                                    Direction3, Num, ObservationSummary, QuatWXYZ, Result, Vec3)
+from cab_core.tools.models import (
+    CONTACT_IMPULSE_THRESHOLD,
+    DELTA_LIMIT_M,
+    WORKSPACE,
+    Args,
+    Arm,
+    Delta,
+    Delta3,
+    Direction3,
+    Num,
+    ObservationSummary,
+    QuatWXYZ,
+    Result,
+    Vec3,
+)
 from cab_core.tools.registry import ToolOutput, tool
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -62,8 +75,8 @@ def arm_contacts(ctx: RobotContext, arm: str) -> dict:
     """Anonymous contact evidence for one arm: which of its parts touch something that is not
     the robot itself, and robot self-contact with the other arm."""
     spec = ctx.arm(arm)
-    fingers = {f"robot/{l}" for l in spec.gripper.finger_links}
-    own = {f"robot/{l}" for l in spec.links} | fingers
+    fingers = {f"robot/{link}" for link in spec.gripper.finger_links}
+    own = {f"robot/{link}" for link in spec.links} | fingers
     per_finger: dict[str, float] = {}
     arm_link_impulse = 0.0
     self_impulse = 0.0
@@ -190,10 +203,10 @@ def _planner_block(res) -> dict:
 
 
 class Failure(Result):
-    stage: Optional[str] = Field(
+    stage: str | None = Field(
         default=None, description="Where it failed, e.g. planner_query, execution, workspace_prefilter.")
     code: str = Field(description="Stable failure code, e.g. goal_pose_unreachable, stalled, RAY_PARALLEL_TO_PLANE.")
-    category: Optional[str] = Field(
+    category: str | None = Field(
         default=None, description="planner / stall / deviation / allowance / workspace / contact / other.")
     message: str = Field(default="", description="Short human-readable explanation.")
 
@@ -217,7 +230,7 @@ class ActionResult(Result):
     action_id: str = Field(description="Unique id of this action.")
     status: Literal["SUCCESS", "FAILED", "ABORTED"] = Field(
         description="SUCCESS: executed as specified; FAILED: refused or not achieved; ABORTED: stopped by a guard.")
-    abort_reason: Optional[str] = Field(
+    abort_reason: str | None = Field(
         default=None, description="stalled / trajectory_deviation / leg_budget / arm_lock, when ABORTED.")
     commanded: dict[str, Any] = Field(description="What was asked, after clamping (delta, target, path mode).")
     achieved: dict[str, Any] = Field(
@@ -226,7 +239,7 @@ class ActionResult(Result):
         description="Measured TCP pose(s) after the action: {tcp} or {left_tcp, right_tcp}.")
     planning: Planning = Field(description="Planner outcome.")
     execution: Execution = Field(description="Execution outcome.")
-    failure: Optional[Failure] = Field(default=None, description="Why it failed or aborted; null on SUCCESS.")
+    failure: Failure | None = Field(default=None, description="Why it failed or aborted; null on SUCCESS.")
     observed_before: dict[str, Any] = Field(description="Two-arm robot snapshot before the action.")
     observed_after: dict[str, Any] = Field(description="Two-arm robot snapshot after the action.")
     tick: int = Field(description="Actuation tick after the action.")
@@ -534,7 +547,7 @@ class ReachTcpArgs(Args):
     arm: Arm = Field(description="Arm to move.")
     target_xyz: Vec3 = Field(
         description="Target TCP position, world metres (workspace x, y in [-0.8, 0.8], z in [0.4, 1.5]).")
-    target_quat: Optional[QuatWXYZ] = Field(
+    target_quat: QuatWXYZ | None = Field(
         default=None,
         description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the call-start one.")
 
@@ -556,9 +569,9 @@ def reach_tcp(ctx: RobotContext, args: ReachTcpArgs) -> ToolOutput:
 class ReachBothTcpArgs(Args):
     left_xyz: Vec3 = Field(description="Left arm target TCP position, world metres.")
     right_xyz: Vec3 = Field(description="Right arm target TCP position, world metres.")
-    left_quat: Optional[QuatWXYZ] = Field(
+    left_quat: QuatWXYZ | None = Field(
         default=None, description="Left target orientation [w, x, y, z]; default keeps the current one.")
-    right_quat: Optional[QuatWXYZ] = Field(
+    right_quat: QuatWXYZ | None = Field(
         default=None, description="Right target orientation [w, x, y, z]; default keeps the current one.")
 
 
@@ -677,7 +690,7 @@ def set_gripper(ctx: RobotContext, args: SetGripperArgs) -> ToolOutput:
 class CheckTcpPoseReachabilityArgs(Args):
     arm: Arm = Field(description="Arm to plan for.")
     target_xyz: Vec3 = Field(description="Target TCP position, world metres.")
-    target_quat: Optional[QuatWXYZ] = Field(
+    target_quat: QuatWXYZ | None = Field(
         default=None,
         description="Target TCP orientation, world quaternion [w, x, y, z]; default keeps the current one.")
 

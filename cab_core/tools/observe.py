@@ -5,7 +5,7 @@ Nothing here reads object state. Contact feedback names only the robot's own fin
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal, Optional
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -13,8 +13,17 @@ from pydantic import Field, model_validator
 from cab_core.contracts.simulator import ROBOT
 from cab_core.errors import SimulatorError
 from cab_core.geometry import orientation_block, pose_block, rnd
-from cab_core.tools.models import (CAMERAS, CONTACT_IMPULSE_THRESHOLD, WORKSPACE, Args, Arm, CameraName, EvidenceView,
-                                    ObservationSummary, Result)
+from cab_core.tools.models import (
+    CAMERAS,
+    CONTACT_IMPULSE_THRESHOLD,
+    WORKSPACE,
+    Args,
+    Arm,
+    CameraName,
+    EvidenceView,
+    ObservationSummary,
+    Result,
+)
 from cab_core.tools.registry import ToolOutput, observation_output, tool
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -461,7 +470,7 @@ def capture_wrist(ctx: RobotContext, args: CaptureWristArgs) -> ToolOutput:
 
 
 class CaptureEvidenceViewsArgs(Args):
-    active_arm: Optional[Arm] = Field(
+    active_arm: Arm | None = Field(
         default=None,
         description="Optional arm whose wrist view is also labelled role 'active' (the other 'opposite').")
     views: list[EvidenceView] = Field(

@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Optional
+from typing import Any, Literal
 
 from pydantic import BaseModel
 
@@ -67,7 +68,7 @@ class ToolDef:
     kind: Kind
     args: type[BaseModel]
     description: str
-    handler: Optional[Handler] = None  # None: served by the episode host (run_code, done)
+    handler: Handler | None = None  # None: served by the episode host (run_code, done)
     result: type[BaseModel] | None = None  # documented result model, when there is one
     renders: bool = False  # the call renders a fresh image from a camera (slow on a CPU renderer)
 
