@@ -9,15 +9,22 @@ compose API over ``cab_core.conf``), so ``cab sim=<x>`` works for any installed 
 * every installed task gets an option of group ``task`` in Hydra's ConfigStore (``{name: <task>}``),
   unless a config dir ships a ``task/<name>.yaml`` of its own (that file is then the option).
 
+:class:`Compositions` reads a command line's configurations through Hydra's compose API, for the
+check of the command line before Hydra's app starts (cab_core.apps.cmdline).
+
 :func:`default_selection` is the composed default configuration's choice of simulator, robot and
 planner, for the commands that do not go through Hydra's app (``cab-bench``, ``cab-suite-check``...).
 """
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
 from typing import Any
 
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
+from cab_core.conf.schema import OWN_KEYS, checked_view
 from cab_core.errors import ConfigError
 
 CORE_CONFIG_MODULE = "cab_core.conf"
@@ -84,6 +91,85 @@ def shipped_options(path: str, group: str) -> list[str]:
     if not folder.is_dir():
         return []
     return sorted(p.name[:-len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml") and p.is_file())
+
+
+class Compositions:
+    """The configurations a ``cab`` command line composes, read through Hydra's compose API over
+    the search path the app uses (cab_core.apps.cmdline checks a command line with them before
+    Hydra's app starts): the config groups, their options, and for a choice of options the typed
+    view of the composed config (:func:`cab_core.conf.schema.checked_view`)."""
+
+    def __init__(self, loader: Any, config_name: str, searchpath: list[str]) -> None:
+        self.loader, self.config_name, self.searchpath = loader, config_name, searchpath
+        self.groups = sorted(g for g in loader.list_groups("") if g != "hydra")
+        self.views: dict[tuple, Any] = {}
+
+    @classmethod
+    @contextlib.contextmanager
+    def of_command(cls, config_path: str | None, config_name: str | None, config_dir: str | None,
+                   overrides: list) -> Iterator[Compositions]:
+        """Those of a command line (Hydra's ``--config-path``, ``--config-name``, ``--config-dir``
+        and its parsed overrides), while Hydra's compose API is initialised."""
+        from hydra import initialize_config_dir, initialize_config_module
+        from hydra.core.global_hydra import GlobalHydra
+
+        if config_path:  # the app's config_path is relative to cab_core/apps
+            here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "apps")
+            init = initialize_config_dir(os.path.normpath(os.path.join(here, config_path)), job_name="cab",
+                                         version_base=None)
+        else:
+            init = initialize_config_module(CORE_CONFIG_MODULE, job_name="cab", version_base=None)
+        with init:
+            yield cls(GlobalHydra.instance().config_loader(), config_name or "config",
+                      search_path_overrides(config_dir, overrides))
+
+    def options(self, group: str) -> list[str]:
+        from hydra.core.object_type import ObjectType
+
+        return self.loader.get_group_options(group, ObjectType.CONFIG, self.config_name, self.searchpath)
+
+    def view(self, selection: tuple) -> Any:
+        """The typed view of the config these ``(group, option)`` choices compose to: cab's own keys
+        typed by the schema, the keys of a selected ``sim`` and ``harness`` option closed (an empty
+        mapping in them open), the other groups' and a project's keys open."""
+        if selection not in self.views:
+            from hydra.types import RunMode
+            picked = [f"{g}={v}" for g, v in selection]
+            cfg = self.loader.load_configuration(self.config_name, picked + self.searchpath, RunMode.RUN)
+            plain = OmegaConf.to_container(cfg, resolve=False)
+            plain.pop("hydra", None)
+            extra = {k: v for k, v in plain.items() if k not in OWN_KEYS and k not in self.groups}
+            view = checked_view(plain, {**extra, **{g: plain.get(g) for g in self.groups}})
+            for key in [*extra, *self.groups]:
+                if isinstance(view[key], DictConfig):
+                    OmegaConf.set_struct(view[key], key in CLOSED_GROUPS)
+            for key in CLOSED_GROUPS:
+                for node in _mappings(view.get(key))[1:]:
+                    OmegaConf.set_struct(node, bool(node))
+            self.views[selection] = view
+        return self.views[selection]
+
+
+CLOSED_GROUPS = ("sim", "harness")  # the keys under these are those the selected option's config declares
+
+
+def _mappings(node: Any) -> list:
+    """``node`` and every mapping below it."""
+    if not isinstance(node, DictConfig):
+        return []
+    return [node] + [m for k in node for m in _mappings(node[k])]
+
+
+def search_path_overrides(config_dir: str | None, overrides: list) -> list[str]:
+    """``hydra.searchpath=[...]`` as the command line gives it, with ``--config-dir`` first (Hydra
+    puts both after the app's and the plugins' config dirs)."""
+    paths = [p for o in overrides if o.get_key_element() == "hydra.searchpath" for p in (o.value() or [])]
+    if config_dir is not None:
+        d = os.path.abspath(config_dir)
+        if not os.path.isdir(d):
+            raise ConfigError(f"config directory {d} (--config-dir) does not exist")
+        paths.insert(0, f"file://{d}")
+    return ["hydra.searchpath=[" + ",".join(repr(str(p)) for p in paths) + "]"] if paths else []
 
 
 DEFAULT_GROUPS = ("sim", "embodiment", "planner")

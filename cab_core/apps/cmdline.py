@@ -27,15 +27,10 @@ import argparse
 import contextlib
 import io
 import itertools
-import os
-from collections.abc import Iterator
-from typing import Any
 
 from cab_core.conf.schema import one_line
+from cab_core.config import CLOSED_GROUPS, Compositions
 from cab_core.errors import CabError, ConfigError, closest
-
-OPTION_SECTIONS = ("sim", "harness")  # their keys are the selected option's
-CONFIG_MODULE = "cab_core.conf"  # the Hydra app's primary config dir (cab_core.apps.cli: config_path="../conf")
 
 
 def _values(o) -> list:
@@ -119,34 +114,6 @@ def parse_args(argv: list[str]) -> argparse.Namespace | None:
     return args
 
 
-@contextlib.contextmanager
-def config_loader(args: argparse.Namespace) -> Iterator[Any]:
-    """Hydra's config loader over the search path the app uses (the compose API's)."""
-    from hydra import initialize_config_dir, initialize_config_module
-    from hydra.core.global_hydra import GlobalHydra
-
-    if args.config_path:
-        here = os.path.dirname(os.path.abspath(__file__))  # the app's config_path is relative to cab_core/apps
-        init = initialize_config_dir(os.path.normpath(os.path.join(here, args.config_path)), job_name="cab",
-                                     version_base=None)
-    else:
-        init = initialize_config_module(CONFIG_MODULE, job_name="cab", version_base=None)
-    with init:
-        yield GlobalHydra.instance().config_loader()
-
-
-def search_path_overrides(args: argparse.Namespace, overrides: list) -> list[str]:
-    """``hydra.searchpath=[...]`` as the command line gives it, with ``--config-dir`` first (Hydra
-    puts both after the app's and the plugins' config dirs)."""
-    paths = [p for o in overrides if o.get_key_element() == "hydra.searchpath" for p in (o.value() or [])]
-    if args.config_dir is not None:
-        d = os.path.abspath(args.config_dir)
-        if not os.path.isdir(d):
-            raise ConfigError(f"config directory {d} (--config-dir) does not exist")
-        paths.insert(0, f"file://{d}")
-    return ["hydra.searchpath=[" + ",".join(repr(str(p)) for p in paths) + "]"] if paths else []
-
-
 def check_command_line(argv: list[str]):
     """Refuse (ConfigError, one line) an unknown group option, an unknown key or a value the schema
     refuses on this ``cab`` command line. Returns the parsed arguments (None where they cannot be
@@ -160,9 +127,8 @@ def check_command_line(argv: list[str]):
 
     try:
         overrides = OverridesParser.create().parse_overrides(args.overrides)
-        searchpath = search_path_overrides(args, overrides)
-        with config_loader(args) as loader:
-            check = Check(loader, args.config_name or "config", searchpath)
+        with Compositions.of_command(args.config_path, args.config_name, args.config_dir, overrides) as compositions:
+            check = Check(compositions)
             choices, keys = check.options(overrides)
             _check_fork(choices, keys)
             if keys:
@@ -173,15 +139,11 @@ def check_command_line(argv: list[str]):
 
 
 class Check:
-    """The checks of one command line over Hydra's config loader."""
+    """The checks of one command line over the configurations it composes."""
 
-    def __init__(self, loader: Any, config_name: str, searchpath: list[str]) -> None:
-        self.loader, self.config_name, self.searchpath = loader, config_name, searchpath
-        self.groups = sorted(g for g in loader.list_groups("") if g != "hydra")
-        self.views: dict[tuple, Any] = {}
-
-    def is_group(self, key: str) -> bool:
-        return key.split("/")[0] in self.groups
+    def __init__(self, compositions: Compositions) -> None:
+        self.compositions = compositions
+        self.groups = compositions.groups
 
     def options(self, overrides: list) -> tuple[dict[str, list[str]], list]:
         """Each group's options the command selects (several in a sweep), each refused in one line
@@ -192,18 +154,17 @@ class Check:
             key = o.key_or_group
             if o.package is not None or key.startswith("hydra") or o.is_delete():
                 continue
-            if not self.is_group(key):
+            if key.split("/")[0] not in self.groups:
                 keys.append(o)
             elif values := self.selected(o):
                 choices[key] = values
         return choices, keys
 
     def selected(self, o) -> list[str]:
-        from hydra.core.object_type import ObjectType
         from hydra.core.override_parser.types import ValueType
 
         key = o.key_or_group
-        options = self.loader.get_group_options(key, ObjectType.CONFIG, self.config_name, self.searchpath)
+        options = self.compositions.options(key)
         if o.value_type == ValueType.GLOB_CHOICE_SWEEP:  # task=glob(*): the options it matches
             return list(o.value().filter(options))
         values = [str(v) for v in _values(o) if v is not None and not _interpolated(v)]
@@ -212,63 +173,29 @@ class Check:
                 raise unknown_option(key, v, options)
         return values
 
-    def view(self, selection: tuple) -> Any:
-        """The typed view (:func:`cab_core.conf.schema.checked_view`) of the config these group
-        choices compose to, without the key overrides; the keys of a selected ``sim`` and ``harness``
-        option closed, an empty mapping in them open."""
-        if selection not in self.views:
-            from hydra.types import RunMode
-            from omegaconf import DictConfig, OmegaConf
-
-            from cab_core.conf.schema import OWN_KEYS, checked_view
-
-            picked = [f"{g}={v}" for g, v in selection]
-            cfg = self.loader.load_configuration(self.config_name, picked + self.searchpath, RunMode.RUN)
-            plain = OmegaConf.to_container(cfg, resolve=False)
-            plain.pop("hydra", None)
-            extra = {k: v for k, v in plain.items() if k not in OWN_KEYS and k not in self.groups}
-            view = checked_view(plain, {**extra, **{g: plain.get(g) for g in self.groups}})
-            for key in [*extra, *self.groups]:
-                if isinstance(view[key], DictConfig):
-                    OmegaConf.set_struct(view[key], key in OPTION_SECTIONS)
-            for key in OPTION_SECTIONS:
-                for node in _mappings(view.get(key))[1:]:
-                    OmegaConf.set_struct(node, bool(node))
-            self.views[selection] = view
-        return self.views[selection]
-
     def keys(self, choices: dict[str, list[str]], keys: list) -> None:
         """Every value of every key override against the view of every selection a sweep makes of
         the ``sim`` and ``harness`` options (the other groups: their first option)."""
         from cab_core.conf.schema import check_value
 
-        others = tuple((g, vs[0]) for g, vs in choices.items() if g not in OPTION_SECTIONS)
-        per_option = [[(g, v) for v in choices[g]] for g in OPTION_SECTIONS if g in choices]
+        others = tuple((g, vs[0]) for g, vs in choices.items() if g not in CLOSED_GROUPS)
+        per_option = [[(g, v) for v in choices[g]] for g in CLOSED_GROUPS if g in choices]
         selections = [others + combo for combo in itertools.product(*per_option)]
         for o in keys:
             key = o.key_or_group
             top = key.split(".")[0]
-            if top in self.groups and top not in OPTION_SECTIONS:
+            if top in self.groups and top not in CLOSED_GROUPS:
                 continue  # model.*, task.*...: open, that option's business
-            for view in map(self.view, selections):
-                if top in OPTION_SECTIONS and view.get(top) is None:
+            for view in map(self.compositions.view, selections):
+                if top in CLOSED_GROUPS and view.get(top) is None:
                     continue  # the group is unset
-                option = view[top].get("name") if top in OPTION_SECTIONS else None
+                option = view[top].get("name") if top in CLOSED_GROUPS else None
                 for v in _override_values(o):
                     check_value(view, key, v, option)
             if key == "record.observers" and not o.is_sweep_override():
                 from cab_core.plugins import select_record_observers
 
                 select_record_observers({"observers": o.value()})  # an observer no plugin registers: refused here
-
-
-def _mappings(node) -> list:
-    """``node`` and every mapping below it."""
-    from omegaconf import DictConfig
-
-    if not isinstance(node, DictConfig):
-        return []
-    return [node] + [m for k in node for m in _mappings(node[k])]
 
 
 def unknown_option(group: str, value: str, options: list[str]) -> ConfigError:
