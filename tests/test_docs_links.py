@@ -1,5 +1,6 @@
-"""The README and the pages under docs/ link only to files and headings that exist, and the README,
-the front door, links every page of docs/ exactly once.
+"""The README and the pages under docs/ link only to files and headings that exist, name only
+files and modules of the repository that exist, and the README, the front door, links every page
+of docs/ exactly once.
 
 Links are read as GitHub renders Markdown: inline links and images (``[text](target)``,
 ``![alt](target)``) and reference definitions (``[name]: target``), outside fenced code blocks and
@@ -84,6 +85,71 @@ def broken_links(page: Path) -> list[str]:
         elif anchor and dest.is_file() and dest.suffix == ".md" and anchor not in anchors(dest):
             broken.append(f"{target}: no heading with that anchor")
     return broken
+
+
+_REPO_PATH = re.compile(r"(?<![\w./-])((?:cab_core|plugins|tests|scripts|hydra_plugins|examples)/[\w./-]*\w)(?![\w<*])")
+_MODULE = re.compile(r"(?<![\w./-])(cab_[a-z_]+(?:\.[A-Za-z_]\w*)+)")
+
+
+def _packages() -> dict[str, Path]:
+    """The top-level packages of the repository (the core, each plugin's, the examples'), by name."""
+    found = {}
+    for folder in [ROOT, *ROOT.glob("plugins/*"), *ROOT.glob("examples/*")]:
+        for p in folder.iterdir():
+            if p.is_dir() and (p / "__init__.py").exists():
+                found[p.name] = p
+    return found
+
+
+def _module_name_exists(dotted: str, packages: dict[str, Path]) -> bool:
+    """Whether ``pkg.module[.name]`` is a module of the repository, or a name that module defines
+    or imports (one name after the module is checked; what follows it is an attribute of it)."""
+    parts = dotted.split(".")
+    where = packages[parts[0]]
+    rest = parts[1:]
+    while rest and (where / rest[0]).is_dir():
+        where = where / rest.pop(0)
+    if rest and (where / f"{rest[0]}.py").is_file():
+        where = where / f"{rest.pop(0)}.py"
+    if not rest:
+        return True
+    source = (where / "__init__.py" if where.is_dir() else where).read_text(encoding="utf-8")
+    name = re.escape(rest[0])
+    return re.search(rf"^\s*(?:async\s+)?(?:def|class)\s+{name}\b|\b{name}\s*[:=]|\bimport\b.*\b{name}\b",
+                     source, re.M) is not None
+
+
+def missing_names(page: Path) -> list[str]:
+    """The repository paths (``cab_core/...``, ``plugins/...``, ...) and modules of the repository
+    (``cab_core.x.y``, ``cab_suite_codeaction.x``) that a page quotes in inline code and that do
+    not exist. Paths with a placeholder (``<name>``, ``*``) are not checked."""
+    packages = _packages()
+    missing = []
+    for line in page.read_text(encoding="utf-8").splitlines():
+        for code in re.findall(r"`([^`]+)`", line):
+            for path in _REPO_PATH.findall(code):
+                if not (ROOT / path).exists():
+                    missing.append(path)
+            for dotted in _MODULE.findall(code):
+                if dotted.split(".")[0] in packages and not _module_name_exists(dotted, packages):
+                    missing.append(dotted)
+    return missing
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_repository_path_and_module_a_page_quotes_exists(page):
+    assert missing_names(page) == []
+
+
+def test_a_quoted_path_or_module_that_moved_is_reported(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text(
+        "`cab_core/geometry.py` `cab_core/no_such_module.py` `plugins/export_<name>`\n"
+        "`cab_core.geometry` `cab_core.attempt.fork.ForkPoint` `cab_core.attempt.fork.no_such_name`\n"
+        "`cab_core.no_such_module.thing` `python -m cab_core.sweep.worker`\n"
+    )
+    assert missing_names(page) == [
+        "cab_core/no_such_module.py", "cab_core.attempt.fork.no_such_name", "cab_core.no_such_module.thing"]
 
 
 def test_the_pages_are_found():
