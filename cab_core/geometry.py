@@ -63,8 +63,8 @@ def mat_to_quat(m) -> np.ndarray:
     else:
         s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
         q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = quat_normalize(q)
-    return q if q[0] >= 0 else -q
+    unit = quat_normalize(q)
+    return unit if unit[0] >= 0 else -unit
 
 
 def axis_angle_quat(axis, angle: float) -> np.ndarray:
@@ -228,9 +228,9 @@ _DIR_NAMES = {(0, 1): "right (+x)", (0, -1): "left (-x)", (1, 1): "forward (+y)"
 _LINE_NAMES = {0: "left-right (x)", 1: "forward-backward (y)", 2: "vertical (z)"}
 
 
-def describe_direction(v: Sequence[float]) -> str:
+def describe_direction(direction: Sequence[float] | np.ndarray) -> str:
     """Plain words for a world direction, e.g. 'down (-z)' or 'mostly forward (+y), tilted 20 deg down (-z)'."""
-    v = np.asarray(v, float)
+    v = np.asarray(direction, float)
     v = v / (np.linalg.norm(v) or 1.0)
     order = np.argsort(-np.abs(v))
     i, j = int(order[0]), int(order[1])
@@ -241,9 +241,9 @@ def describe_direction(v: Sequence[float]) -> str:
     return f"mostly {main}, tilted {tilt:.0f} deg toward {_DIR_NAMES[(j, 1 if v[j] > 0 else -1)]}"
 
 
-def describe_line(v: Sequence[float]) -> str:
+def describe_line(direction: Sequence[float] | np.ndarray) -> str:
     """Plain words for an unoriented line direction."""
-    v = np.abs(np.asarray(v, float))
+    v = np.abs(np.asarray(direction, float))
     i = int(np.argmax(v))
     if v[i] >= math.cos(math.radians(5)):
         return _LINE_NAMES[i]

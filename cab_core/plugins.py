@@ -251,7 +251,7 @@ def config_dirs(pm: pluggy.PluginManager | None = None) -> list[str]:
     pm = pm or plugin_manager()
     out: list[str] = []
     for impl in reversed(pm.hook.cab_config_dirs.get_hookimpls()):  # pluggy calls the last registered first
-        res = impl.function() or []
+        res: Any = impl.function() or []  # checked below: a plugin may return anything
         owner = pm.get_name(impl.plugin) or repr(impl.plugin)
         if isinstance(res, str) or not all(isinstance(p, str) and p for p in res):
             raise PluginError(f"cab_config_dirs of {owner} must return a list of search paths "
@@ -286,7 +286,7 @@ def describe(pm: pluggy.PluginManager | None = None) -> list[dict]:
                     provides[kind] = sorted((impl.function() or {}).keys())
         hooks = sorted(h.name for h in pm.get_hookcallers(plugin) or [])
         dist, ver = dists.get(name, ("(registered in code)", ""))
-        row = {"plugin": name, "distribution": dist, "version": ver, "provides": provides, "hooks": hooks,
+        row: dict[str, Any] = {"plugin": name, "distribution": dist, "version": ver, "provides": provides, "hooks": hooks,
                "disabled": False}
         if provides.get("task_suites"):
             row["tasks"] = {s: suites.suites.get(s, []) for s in provides["task_suites"]}
@@ -316,7 +316,7 @@ def select_record_observers(record_cfg: Mapping | None, pm=None) -> list[Observe
     if chosen is None:
         return [ObserverSpec(n, f, {}) for n, f in sorted(installed.items()) if getattr(f, "on_by_default", True)]
     if isinstance(chosen, (list, tuple)):
-        wanted = {}
+        wanted: dict[str, Any] = {}
         for n in chosen:
             if not isinstance(n, str):
                 raise ConfigError(f"record.observers: a name must be a string, got {n!r}")

@@ -14,13 +14,20 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import NoReturn
+
+from cab_core.attempt.fork import charged_calls, read_jsonl
+from cab_core.config import composed, default_selection
+from cab_core.contracts.verifier import BORDERLINE_FRACTION
+from cab_core.errors import ConfigError
+from cab_core.plugins import all_tasks, registry
+from cab_core.sweep.supervisor import fork_configs, run_batch, run_configs
 
 
 def verdict(rows: list[dict]) -> dict:
-    from cab_core.contracts.verifier import BORDERLINE_FRACTION  # numpy: not at start-up
-
     o = [r for r in rows if r["agent"] == "oracle"]
     i = [r for r in rows if r["agent"] == "idle"]
+
     def within(r: dict) -> bool:
         return "error" not in r and r["success"] and r["calls"] <= r["calls_limit"] and r["sim_s"] <= r["sim_s_limit"]
 
@@ -137,9 +144,6 @@ def fork_parents(dirs: list[Path]) -> list[Path]:
 def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int) -> dict:
     """Fork each oracle attempt of ``rows`` and each attempt under ``extra`` at every charged call;
     the stage-aware oracle finishes each. Prints a table per task and returns the figures."""
-    from cab_core.attempt.fork import charged_calls, read_jsonl
-    from cab_core.sweep.supervisor import fork_configs, run_configs
-
     own = [Path(r["dir"]) for r in rows if r["agent"] == "oracle" and "dir" in r]
     parents = own + fork_parents(extra)
     points, outs, origin = [], [], []
@@ -187,10 +191,7 @@ def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int) -> dic
     return total
 
 
-def main() -> None:
-    from cab_core.plugins import all_tasks
-    from cab_core.sweep.supervisor import run_batch
-
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cab-suite-check", description=__doc__)
     ap.add_argument("--tasks", default="all", help="comma-separated task names (default: every installed task)")
     ap.add_argument("--seeds", default=None, help="comma-separated seeds (default: each task's catalog seed)")
@@ -218,52 +219,75 @@ def main() -> None:
                     help="with --forks: also fork every attempt found under DIR (e.g. recorded agent attempts)")
     ap.add_argument("--compare", action="store_true",
                     help="run the check twice, --cold then warm, and print both wall times and the speed-up")
-    a = ap.parse_args()
-    if a.randomize is not None:
-        from cab_core.config import composed
+    return ap
 
+
+def _usage_error(message: str) -> NoReturn:
+    """A mistake on the command line: one line, exit status 2."""
+    print(f"cab-suite-check: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def _selection(a: argparse.Namespace) -> tuple[list[str], list[str], list[int] | dict[str, tuple[int, ...]] | None]:
+    """The simulators, tasks and seeds the command line selects, checked against what is installed."""
+    if a.randomize is not None:
         try:
             composed([f"randomize={a.randomize}"])
         except Exception:
-            print(f"cab-suite-check: unknown --randomize option {a.randomize!r}", file=sys.stderr)
-            sys.exit(2)
+            _usage_error(f"unknown --randomize option {a.randomize!r}")
     if a.sim is None:
-        from cab_core.config import default_selection
-
         a.sim = default_selection(("sim",))["sim"]
     sims = [s.strip() for s in a.sim.split(",") if s.strip()]
-    from cab_core.plugins import registry
-
     known = registry("simulators")
     missing = [s for s in sims if s not in known]
     if not sims or missing:
-        print(f"cab-suite-check: unknown simulator(s) {missing or sims}; installed: {', '.join(known)}", file=sys.stderr)
-        sys.exit(2)
+        _usage_error(f"unknown simulator(s) {missing or sims}; installed: {', '.join(known)}")
     installed = all_tasks()
     tasks = list(installed) if a.tasks == "all" else [t.strip() for t in a.tasks.split(",") if t.strip()]
     unknown = [t for t in tasks if t not in installed]
     if unknown:
-        print(f"cab-suite-check: unknown task(s) {unknown}; installed: {', '.join(installed)}", file=sys.stderr)
-        sys.exit(2)
+        _usage_error(f"unknown task(s) {unknown}; installed: {', '.join(installed)}")
     if a.seeds is not None and a.seed_set is not None:
-        print("cab-suite-check: give --seeds or --seed-set, not both", file=sys.stderr)
-        sys.exit(2)
+        _usage_error("give --seeds or --seed-set, not both")
     seeds: list[int] | dict[str, tuple[int, ...]] | None = None
     if a.seeds is not None:
         seeds = [int(s) for s in a.seeds.split(",")]
     elif a.seed_set is not None:
-        from cab_core.errors import ConfigError
-
         try:
             seeds = {t: installed[t].seeds(a.seed_set) for t in tasks}
         except ConfigError as e:
-            print(f"cab-suite-check: {e}", file=sys.stderr)
-            sys.exit(2)
+            _usage_error(str(e))
+    return sims, tasks, seeds
+
+
+def _print_verdict(v: dict, elapsed_s: float, a: argparse.Namespace) -> None:
+    print(f"\noracle: {v['oracle_success_within_budget']}/{v['oracle_attempts']} successes within budgets; "
+          f"idle: {v['idle_success']}/{v['idle_attempts']} successes, {v['idle_subgoal_at_start']} with a subgoal "
+          f"satisfied at the start; checkpoints attained by the oracles: subgoals {v['subgoals_attained']}/"
+          f"{v['subgoals_total']}, spatial {v['spatial_attained']}/{v['spatial_total']}; borderline oracle "
+          f"verdicts {v['oracle_borderline']} (smallest margin "
+          f"{'-' if v['oracle_min_margin'] is None else format(v['oracle_min_margin'], '.0%')}); "
+          f"{elapsed_s:.0f} s with {a.jobs} worker(s)" + (" (cold)" if a.cold else ""))
+
+
+def _passed(v: dict, robust: dict | None, forks: dict | None) -> bool:
+    """Whether the check passed: every fork explained, or each perturbed oracle's rate, or every oracle
+    within its budgets and no idle success."""
+    if forks is not None:
+        return forks["unexplained"] == 0 and forks["errors"] == 0 and forks["fresh_equal"]
+    if robust is not None:  # perturbed: a rate per task and simulator, not every run
+        return all(c["rate"] >= PERTURBED_SUCCESS_MIN for cells in robust.values() for c in cells.values())
+    return (v["oracle_success_within_budget"] == v["oracle_attempts"] and v["idle_success"] == 0
+            and v["idle_subgoal_at_start"] == 0)
+
+
+def main() -> None:
+    a = _parser().parse_args()
+    sims, tasks, seeds = _selection(a)
     out = Path(a.out) if a.out else Path("outputs") / "suite-check" / time.strftime("%Y-%m-%d_%H-%M-%S")
     out.mkdir(parents=True, exist_ok=True)
     if a.perturb < 0:
-        print("cab-suite-check: --perturb must be >= 0", file=sys.stderr)
-        sys.exit(2)
+        _usage_error("--perturb must be >= 0")
     agents = ("oracle",) if a.no_idle or a.perturb or a.forks else ("oracle", "idle")
     timings = {}
     if a.compare:
@@ -274,7 +298,7 @@ def main() -> None:
               f"verdict {verdict(cold_rows)}", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     rows = run_batch(tasks, seeds, max(1, a.jobs), out / "warm" if a.compare else out, agents, tuple(sims),
-                 cold=a.cold, perturb=a.perturb, randomize=a.randomize)
+                     cold=a.cold, perturb=a.perturb, randomize=a.randomize)
     timings["cold_s" if a.cold else "warm_s"] = round(time.monotonic() - t0, 1)
     print_table(rows)
     table = cross_sim(rows)
@@ -286,13 +310,7 @@ def main() -> None:
     if robust is not None:
         print(f"\noracle successes within budgets under perturbation ({a.perturb} noise seeds per instance):")
         print_robustness(robust, sims)
-    print(f"\noracle: {v['oracle_success_within_budget']}/{v['oracle_attempts']} successes within budgets; "
-          f"idle: {v['idle_success']}/{v['idle_attempts']} successes, {v['idle_subgoal_at_start']} with a subgoal "
-          f"satisfied at the start; checkpoints attained by the oracles: subgoals {v['subgoals_attained']}/"
-          f"{v['subgoals_total']}, spatial {v['spatial_attained']}/{v['spatial_total']}; borderline oracle "
-          f"verdicts {v['oracle_borderline']} (smallest margin "
-          f"{'-' if v['oracle_min_margin'] is None else format(v['oracle_min_margin'], '.0%')}); "
-          f"{time.monotonic() - t0:.0f} s with {a.jobs} worker(s)" + (" (cold)" if a.cold else ""))
+    _print_verdict(v, time.monotonic() - t0, a)
     if a.compare:
         timings["speedup"] = round(timings["cold_s"] / max(timings["warm_s"], 1e-9), 2)
         print(f"start-up compared on the same {len(rows)} attempts with {a.jobs} worker(s): cold "
@@ -308,12 +326,4 @@ def main() -> None:
         (out / "summary.json").write_text(json.dumps({**json.loads((out / "summary.json").read_text()),
                                                       "forks": forks}, indent=2))
     print(f"records and summary.json in {out}")
-    if forks is not None:
-        ok = forks["unexplained"] == 0 and forks["errors"] == 0 and forks["fresh_equal"]
-        sys.exit(0 if ok else 1)
-    if robust is not None:  # perturbed: a rate per task and simulator, not every run
-        ok = all(c["rate"] >= PERTURBED_SUCCESS_MIN for cells in robust.values() for c in cells.values())
-    else:
-        ok = (v["oracle_success_within_budget"] == v["oracle_attempts"] and v["idle_success"] == 0
-              and v["idle_subgoal_at_start"] == 0)
-    sys.exit(0 if ok else 1)
+    sys.exit(0 if _passed(v, robust, forks) else 1)

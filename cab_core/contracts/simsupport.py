@@ -9,7 +9,7 @@ rules and drifting apart. Nothing here imports a simulator.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TypeVar
 
 import numpy as np
@@ -139,6 +139,7 @@ class CameraAccessors:
     rendering stay with the backend: only they differ between simulators."""
 
     _cameras: dict
+    _live: Callable[[], None]  # the backend's: raises once the simulator is closed
 
     def _camera(self, name: str):
         """The backend's record of camera ``name``, or BadCommand."""
@@ -167,6 +168,8 @@ class LastStepContacts:
     (None: not read yet), so that stepping costs nothing extra."""
 
     _contacts: list[Contact] | None
+    _live: Callable[[], None]  # the backend's: raises once the simulator is closed
+    _compute_contacts: Callable[[], list[Contact]]  # the backend's: the last step's contacts from its engine
 
     def get_contacts(self) -> list[Contact]:
         """One entry per body pair in contact during the last step, names sorted within the pair,

@@ -34,6 +34,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +90,7 @@ def uv_mesh(geometry, tile_m: float = TILE_M) -> str:
     """An OBJ file (positions, texture coordinates, normals; counter-clockwise outward faces) of the
     primitive ``geometry`` in its shape frame, texture coordinates in tiles of ``tile_m`` metres;
     written once into the cache folder. See the module docstring for the mapping."""
+    build: Callable[..., tuple]  # the shape's dimensions -> vertices, texture coordinates, normals, triangles
     if isinstance(geometry, Box):
         dims = tuple(float(h) for h in geometry.half_size)
         build = _box
@@ -129,7 +131,10 @@ def uv_mesh(geometry, tile_m: float = TILE_M) -> str:
 
 def _box(hx: float, hy: float, hz: float):
     h = np.array([hx, hy, hz])
-    verts, uvs, norms, tris = [], [], [], []
+    verts: list = []
+    uvs: list = []
+    norms: list = []
+    tris: list = []
     # (normal axis, sign, u axis, v axis); u x v = the outward normal, so (0,1,2,3) runs anticlockwise
     for axis, sign, ua, va in ((2, 1, 0, 1), (2, -1, 1, 0), (1, -1, 0, 2), (1, 1, 2, 0), (0, 1, 1, 2),
                                (0, -1, 2, 1)):
@@ -185,7 +190,10 @@ def _side(r: float, x0: float, x1: float, verts, uvs, norms, tris) -> None:
 
 
 def _cylinder(r: float, h: float):
-    verts, uvs, norms, tris = [], [], [], []
+    verts: list = []
+    uvs: list = []
+    norms: list = []
+    tris: list = []
     _side(r, -h, h, verts, uvs, norms, tris)
     for sign in (1, -1):  # caps: a fan round the centre, projected onto (y, z)
         centre = len(verts)
@@ -204,7 +212,10 @@ def _cylinder(r: float, h: float):
 
 
 def _sphere(r: float):
-    verts, uvs, norms, tris = [], [], [], []
+    verts: list = []
+    uvs: list = []
+    norms: list = []
+    tris: list = []
 
     def unit(i, j):  # i round z (longitude), j from the south pole (-z) to the north pole
         lat = -math.pi / 2 + math.pi * j / RINGS
@@ -219,7 +230,10 @@ def _sphere(r: float):
 
 
 def _capsule(r: float, h: float):
-    verts, uvs, norms, tris = [], [], [], []
+    verts: list = []
+    uvs: list = []
+    norms: list = []
+    tris: list = []
     quarter = math.pi * r / 2  # arc length of a cap, pole to rim
     half_rings = max(2, RINGS // 2)
 

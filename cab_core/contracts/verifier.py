@@ -3,7 +3,7 @@ latched-event scoring. Nothing here ever reaches a tool result."""
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
@@ -140,7 +140,7 @@ def margin_above(measured: float, threshold: float, unit: str, scale: float | No
     return Margin(float(measured) - float(threshold), _scale(threshold, scale), unit, float(measured), float(threshold))
 
 
-def margin_within(deviations: Iterable[float], tolerance: float | Iterable[float], unit: str) -> Margin:
+def margin_within(deviations: Iterable[float], tolerance: float | Sequence[float] | np.ndarray, unit: str) -> Margin:
     """The margin of ``all(|d_i| < tol_i)``: the component closest to its tolerance, relative to
     that tolerance (one tolerance for all components, or one each)."""
     d = np.abs(np.asarray(list(deviations), dtype=float))

@@ -28,6 +28,7 @@ def main(argv: list[str]) -> int:
             print(f"  {layer}: {state}")
         if sandbox.confinement_note:
             print(f"note: {sandbox.confinement_note}")
+        assert sandbox.spawn_s is not None, "set when the child started"
         print(f"spawn: {sandbox.spawn_s * 1e3:.0f} ms (first Sandbox() call {first * 1e3:.0f} ms)")
         sandbox.run("pass")
         per_call = []

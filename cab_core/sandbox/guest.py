@@ -237,7 +237,7 @@ def _bound_identifiers(node: ast.AST) -> list[str]:
     elif isinstance(node, ast.alias):
         names = [node.asname]
     elif type(node).__name__ in ("TypeVar", "ParamSpec", "TypeVarTuple"):  # 3.12: def f[T]()
-        names = [node.name]
+        names = [node.name]  # type: ignore[attr-defined]  # nodes of 3.12, matched by their class name
     else:
         names = []
     return [n for n in names if n]
@@ -285,8 +285,7 @@ def check_tree(tree: ast.AST) -> list[str]:
         template = _literal_template(node)
         if template is not None:  # refused now; templates built at run time are checked by the hook
             problems += [f"line {line}: {p}, which is not allowed" for p in format_problems(template)]
-    seen: set[str] = set()
-    return [p for p in problems if not (p in seen or seen.add(p))]
+    return list(dict.fromkeys(problems))  # each problem once, in the order found
 
 
 # ---------------------------------------------------------------------- format hook (run time)
@@ -388,7 +387,7 @@ def format_attr(obj, name: str):
         return _checked_unbound(value)
     if (isinstance(value, types.BuiltinMethodType) and isinstance(getattr(value, "__self__", None), str)
             and value.__name__ in FORMAT_METHODS):  # 'x'.format, np.str_('x').format, ...
-        return _checked_bound(value, value.__self__)
+        return _checked_bound(value, value.__self__)  # type: ignore[arg-type]  # a str: tested above
     if isinstance(obj, str) or (isinstance(obj, type) and issubclass(obj, str)):
         # a string type that overrides the method: nothing in reach does; refuse rather than guess
         raise SandboxPolicyError(f"'.{name}' of this string type is not allowed")
@@ -606,13 +605,13 @@ def to_jsonable(value, np, budget=None, depth=0):
         except TypeError:
             value = sorted(value, key=repr)
     if isinstance(value, (list, tuple, range)):
-        out = []
+        listed = []
         for i, v in enumerate(value):
             if budget[0] <= 0:
-                out.append({f"{_TRUNC}_items__": len(value) - i})
+                listed.append({f"{_TRUNC}_items__": len(value) - i})
                 break
-            out.append(to_jsonable(v, np, budget, depth + 1))
-        return out
+            listed.append(to_jsonable(v, np, budget, depth + 1))
+        return listed
     if isinstance(value, (bytes, bytearray)):
         return to_jsonable(repr(bytes(value[:_MAX_STR])), np, budget, depth + 1)
     return to_jsonable(repr(value), np, budget, depth + 1)
@@ -728,15 +727,16 @@ def install_seccomp() -> str:
         raise OSError(f"no seccomp filter for architecture {machine}")
     ctypes, libc = _libc()
 
-    class SockFilter(ctypes.Structure):
+    # ctypes is the module _libc returns (imported only when the filter is installed), not a name mypy resolves
+    class SockFilter(ctypes.Structure):  # type: ignore[name-defined]
         _fields_ = [("code", ctypes.c_uint16), ("jt", ctypes.c_uint8), ("jf", ctypes.c_uint8),
                     ("k", ctypes.c_uint32)]
 
-    class SockFprog(ctypes.Structure):
+    class SockFprog(ctypes.Structure):  # type: ignore[name-defined]
         _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.POINTER(SockFilter))]
 
     insns = _bpf_program(machine, os.getpid())
-    arr = (SockFilter * len(insns))(*[SockFilter(*i) for i in insns])
+    arr = (SockFilter * len(insns))(*[SockFilter(*i) for i in insns])  # type: ignore[operator]
     prog = SockFprog(len(insns), arr)
     _no_new_privs(ctypes, libc)
     nr = _ARCH[machine][1]["seccomp"]
@@ -855,7 +855,8 @@ def hide_addresses(keep: tuple = ()) -> str:
     def probe():
         pass
 
-    if _ADDRESS.search(repr(probe)) or _ADDRESS.search(repr([probe.__call__])):
+    # mypy reads probe.__call__ as a call of the function rather than its method-wrapper object
+    if _ADDRESS.search(repr(probe)) or _ADDRESS.search(repr([probe.__call__])):  # type: ignore[operator]
         raise OSError("repr still shows addresses")
     return f"ok ({len(plan)} types)"
 
@@ -1092,6 +1093,7 @@ class Runner:
         self.ns.pop("result", None)
         filename = f"<run_code:{self.run_id}>"
         reply = {"op": "done", "ok": True, "error": None, "value": None, "result_assigned": False, "stopped": None}
+        tree: ast.Module | None
         try:  # parsing, the policy, the hook and compiling: a program too deep for any is its error
             tree = ast.parse(code, filename, "exec")
             if self.python_layer:

@@ -116,6 +116,7 @@ class _Channel:
     """Length-prefixed frames over the child's pipes, with deadlines (poll, non-blocking fds)."""
 
     def __init__(self, proc: subprocess.Popen):
+        assert proc.stdout is not None and proc.stdin is not None, "the child is started with pipes"
         self.rfd = proc.stdout.fileno()
         self.wfd = proc.stdin.fileno()
         os.set_blocking(self.rfd, False)
@@ -493,6 +494,7 @@ class Sandbox:
             if self._closed:
                 raise CabError("the sandbox is closed")
             if self._child is None:
+                assert self._plan is not None, "a sandbox that started once has its launch plan"
                 try:
                     self._child = self._spawn(self._plan)
                 except _SpawnError as exc:
@@ -517,6 +519,7 @@ class Sandbox:
 
     def _drive(self, code: str, st: _RunState, deadline: float) -> None:
         child = self._child
+        assert child is not None, "run() spawns the child before driving it"
         ch = child.channel
         cfg = self.config
         try:
@@ -624,7 +627,9 @@ class Sandbox:
             if o not in st.obs_ids:
                 st.obs_ids.append(o)
             st.image_events.append(o)
-        failure = payload.get("failure") if isinstance(payload.get("failure"), dict) else {}
+        failure = payload.get("failure")
+        if not isinstance(failure, dict):
+            failure = {}
         entry = {
             "index": index, "tool": name, "ok": "error" not in payload,
             "status": payload.get("status"), "action_id": payload.get("action_id"),

@@ -92,10 +92,10 @@ def shrink(obj, items: int, chars: int):
         return out
     if isinstance(obj, dict):
         keys = list(obj)
-        out = {str(k): shrink(obj[k], items, chars) for k in keys[:items]}
+        kept = {str(k): shrink(obj[k], items, chars) for k in keys[:items]}
         if len(keys) > items:
-            out[f"{MARK}_keys__"] = len(keys) - items
-        return out
+            kept[f"{MARK}_keys__"] = len(keys) - items
+        return kept
     return obj
 
 
@@ -112,7 +112,8 @@ def cap_result(result: dict, cap: int) -> dict:
     if original <= cap:
         return result
     out = dict(result)
-    marker = {"original_bytes": original, "cap_bytes": cap, "fields": []}
+    fields: list[str] = []
+    marker = {"original_bytes": original, "cap_bytes": cap, "fields": fields}
     out[f"{MARK}__"] = marker
     for name in _ORDER:
         if name not in out or json_size(out) <= cap:
@@ -127,5 +128,5 @@ def cap_result(result: dict, cap: int) -> dict:
             if json_size(out) <= cap:
                 break
         if out[name] != result[name]:
-            marker["fields"].append(name)
+            fields.append(name)
     return out

@@ -102,9 +102,9 @@ _AWAY_DEPTH_M = 500.0  # how far below the ground the objects go for the backgro
 class Region:
     """One material of one object, as measured in one picture."""
     obj: str
-    declared: tuple[float, float, float]  # linear RGB
+    declared: tuple[float, ...]  # linear RGB
     pixels: int = 0
-    measured: tuple[float, float, float] | None = None  # linear RGB, the mean over its pixels
+    measured: tuple[float, ...] | None = None  # linear RGB, the mean over its pixels
 
     @property
     def hue_deg(self) -> float:
@@ -189,16 +189,16 @@ def _transform(tris: np.ndarray, pose) -> np.ndarray:
     return tris @ T[:3, :3].T + T[:3, 3]
 
 
-def _urdf_visuals(urdf: str) -> list[tuple[str, object, tuple, tuple[float, float, float] | None]]:
+def _urdf_visuals(urdf: str) -> list[tuple[str, object, tuple, tuple[float, ...] | None]]:
     """``(link, geometry, pose in the link frame, linear RGB or None)`` of every ``<visual>`` of a
     URDF (geometry as the scene's primitives; URDF cylinders lie along z)."""
     root = ET.parse(urdf).getroot()
-    named = {}
+    named: dict[str | None, tuple[float, ...]] = {}
     for m in root.findall("material"):
         c = m.find("color")
         if c is not None and m.get("name"):
-            named[m.get("name")] = tuple(float(x) for x in c.get("rgba").split()[:3])
-    out = []
+            named[m.get("name")] = tuple(float(x) for x in c.attrib["rgba"].split()[:3])
+    out: list[tuple[str, object, tuple, tuple[float, ...] | None]] = []
     folder = os.path.dirname(os.path.abspath(urdf))
     for link in root.findall("link"):
         for vis in link.findall("visual"):
@@ -207,35 +207,36 @@ def _urdf_visuals(urdf: str) -> list[tuple[str, object, tuple, tuple[float, floa
             rpy = [float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()]
             pose = tuple(xyz) + tuple(euler_quat(*rpy))
             color = None
-            m = vis.find("material")
-            if m is not None:
-                c = m.find("color")
-                color = (tuple(float(x) for x in c.get("rgba").split()[:3]) if c is not None
-                         else named.get(m.get("name")))
+            mat = vis.find("material")
+            if mat is not None:
+                c = mat.find("color")
+                color = (tuple(float(x) for x in c.attrib["rgba"].split()[:3]) if c is not None
+                         else named.get(mat.get("name")))
             geo = vis.find("geometry")
             if geo is None or len(geo) == 0:
                 continue
             g = geo[0]
+            shape: object
             if g.tag == "box":
-                s = [float(x) / 2 for x in g.get("size").split()]
-                shape = Box(tuple(s))
+                sx, sy, sz = (float(x) / 2 for x in g.attrib["size"].split())
+                shape = Box((sx, sy, sz))
             elif g.tag == "sphere":
-                shape = Sphere(float(g.get("radius")))
+                shape = Sphere(float(g.attrib["radius"]))
             elif g.tag == "cylinder":  # along z: turn the scene's x-axis cylinder onto z
-                shape = Cylinder(float(g.get("radius")), float(g.get("length")) / 2)
+                shape = Cylinder(float(g.attrib["radius"]), float(g.attrib["length"]) / 2)
                 pose = tuple(pose_mul(pose, (0, 0, 0, math.cos(-math.pi / 4), 0, math.sin(-math.pi / 4), 0)))
             elif g.tag == "mesh":
                 fn = g.get("filename", "")
                 fn = fn[len("file://"):] if fn.startswith("file://") else fn
-                scale = tuple(float(x) for x in g.get("scale", "1 1 1").split())
-                shape = Mesh(fn if os.path.isabs(fn) else os.path.join(folder, fn), scale)
+                kx, ky, kz = (float(x) for x in g.get("scale", "1 1 1").split())
+                shape = Mesh(fn if os.path.isabs(fn) else os.path.join(folder, fn), (kx, ky, kz))
             else:
                 continue
-            out.append((link.get("name"), shape, pose, color))
+            out.append((link.get("name", ""), shape, pose, color))  # a link without a name is no scene link
     return out
 
 
-def object_triangles(sim: Simulator, scene: SceneSpec) -> list[tuple[str, tuple[float, float, float], np.ndarray]]:
+def object_triangles(sim: Simulator, scene: SceneSpec) -> list[tuple[str, tuple[float, ...], np.ndarray]]:
     """``(object, declared linear RGB, world triangles (T, 3, 3))`` of every untextured visual
     shape of every object, at the simulator's current poses."""
     out = []
@@ -499,7 +500,11 @@ def main(argv: list[str] | None = None) -> int:
     for sim in sims:
         for t in selected_tasks(a.tasks or ""):
             t0 = time.perf_counter()
-            regions = task_regions(lambda sim=sim: reg[sim]({"name": sim, "render": True}), t, emb)
+
+            def factory(sim: str = sim) -> Simulator:
+                return reg[sim]({"name": sim, "render": True})
+
+            regions = task_regions(factory, t, emb)
             bad = judge(regions)
             failed += bool(bad)
             print(f"{sim} {t}: {'FAIL' if bad else 'ok'} ({time.perf_counter() - t0:.1f} s)")

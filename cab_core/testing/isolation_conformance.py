@@ -27,7 +27,7 @@ By hand::
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -62,7 +62,7 @@ def _shape_reach(shape: Shape) -> float:
     return r + float(np.linalg.norm(shape.pose[:3]))
 
 
-def world_extent(scene: SceneSpec, also: list[tuple[float, float]] = ()) -> tuple[np.ndarray, float]:
+def world_extent(scene: SceneSpec, also: Sequence[tuple[float, float]] = ()) -> tuple[np.ndarray, float]:
     """Centre (x, y) and radius of a vertical cylinder holding every body and articulated object of
     ``scene`` (articulated objects: ``_MESH_REACH_M`` around their root) and the points ``also``."""
     pts, radii = [], []
@@ -81,7 +81,7 @@ def world_extent(scene: SceneSpec, also: list[tuple[float, float]] = ()) -> tupl
     return centre, max(float(np.linalg.norm(p - centre)) + r for p, r in zip(pts, radii))
 
 
-def far_bodies(scene: SceneSpec, also: list[tuple[float, float]] = (), far: float = FAR_M,
+def far_bodies(scene: SceneSpec, also: Sequence[tuple[float, float]] = (), far: float = FAR_M,
                prefix: str = "isolation_extra") -> list[Body]:
     """Dynamic bodies resting on the ground (``scene.ground_z``), each at least ``far`` beyond the
     reach of everything in ``scene`` and of the points ``also`` (e.g. the robot's base): a box, a
@@ -109,7 +109,7 @@ def far_bodies(scene: SceneSpec, also: list[tuple[float, float]] = (), far: floa
     return out
 
 
-def with_far_bodies(scene: SceneSpec, also: list[tuple[float, float]] = (), far: float = FAR_M) -> SceneSpec:
+def with_far_bodies(scene: SceneSpec, also: Sequence[tuple[float, float]] = (), far: float = FAR_M) -> SceneSpec:
     """A copy of ``scene`` with :func:`far_bodies` appended (the original is left as it is)."""
     names = set(scene.names())
     extra = [b for b in far_bodies(scene, also, far) if b.name not in names]

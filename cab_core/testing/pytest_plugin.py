@@ -117,7 +117,9 @@ class _Suite(pytest.Module):
         return conformance_suite
 
     def collect(self):
-        groups = selection(self.config).groups
+        sel = selection(self.config)
+        assert sel is not None, "the suite is collected only with --cab-conformance"
+        groups = sel.groups
         return [n for n in super().collect() if _GROUP_OF.get(getattr(n, "originalname", ""), "") in groups]
 
 

@@ -428,11 +428,12 @@ def check_bad_commands(factory: SimFactory) -> None:
             lambda: sim.render("no_such_camera"),
             lambda: sim.set_drive_targets(np.zeros(n + 1)),
             lambda: sim.set_drive_targets(np.zeros((n, 1))),
-            lambda: sim.set_drive_targets([0.0, float("nan")] + [0.0] * (n - 2)),
-            lambda: sim.set_drive_targets([0.0, float("inf")] + [0.0] * (n - 2)),
-            lambda: sim.set_drive_targets(["a"] * n),
+            # bad input on purpose, lists as well as arrays: each must be refused with BadCommand
+            lambda: sim.set_drive_targets([0.0, float("nan")] + [0.0] * (n - 2)),  # type: ignore[arg-type]
+            lambda: sim.set_drive_targets([0.0, float("inf")] + [0.0] * (n - 2)),  # type: ignore[arg-type]
+            lambda: sim.set_drive_targets(["a"] * n),  # type: ignore[arg-type]
             lambda: sim.set_qpos(np.zeros(n - 1)),
-            lambda: sim.set_qpos([float("nan")] * n),
+            lambda: sim.set_qpos([float("nan")] * n),  # type: ignore[arg-type]
             lambda: sim.set_object_pose("cube", (0, 0, 1)),
             lambda: sim.set_object_pose("cube", (0, 0, float("nan"), 1, 0, 0, 0)),
             lambda: sim.set_object_pose("cube", (0, 0, 1, 0, 0, 0, 0)),
@@ -560,7 +561,7 @@ def check_cameras(factory: SimFactory) -> None:
         np.testing.assert_allclose(wrist0, pose_mul(sim.get_link_pose("camera_link"), specs[WRIST_CAMERA].pose),
                                    atol=1e-5)
         img0 = sim.render(WRIST_CAMERA)
-        sim.set_qpos([0.6, 0.4, FINGER_OPEN, FINGER_OPEN])
+        sim.set_qpos([0.6, 0.4, FINGER_OPEN, FINGER_OPEN])  # type: ignore[arg-type]  # a list: backends take one
         sim.step(1)
         wrist1 = sim.camera_pose(WRIST_CAMERA)
         assert np.linalg.norm(wrist1[:3] - wrist0[:3]) > 0.05, "the wrist camera did not move with its link"
@@ -644,7 +645,8 @@ def check_render_samples(factory: SimFactory) -> None:
     try:
         if a.render_sample() is None:
             return
-        samples, frames = [], {HEAD_CAMERA: [], WRIST_CAMERA: []}
+        samples: list = []
+        frames: dict[str, list] = {HEAD_CAMERA: [], WRIST_CAMERA: []}
 
         def script(sim, keep: bool) -> None:
             for k in range(6):
@@ -866,7 +868,7 @@ def check_textures(factory: SimFactory) -> None:
 
 from cab_core.testing.appearance_conformance import check_appearance  # noqa: E402 (tasks' colours)
 
-CHECKS: list[Callable[[SimFactory], None]] = [
+CHECKS: list[Callable[[SimFactory], object]] = [  # a check raises, or returns None or its figures
     check_build_and_names,
     check_seeded_reset_identical,
     check_sequential_builds_identical,

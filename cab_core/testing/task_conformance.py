@@ -46,8 +46,8 @@ def run_attempts(pairs: list[tuple[str, str]], jobs: int, out: Path) -> dict[tup
     for sim, tasks in by_sim.items():
         groups.setdefault(tuple(tasks), []).append(sim)
     results = {(t, s): PairResult(t, s) for t, s in pairs}
-    for i, (tasks, sims) in enumerate(groups.items()):
-        for row in run_batch(list(tasks), None, max(1, jobs), Path(out) / f"batch-{i}", AGENTS, tuple(sims)):
+    for i, (batch, sims) in enumerate(groups.items()):
+        for row in run_batch(list(batch), None, max(1, jobs), Path(out) / f"batch-{i}", AGENTS, tuple(sims)):
             res = results.get((row["task"], row["sim"]))
             if res is not None:
                 res.rows[row["agent"]] = row
@@ -172,7 +172,8 @@ def _world(task: str, sim: str, out: Path):
     [cfg] = attempt_configs([(task, task_info(task).seed, "idle", str(out), sim)], cold=False)
     cfg["sim"] = {**cfg["sim"], "render": False}
     world = BuiltWorld.open(attempt_spec(cfg, out))
-    return world, RobotContext(world.sim, world.planner, world.emb, None, None)
+    # no step clock and no observation store: the context serves the robot's read-only calls only
+    return world, RobotContext(world.sim, world.planner, world.emb, None, None)  # type: ignore[arg-type]
 
 
 def _drive(w, base, steps: int) -> None:

@@ -90,7 +90,8 @@ class Guard:
     def _is_token(self, given: str) -> bool:
         """Whether ``given`` is the token: compared as UTF-8 bytes in constant time (a text with
         non-ASCII characters is simply not the token; ``compare_digest`` refuses such ``str``)."""
-        return secrets.compare_digest(given.encode("utf-8", "surrogatepass"), self.token.encode())
+        token = self.token  # set: called only when the studio has a token
+        return token is not None and secrets.compare_digest(given.encode("utf-8", "surrogatepass"), token.encode())
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
@@ -229,11 +230,31 @@ class Studio:
 
 
 def build_app(root: Path, state_dir: Path | None = None, token: str | None = None, loopback: bool = True) -> Starlette:
+    """The studio's application over ``root``, behind its :class:`Guard` (the token, the loopback rule)."""
     studio = Studio(root, state_dir)
-    T = studio.templates
+    routes = [*_browse_routes(studio), *_play_routes(studio), *_play_api_routes(studio),
+              Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app):
+        yield
+        await asyncio.to_thread(studio.plays.stop)  # a play still running is recorded as interrupted
+
+    app = Starlette(routes=routes, lifespan=lifespan)
+    app.state.studio = studio
+    return Guard(app, token, loopback)  # type: ignore[return-value]
+
+
+def _page(studio: Studio, request: Request, name: str, **ctx) -> Response:
+    """Template ``name`` rendered with the studio's root and ``ctx``."""
+    return studio.templates.TemplateResponse(request, name, {"root": studio.shown, **ctx})
+
+
+def _browse_routes(studio: Studio) -> list[Route]:
+    """The pages and API of the tree of records: the tree, a group, its report, an attempt and its files."""
 
     def page(request: Request, name: str, **ctx) -> Response:
-        return T.TemplateResponse(request, name, {"root": studio.shown, **ctx})
+        return _page(studio, request, name, **ctx)
 
     def home(request: Request):
         return page(request, "tree.html")
@@ -284,6 +305,19 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
         return JSONResponse({"finished": (d / "result.json").exists() and not playing, "playing": playing,
                              "stamp": studio.stamp(d)})
 
+    return [
+        Route("/", home), Route("/api/tree", api_tree), Route("/group", group_page), Route("/api/group", api_group),
+        Route("/report", report_page), Route("/attempt/{path:path}", attempt), Route("/api/stamp", api_stamp),
+    ]
+
+
+def _play_routes(studio: Studio) -> list[Route]:
+    """The pages of attempts played by a person: the form that starts one, the play's page."""
+    T = studio.templates
+
+    def page(request: Request, name: str, **ctx) -> Response:
+        return _page(studio, request, name, **ctx)
+
     def play_form(request: Request, error: str | None = None, form: dict | None = None, status: int = 200):
         choices = installed()
         targets = [(PLAYED, PLAYED)] + [(g.rel, studio.group_name(g.rel)) for g in tree.groups(studio.root)
@@ -311,6 +345,15 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
         if p is None:
             return PlainTextResponse("no such play", 404)
         return page(request, "play.html", play=p.status())
+
+    return [
+        Route("/play", play_form, methods=["GET"]), Route("/play", play_start, methods=["POST"]),
+        Route("/play/{pid}", play_page),
+    ]
+
+
+def _play_api_routes(studio: Studio) -> list[Route]:
+    """The API a play's page calls: its status, a tool call made by the person, the images it was shown."""
 
     def api_play(request: Request):
         p = studio.plays.get(request.path_params["pid"])
@@ -354,23 +397,10 @@ def build_app(root: Path, state_dir: Path | None = None, token: str | None = Non
             return PlainTextResponse("not an image this attempt was shown", 404)
         return Response(png, media_type="image/png")
 
-    routes = [
-        Route("/", home), Route("/api/tree", api_tree), Route("/group", group_page), Route("/api/group", api_group),
-        Route("/report", report_page), Route("/attempt/{path:path}", attempt), Route("/api/stamp", api_stamp),
-        Route("/play", play_form, methods=["GET"]), Route("/play", play_start, methods=["POST"]),
-        Route("/play/{pid}", play_page), Route("/api/play/{pid}", api_play),
-        Route("/api/play/{pid}/call", api_call, methods=["POST"]),
+    return [
+        Route("/api/play/{pid}", api_play), Route("/api/play/{pid}/call", api_call, methods=["POST"]),
         Route("/play/{pid}/image/{obs}.png", play_image),
-        Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static"),
     ]
-    @contextlib.asynccontextmanager
-    async def lifespan(app):
-        yield
-        await asyncio.to_thread(studio.plays.stop)  # a play still running is recorded as interrupted
-
-    app = Starlette(routes=routes, lifespan=lifespan)
-    app.state.studio = studio
-    return Guard(app, token, loopback)  # type: ignore[return-value]
 
 
 def main(argv: list[str] | None = None) -> None:

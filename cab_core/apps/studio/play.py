@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass, field
 from multiprocessing import Pipe
 from pathlib import Path
+from typing import Any
 
 from cab_core.attempt.human import PlayBridge, crash_error
 from cab_core.errors import ConfigError
@@ -140,7 +141,7 @@ class Plays:
                      f"model.session={bridge.id}"]
         try:
             with _COMPOSE:
-                config = OmegaConf.to_container(composed(overrides), resolve=True)
+                config: Any = OmegaConf.to_container(composed(overrides), resolve=True)  # a dict: composed is one
             config["model"]["handle"] = handle  # recorded with the model's configuration
             attempt_spec(config, folder)  # a choice that is not valid is refused here, not in the process
         except Exception:
@@ -177,8 +178,10 @@ class Plays:
             finally:
                 started.set()
             try:
-                play.proc.stdin.write(json.dumps(job).encode())
-                play.proc.stdin.close()
+                stdin = play.proc.stdin
+                assert stdin is not None, "started with stdin=PIPE"
+                stdin.write(json.dumps(job).encode())
+                stdin.close()
             except BrokenPipeError:  # it died at once; its exit status says so
                 pass
             bridge.serve()  # until the process's end of the connection closes
