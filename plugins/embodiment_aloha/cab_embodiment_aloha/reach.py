@@ -1,6 +1,11 @@
-"""Measure the TCP reach of the aloha_agilex arms over the task workspace (IK with the mplib planner).
+"""Measure the TCP reach of the aloha_agilex arms over the task workspace (IK of an installed planner).
 
-Usage: ``python -m cab_embodiment_aloha.reach [--step 0.05] [--zones main,shoes,dustbin]``
+Usage: ``python -m cab_embodiment_aloha.reach [--step 0.05] [--zones main,shoes,dustbin] [--planner mplib]``
+
+The planner is created through cab's registry and used through the planner contract
+(:class:`cab_core.contracts.planner.Planner`: ``setup``, ``ik``, ``versions``), so this plugin declares no
+dependency on any planner's package: ``--planner`` names any installed one (default ``mplib``, from
+cab-planner-mplib; the figures in :mod:`.params` were measured with it).
 
 Zones (world metres; from the tasks' placement ranges, FACTS B.6):
 - ``main``: x in [-0.35, 0.35], y in [-0.25, 0.25], z in [0.75, 0.95] (objects on the 0.74 table);
@@ -21,6 +26,9 @@ import time
 import numpy as np
 
 from cab_core.geometry import mat_to_quat
+from cab_core.plugins import create
+
+from .embodiment import build_spec
 
 APPROACHES = {
     "top_down": ((0.0, 0.0, -1.0), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))),
@@ -91,17 +99,15 @@ def main(argv=None) -> int:
     ap.add_argument("--zones", default="main,shoes,dustbin")
     ap.add_argument("--approaches", default="top_down,forward")
     ap.add_argument("--show-missed", action="store_true")
+    ap.add_argument("--planner", default="mplib", help="an installed planner whose IK is measured (default mplib)")
     args = ap.parse_args(argv)
 
-    from cab_planner_mplib.planner import MplibPlanner
-
-    from .embodiment import build_spec
-
     spec = build_spec()
-    planner = MplibPlanner({})
+    planner = create("planners", args.planner, {})
     planner.setup(spec, 1.0 / 250.0)
     all_zones = zones(args.step)
-    print(f"aloha_agilex reach (IK with mplib {planner.versions().get('mplib')}), grid step {args.step} m")
+    versions = ", ".join(f"{k} {v}" for k, v in sorted(planner.versions().items()))
+    print(f"aloha_agilex reach (IK with the {args.planner} planner: {versions}), grid step {args.step} m")
     for zname in args.zones.split(","):
         zone = all_zones[zname]
         for appr in args.approaches.split(","):
