@@ -28,7 +28,8 @@ IN_PROGRESS = {
     # (issue 27: harness kit in progress)
     "plugins/export_rerun/cab_export_rerun/convert.py": {"cab_core.attempt"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_mcp/cab_harness_mcp/harness.py": {"cab_core.apps", "cab_core.attempt", "cab_core.plugins"},
+    "plugins/harness_mcp/cab_harness_mcp/harness.py": {"cab_core.apps", "cab_core.attempt", "cab_core.plugins",
+                                                       "cab_core.tools"},
     # (issue 27: harness kit in progress)
     "plugins/harness_mcp/cab_harness_mcp/launchers.py": {"cab_core.attempt"},
     # (issue 27: harness kit in progress)
@@ -38,9 +39,13 @@ IN_PROGRESS = {
     # (issue 27: harness kit in progress)
     "plugins/harness_mcp/cab_harness_mcp/transport.py": {"cab_core.apps"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_reference/cab_harness_reference/loop.py": {"cab_core.attempt", "cab_core.plugins"},
+    "plugins/harness_reference/cab_harness_reference/loop.py": {"cab_core.attempt", "cab_core.plugins",
+                                                                "cab_core.tools"},
     # (issue 27: harness kit in progress)
     "plugins/harness_reference/cab_harness_reference/types.py": {"cab_core.attempt"},
+    # (issue 27: in progress in another part: the mplib planner found through the registry, not
+    # imported undeclared)
+    "plugins/embodiment_aloha/cab_embodiment_aloha/reach.py": {"cab_core.plugins"},
 }
 
 #: other known imports outside the public surface: ``import cab_core`` for ``@cab_core.hookimpl``
@@ -64,12 +69,13 @@ def under(module: str, packages: set[str]) -> bool:
 
 def plugin_sources() -> list[Path]:
     """Every .py of a plugin or an example, relative to the root, without the plugins' own tests,
-    build folders and installed metadata."""
+    the test configuration beside them (``plugins/conftest.py``), build folders and installed
+    metadata."""
     out = []
     for top in ("plugins", "examples"):
         for p in sorted((ROOT / top).rglob("*.py")):
             rel = p.relative_to(ROOT)
-            if top == "plugins" and len(rel.parts) > 2 and rel.parts[2] == "tests":
+            if top == "plugins" and (len(rel.parts) == 2 or rel.parts[2] == "tests"):
                 continue
             if any(part == "build" or part.endswith(".egg-info") for part in rel.parts):
                 continue

@@ -196,10 +196,24 @@ class BlocksRankingSize(CodeActionTask):
         top = float(info["table_top_z"])
         blocks = info["blocks"]
         halves = [float(b["half_size"]) for b in blocks]
-        # row spots: centres spaced by the half-sizes plus the gap, the middle block at x = 0
+        xs, row_y = self._row(world, halves)
+        turned = self._clear_low_hands(call, world)
+        for i, b in enumerate(blocks):
+            holder = self._holder(world, b["name"])
+            if holder is None and self._on_spot(world, b["name"], xs[i], row_y):
+                continue  # already in its place in the row (a state a fork starts from)
+            self._put_in_row(call, world, b, halves[i], xs[i], row_y, top, holder, turned)
+        call("done", report="lined the blocks up largest to smallest, left to right, at the table's front centre",
+             success_claim=True)
+
+    @staticmethod
+    def _row(world: WorldView, halves: list[float]) -> tuple[list[float], float]:
+        """The row's spots: the blocks' x (centres spaced by the half-sizes plus the gap, the middle
+        block at x = 0) and the row's y, the first candidate whose spots no block still unmoved
+        occupies. The row is chosen from where the blocks stood at the attempt's start (from a later
+        state the same row is finished; at the start these are the poses now)."""
+        blocks = world.info["blocks"]
         xs = [-(halves[0] + halves[1] + ROW_GAP), 0.0, halves[1] + halves[2] + ROW_GAP]
-        # the row is chosen from where the blocks stood at the attempt's start (from a later state
-        # the same row is finished; at the start these are the poses now)
         first = world.start["objects"] if world.start is not None else {}
         start = [np.asarray(first[b["name"]] if b["name"] in first else world.pose(b["name"]), float)[:3]
                  for b in blocks]
@@ -213,68 +227,75 @@ class BlocksRankingSize(CodeActionTask):
             return True
 
         row_y = next((y for y in (ROW_Y, ROW_Y - 0.03, ROW_Y + 0.02, ROW_Y - 0.05) if free(y)), ROW_Y - 0.05)
+        return xs, row_y
+
+    def _clear_low_hands(self, call, world: WorldView) -> set[str]:
+        """From a fork: an empty hand just above a block it let go rises and steps aside. Returns the
+        arms whose gripper already points down."""
         turned: set[str] = set()
-        for arm in info["arms"]:  # a fork: an empty hand just above a block it let go rises and steps aside
+        for arm in world.info["arms"]:
             if self._low_empty_hand(world, arm):
                 turned.add(arm)
                 hands = Hands(call, arm)
                 hands.move(dz=0.06, what="retreat", ok=TOLERANT)
                 hands.park(world, -PARK_X if arm == "left" else PARK_X, "clear the row")
-        for i, b in enumerate(blocks):
-            holder = self._holder(world, b["name"])
-            if holder is None and self._on_spot(world, b["name"], xs[i], row_y):
-                continue  # already in its place in the row (a state a fork starts from)
-            for attempt in range(PLACE_TRIES):  # a block that slipped out on the way is picked up again
-                name, h = b["name"], halves[i]
-                pose = world.pose(name)
-                if attempt == 0 and holder is not None:  # held already: go on from the grasp
-                    arm = holder
-                    turned.add(arm)
-                    if world.pose(name)[2] < top + h + 0.03:
-                        Hands(call, arm).move(dz=0.07, what="lift", ok=TOLERANT)
-                else:
-                    arm = "left" if pose[0] < 0 else "right"
+        return turned
+
+    def _put_in_row(self, call, world: WorldView, b: dict, h: float, x: float, row_y: float, top: float,
+                    holder: str | None, turned: set[str]) -> None:
+        """Block ``b`` (half-size ``h``) set down on its spot (x, row_y): carried on by the hand
+        ``holder`` that holds it, else picked by the arm on its side; a block that slipped out on the
+        way, or lies off its spot, is picked up again, ``PLACE_TRIES`` tries in all."""
+        name = b["name"]
+        for attempt in range(PLACE_TRIES):
+            pose = world.pose(name)
+            if attempt == 0 and holder is not None:  # held already: go on from the grasp
+                arm = holder
+                turned.add(arm)
+                if world.pose(name)[2] < top + h + 0.03:
+                    Hands(call, arm).move(dz=0.07, what="lift", ok=TOLERANT)
                 # a high hover: turning the wrist down from its start pose sweeps the fingers low
                 hands = Hands(call, arm, hover=HOVER)
-                if attempt == 0 and holder is not None:
-                    self._place(call, world, hands, b, h, xs[i], row_y, top)
-                    spot = world.pose(b["name"])[:2]
-                    if np.hypot(spot[0] - xs[i], spot[1] - row_y) <= PLACE_TOL_M:
-                        break
-                    continue
-                faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
-                # fingers preferably on the faces closest to the world's y axis (it is set down with them
-                # on its +-y faces, so opening the fingers never pushes a neighbour in the row), unless
-                # an open finger would come down on another block; then across the other faces, or, if
-                # both are crowded, with the fingers opened less wide
-                others = [(np.asarray(world.pose(o["name"])[:2], float), float(o["half_size"]) * np.sqrt(2))
-                          for o in blocks if o["name"] != name]
+            else:
+                arm = "left" if pose[0] < 0 else "right"
+                hands = Hands(call, arm, hover=HOVER)
+                self._pick(world, hands, b, h, pose, attempt, turned)
+            self._place(call, world, hands, b, h, x, row_y, top)
+            spot = world.pose(name)[:2]
+            if np.hypot(spot[0] - x, spot[1] - row_y) <= PLACE_TOL_M:
+                return
 
-                def clear(line: np.ndarray, opening: float) -> bool:
-                    return fingers_clear(pose[:2], line, opening, others)
+    @staticmethod
+    def _pick(world: WorldView, hands: Hands, b: dict, h: float, pose, attempt: int, turned: set[str]) -> None:
+        """Block ``b``, lying at ``pose``, picked top-down. The fingers go preferably on the faces
+        closest to the world's y axis (it is set down with them on its +-y faces, so opening the
+        fingers never pushes a neighbour in the row), unless an open finger would come down on
+        another block; then across the other faces, or, if both are crowded, with the fingers opened
+        less wide. A block picked up again is taken across the other two faces first."""
+        name = b["name"]
+        faces = [yaw_axis(pose[3:], (1, 0, 0)), yaw_axis(pose[3:], (0, 1, 0))]
+        others = [(np.asarray(world.pose(o["name"])[:2], float), float(o["half_size"]) * np.sqrt(2))
+                  for o in world.info["blocks"] if o["name"] != name]
 
-                faces.sort(key=lambda f: -abs(f[1]))
-                if attempt % 2:  # picked up again: across the other two faces (the same grasp
-                    faces.reverse()  # lost it once, and would the same way again)
-                line = next((f for f in faces if clear(f, 1.0)), None)
-                if line is None:  # open just enough for this block, 1.2 cm to spare on each side
-                    narrow = min(1.0, (2 * h + 2 * 0.012 + 0.018) / 0.11)
-                    line = next((f for f in faces if clear(f, narrow)), faces[0])
-                    hands.grip(narrow)
-                q = top_down_quat(line)
-                grasp = np.asarray(pose[:3], float) + np.asarray(b["grasp_tcp_offset"], float)
-                if arm not in turned:
-                    # turn the gripper from its forward-pointing start to top-down where it is, away
-                    # from the blocks: a planned path that turns it on the way dips low and sweeps them
-                    hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
-                    turned.add(arm)
-                hands.pick(grasp, q, lift=0.07)
-                self._place(call, world, hands, b, h, xs[i], row_y, top)
-                spot = world.pose(b["name"])[:2]
-                if np.hypot(spot[0] - xs[i], spot[1] - row_y) <= PLACE_TOL_M:
-                    break
-        call("done", report="lined the blocks up largest to smallest, left to right, at the table's front centre",
-             success_claim=True)
+        def clear(line: np.ndarray, opening: float) -> bool:
+            return fingers_clear(pose[:2], line, opening, others)
+
+        faces.sort(key=lambda f: -abs(f[1]))
+        if attempt % 2:  # picked up again: across the other two faces (the same grasp
+            faces.reverse()  # lost it once, and would the same way again)
+        line = next((f for f in faces if clear(f, 1.0)), None)
+        if line is None:  # open just enough for this block, 1.2 cm to spare on each side
+            narrow = min(1.0, (2 * h + 2 * 0.012 + 0.018) / 0.11)
+            line = next((f for f in faces if clear(f, narrow)), faces[0])
+            hands.grip(narrow)
+        q = top_down_quat(line)
+        grasp = np.asarray(pose[:3], float) + np.asarray(b["grasp_tcp_offset"], float)
+        if hands.arm not in turned:
+            # turn the gripper from its forward-pointing start to top-down where it is, away
+            # from the blocks: a planned path that turns it on the way dips low and sweeps them
+            hands.turn_in_place(world, q, rise=0.04, what="turn the gripper down")
+            turned.add(hands.arm)
+        hands.pick(grasp, q, lift=0.07)
 
     @staticmethod
     def _place(call, world: WorldView, hands: Hands, b: dict, h: float, x: float, row_y: float, top: float) -> None:

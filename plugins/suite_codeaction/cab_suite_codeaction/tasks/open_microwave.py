@@ -347,22 +347,26 @@ class OpenMicrowave(CodeActionTask):
         with the door already pulled open, it parks the left arm and pushes with the right; with
         the door a little open, the left arm approaches the bar square to the door."""
         d = self._door(world)
-        door_point, door_q = d["point"], d["q"]
-        handle_d = d["handle"]
-        door_w = d["width"]
-        mid = 0.5 * d["height"]
-        forward, right, up = d["forward"], d["right"], d["up"]
-        tip = self.TIP
         stage = self._stage(world)
         if stage is None:
-            stage = "park" if door_q() >= self.PULLED else "open_left"
+            stage = "park" if d["q"]() >= self.PULLED else "open_left"
         start = self.STEPS.index(stage)
 
         def todo(step: str) -> bool:
             return self.STEPS.index(step) >= start
 
-        # 1. left arm: grasp the bar from the front (fingers across it, tips 1 cm off the door);
-        # a door already a little open: square to the door
+        self._pull(call, world, d, todo)
+        self._push(call, world, d, todo)
+        call("done", report="opened the microwave door wide: pulled it by the handle, then pushed its inner "
+                            "face open", success_claim=True)
+
+    def _pull(self, call, world: WorldView, d: dict, todo) -> None:
+        """The left arm's steps (those ``todo`` keeps): grasp the handle bar, pull the door along its
+        arc, let go, rise above the door and park beyond the hinge."""
+        door_point, door_q, handle_d = d["point"], d["q"], d["handle"]
+        forward, right, up = d["forward"], d["right"], d["up"]
+        # 1. grasp the bar from the front (fingers across it, tips 1 cm off the door); a door
+        # already a little open: square to the door
         puller = Hands(call, "left")
         q0 = door_q()
         toward = forward if q0 < 0.05 else -door_point(q0, [0.0, -1.0, 0.0]) + door_point(q0, [0.0, 0.0, 0.0])
@@ -401,8 +405,14 @@ class OpenMicrowave(CodeActionTask):
             puller.move(*(right * float(np.dot(park - world.tcp_pose("left")[:3], right))), what="out of the way",
                         ok=TOLERANT)
 
-        # 4. right arm: fingertips pointing left (fingers spread vertically), from well in front
-        # of the door to 4 cm right of its free edge, then in behind the door
+    def _push(self, call, world: WorldView, d: dict, todo) -> None:
+        """The right arm's steps: in behind the door past its free edge (those ``todo`` keeps), then
+        sweep its inner face open to ~1.5 rad."""
+        door_point, door_q = d["point"], d["q"]
+        mid = 0.5 * d["height"]
+        forward, right, up = d["forward"], d["right"], d["up"]
+        # 4. fingertips pointing left (fingers spread vertically), from well in front of the door
+        # to 4 cm right of its free edge, then in behind the door
         pusher = Hands(call, "right")
         left = -right
         if todo("behind"):
@@ -422,11 +432,10 @@ class OpenMicrowave(CodeActionTask):
             if q < door_q() + 0.1:  # (a fork) the door is already there
                 continue
             for radius in (0.25, 0.17):
-                target = door_point(q, [radius, 0.03, mid]) - left * tip
+                target = door_point(q, [radius, 0.03, mid]) - left * self.TIP
                 r = pusher.move_to(world, target, "push the door open", ok=TOLERANT)
                 if r["status"] == "SUCCESS":
                     break
-        call("done", report="opened the microwave door wide: pulled it by the handle, then pushed its inner "
-                            "face open", success_claim=True)
+
 
 TASK = OpenMicrowave

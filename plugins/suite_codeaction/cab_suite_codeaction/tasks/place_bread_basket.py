@@ -183,7 +183,7 @@ class PlaceBreadBasket(CodeActionTask):
 
         breads: list[dict[str, Any]] = []
         rects: list[tuple] = []
-        for i in range(N_BREADS):
+        for _ in range(N_BREADS):
             model = int(BREAD_IDS[int(rng.integers(0, len(BREAD_IDS)))])
             shapes, dims = bread_shapes(model)
             length, width, height = dims["size"]
@@ -274,118 +274,9 @@ class PlaceBreadBasket(CodeActionTask):
         MuJoCo ~1 mm) and on release settles most of the way back under the TCP (72-94 % on
         PyBullet and SAPIEN), so the TCP, not the bread as held, is aimed at the slot (less
         ``1 - SETTLE`` of the bread's offset)."""
-        info = world.info
-        bk = info["basket"]
-        floor = float(bk["floor_top_z"])
-        tol = float(info["xy_tolerance"])
-        z_min = float(info["bread_min_z"])
-        breads = sorted(info["breads"], key=lambda b: b["pose"][0])  # left to right
-        turn = slot_turn(bk, yaw_of(world.pose(bk["name"])[3:]), breads, tol)
-
-        def slot_axis() -> np.ndarray:
-            u = yaw_axis(world.pose(bk["name"])[3:], (1.0, 0.0, 0.0))
-            c, s = np.cos(turn), np.sin(turn)
-            return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1], 0.0])
-
-        def pick(b: dict, arm: str, dz: float) -> None:
-            hands = Hands(call, arm)
-            if world.gripper_holds(arm, b["name"]):
-                if world.pose(b["name"])[2] - b["size"][2] / 2 < z_min + 0.03:  # still down: lift it
-                    hands.move(dz=0.10, what="lift", ok=TOLERANT)
-                return
-            if world.gripper_command(arm) < OPEN:
-                hands.grip(1.0)
-            for _ in range(PICK_TRIES):
-                hands.pick_top_down(world, b["name"], dz)
-                if world.gripper_holds(arm, b["name"]):
-                    return
-                hands.grip(1.0)
-            raise OracleFailed(f"{b['name']}: not held after {PICK_TRIES} picks")
-
-        placed_heights: dict[str, float] = {}
-        slots: dict[str, float] = {}
-
-        def settled(b: dict) -> bool:
-            p = world.pose(b["name"])
-            d = np.asarray(p[:2]) - np.asarray(world.pose(bk["name"])[:2])
-            return bool(np.max(np.abs(d)) < tol - SETTLED_MARGIN and p[2] > z_min + 0.005)
-
-        # from a later stage (a fork): a bread resting in the basket, in no hand, stays there (the
-        # next one is let go above it, in the other slot); one a hand holds is placed by that hand
-        # (lifted first if it still lies on the table)
-        holder = {b["name"]: next((a for a in info["arms"] if world.gripper_holds(a, b["name"])), None)
-                  for b in breads}
-        for b in breads:
-            if holder[b["name"]] is None and settled(b):
-                d = np.asarray(world.pose(b["name"])[:2]) - np.asarray(world.pose(bk["name"])[:2])
-                slots[b["name"]] = 1.0 if float(d @ slot_axis()[:2]) >= 0 else -1.0
-                placed_heights[b["name"]] = b["size"][2]
-        breads = [b for b in breads if b["name"] not in placed_heights]
-        for a in info["arms"]:  # an open hand down in the basket: up first, as after a release
-            if _down_in_basket(world, a):
-                Hands(call, a).move(dz=0.08, what="retreat", ok=TOLERANT)
-        arms = [holder[b["name"]] or ("left" if world.pose(b["name"])[0] < 0 else "right") for b in breads]
-
-        def place(b: dict, arm: str) -> None:
-            # slot: beside the slot axis, on the arm's side if still free
-            w = slot_axis()
-            if b["name"] not in slots:
-                side = 1.0 if (w[0] >= 0) == (arm == "right") else -1.0
-                if side in slots.values():
-                    side = -side
-                slots[b["name"]] = side
-            side = slots[b["name"]]
-            width, height = b["size"][1], b["size"][2]
-            others = [h for n, h in placed_heights.items() if n != b["name"]]
-            # fingers open along the slot axis: the bread lies across it
-            tcp = world.tcp_pose(arm)
-            qr = top_down_quat(closest_opening(tcp[3:], [w]))
-
-            def target(held: np.ndarray) -> np.ndarray:
-                bp = world.pose(bk["name"])
-                centre = bp[:3] + side * (width / 2 + SLOT_GAP) * slot_axis()
-                z_tcp = bp[2] + floor + 0.004 + height / 2 - held[2]
-                if others:  # fingertips above the bread already in the basket
-                    z_tcp = max(z_tcp, bp[2] + floor + max(others) + TIP_BELOW_TCP + 0.006)
-                xy = centre[:2] - (1.0 - SETTLE) * held[:2]
-                return np.array([xy[0], xy[1], z_tcp])
-
-            # the bread relative to the TCP as held, turned with the wrist (estimate; measured again
-            # once the wrist has turned)
-            held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(b["name"])[:3] - tcp[:3]))
-            Hands(call, arm).place_at(world, target(held0), qr,
-                                      refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
-            placed_heights[b["name"]] = height
-
-        def put_again(b: dict, arm: str) -> None:
-            """Pick the bread where it lies (the fingertips 3 mm above what it rests on) and put it
-            in its slot once more."""
-            if settled(b):
-                return
-            p = world.pose(b["name"])
-            rest = p[2] - b["size"][2] / 2  # its bottom
-            dz = float(max(0.010, rest + TIP_BELOW_TCP + 0.003 - p[2]))
-            pick(b, arm, dz)
-            place(b, arm)
-
-        def aside(arm: str) -> None:
-            Hands(call, arm).move(dx=-0.18 if arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
-
-        if len(breads) == 2 and arms[0] != arms[1]:
-            pick(breads[0], arms[0], float(breads[0]["grasp_tcp_dz"]))
-            pick(breads[1], arms[1], float(breads[1]["grasp_tcp_dz"]))
-            place(breads[0], arms[0])
-            put_again(breads[0], arms[0])
-            aside(arms[0])
-            place(breads[1], arms[1])
-            put_again(breads[1], arms[1])
-        else:
-            for k, (b, arm) in enumerate(zip(breads, arms)):
-                if k and arms[k - 1] != arm:
-                    aside(arms[k - 1])
-                pick(b, arm, float(b["grasp_tcp_dz"]))
-                place(b, arm)
-                put_again(b, arm)
+        placing = _BasketPlacing(call, world)
+        breads, arms = placing.take_stock()
+        placing.put_in(breads, arms)
         call("done", report="put every piece of bread into the basket", success_claim=True)
 
     def keeps_hands(self, world: WorldView) -> bool:
@@ -395,6 +286,140 @@ class PlaceBreadBasket(CodeActionTask):
         info = world.info
         return any(world.gripper_holds(a, b["name"]) for a in info["arms"] for b in info["breads"]) \
             or any(_down_in_basket(world, a) for a in info["arms"])
+
+
+class _BasketPlacing:
+    """The stages of the reference solution (:meth:`PlaceBreadBasket.solve`), sharing what the
+    earlier ones settled: the slot axis's turn from the basket's long axis, and each bread in the
+    basket's slot (-1 or +1, the side of the slot axis) and height."""
+
+    def __init__(self, call, world: WorldView):
+        self.call, self.world = call, world
+        info = world.info
+        self.info = info
+        self.bk = info["basket"]
+        self.floor = float(self.bk["floor_top_z"])
+        self.tol = float(info["xy_tolerance"])
+        self.z_min = float(info["bread_min_z"])
+        self.breads = sorted(info["breads"], key=lambda b: b["pose"][0])  # left to right
+        self.turn = slot_turn(self.bk, yaw_of(world.pose(self.bk["name"])[3:]), self.breads, self.tol)
+        self.placed_heights: dict[str, float] = {}
+        self.slots: dict[str, float] = {}
+
+    def slot_axis(self) -> np.ndarray:
+        u = yaw_axis(self.world.pose(self.bk["name"])[3:], (1.0, 0.0, 0.0))
+        c, s = np.cos(self.turn), np.sin(self.turn)
+        return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1], 0.0])
+
+    def settled(self, b: dict) -> bool:
+        """Whether bread ``b`` rests in the basket, ``SETTLED_MARGIN`` inside the tolerance."""
+        p = self.world.pose(b["name"])
+        d = np.asarray(p[:2]) - np.asarray(self.world.pose(self.bk["name"])[:2])
+        return bool(np.max(np.abs(d)) < self.tol - SETTLED_MARGIN and p[2] > self.z_min + 0.005)
+
+    def take_stock(self) -> tuple[list[dict], list[str]]:
+        """The breads still to place and the arm for each. From a later stage (a fork): a bread
+        resting in the basket, in no hand, stays there (the next one is let go above it, in the other
+        slot); one a hand holds is placed by that hand (lifted first if it still lies on the table);
+        an open hand down in the basket goes up first, as after a release."""
+        world, info = self.world, self.info
+        holder = {b["name"]: next((a for a in info["arms"] if world.gripper_holds(a, b["name"])), None)
+                  for b in self.breads}
+        for b in self.breads:
+            if holder[b["name"]] is None and self.settled(b):
+                d = np.asarray(world.pose(b["name"])[:2]) - np.asarray(world.pose(self.bk["name"])[:2])
+                self.slots[b["name"]] = 1.0 if float(d @ self.slot_axis()[:2]) >= 0 else -1.0
+                self.placed_heights[b["name"]] = b["size"][2]
+        breads = [b for b in self.breads if b["name"] not in self.placed_heights]
+        for a in info["arms"]:
+            if _down_in_basket(world, a):
+                Hands(self.call, a).move(dz=0.08, what="retreat", ok=TOLERANT)
+        arms = [holder[b["name"]] or ("left" if world.pose(b["name"])[0] < 0 else "right") for b in breads]
+        return breads, arms
+
+    def pick(self, b: dict, arm: str, dz: float) -> None:
+        """Bread ``b`` held by ``arm`` (taken top-down, the TCP ``dz`` above its origin; lifted if a
+        hand already holds it down on the table), or :class:`OracleFailed`."""
+        world = self.world
+        hands = Hands(self.call, arm)
+        if world.gripper_holds(arm, b["name"]):
+            if world.pose(b["name"])[2] - b["size"][2] / 2 < self.z_min + 0.03:  # still down: lift it
+                hands.move(dz=0.10, what="lift", ok=TOLERANT)
+            return
+        if world.gripper_command(arm) < OPEN:
+            hands.grip(1.0)
+        for _ in range(PICK_TRIES):
+            hands.pick_top_down(world, b["name"], dz)
+            if world.gripper_holds(arm, b["name"]):
+                return
+            hands.grip(1.0)
+        raise OracleFailed(f"{b['name']}: not held after {PICK_TRIES} picks")
+
+    def place(self, b: dict, arm: str) -> None:
+        """The held bread ``b`` laid in its slot beside the slot axis (on the arm's side if still
+        free), across the axis, let go just above any bread already there."""
+        world = self.world
+        w = self.slot_axis()
+        if b["name"] not in self.slots:
+            side = 1.0 if (w[0] >= 0) == (arm == "right") else -1.0
+            if side in self.slots.values():
+                side = -side
+            self.slots[b["name"]] = side
+        side = self.slots[b["name"]]
+        width, height = b["size"][1], b["size"][2]
+        others = [h for n, h in self.placed_heights.items() if n != b["name"]]
+        # fingers open along the slot axis: the bread lies across it
+        tcp = world.tcp_pose(arm)
+        qr = top_down_quat(closest_opening(tcp[3:], [w]))
+
+        def target(held: np.ndarray) -> np.ndarray:
+            bp = world.pose(self.bk["name"])
+            centre = bp[:3] + side * (width / 2 + SLOT_GAP) * self.slot_axis()
+            z_tcp = bp[2] + self.floor + 0.004 + height / 2 - held[2]
+            if others:  # fingertips above the bread already in the basket
+                z_tcp = max(z_tcp, bp[2] + self.floor + max(others) + TIP_BELOW_TCP + 0.006)
+            xy = centre[:2] - (1.0 - SETTLE) * held[:2]
+            return np.array([xy[0], xy[1], z_tcp])
+
+        # the bread relative to the TCP as held, turned with the wrist (estimate; measured again
+        # once the wrist has turned)
+        held0 = quat_to_mat(qr) @ (quat_to_mat(tcp[3:]).T @ (world.pose(b["name"])[:3] - tcp[:3]))
+        Hands(self.call, arm).place_at(world, target(held0), qr,
+                                       refine=lambda: target(world.pose(b["name"])[:3] - world.tcp_pose(arm)[:3]))
+        self.placed_heights[b["name"]] = height
+
+    def put_again(self, b: dict, arm: str) -> None:
+        """Pick the bread where it lies (the fingertips 3 mm above what it rests on) and put it
+        in its slot once more, unless it has settled well inside the tolerance."""
+        if self.settled(b):
+            return
+        p = self.world.pose(b["name"])
+        rest = p[2] - b["size"][2] / 2  # its bottom
+        dz = float(max(0.010, rest + TIP_BELOW_TCP + 0.003 - p[2]))
+        self.pick(b, arm, dz)
+        self.place(b, arm)
+
+    def aside(self, arm: str) -> None:
+        Hands(self.call, arm).move(dx=-0.18 if arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
+
+    def put_in(self, breads: list[dict], arms: list[str]) -> None:
+        """Breads on both sides are both picked up first (one per arm), then placed one after the
+        other, the first arm stepping aside before the second places; otherwise one after the other."""
+        if len(breads) == 2 and arms[0] != arms[1]:
+            self.pick(breads[0], arms[0], float(breads[0]["grasp_tcp_dz"]))
+            self.pick(breads[1], arms[1], float(breads[1]["grasp_tcp_dz"]))
+            self.place(breads[0], arms[0])
+            self.put_again(breads[0], arms[0])
+            self.aside(arms[0])
+            self.place(breads[1], arms[1])
+            self.put_again(breads[1], arms[1])
+            return
+        for k, (b, arm) in enumerate(zip(breads, arms)):
+            if k and arms[k - 1] != arm:
+                self.aside(arms[k - 1])
+            self.pick(b, arm, float(b["grasp_tcp_dz"]))
+            self.place(b, arm)
+            self.put_again(b, arm)
 
 
 def _down_in_basket(world: WorldView, arm: str) -> bool:

@@ -265,115 +265,21 @@ class PlaceDualShoes(CodeActionTask):
         once risen clear of its shoe (21-22 tool calls). From a later state (a fork): a shoe already
         in its place stays, a shoe in hand is carried on (``keeps_hands``), the shoes still to move
         are picked one arm at a time."""
-        info = world.info
-        grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
-        target_q = np.asarray(info["target_quat"], float)
-        box = np.asarray(world.pose(info["box"]["name"]), float)
-        arms = ("left", "right")
-        shoe_of = {a: info["shoes"][a]["name"] for a in arms}
-        place_of = {"left": info["places"]["left"], "right": info["places"]["right"]}
-        hands = {a: Hands(call, a) for a in arms}
-
-        def pick_quat(arm: str) -> np.ndarray:
-            """Top-down, opening line along the shoe; of its two senses, the one that keeps both
-            the pick and the place orientation closest to the gripper's present roll."""
-            s = np.asarray(world.pose(shoe_of[arm]), float)
-            toe = quat_to_mat(s[3:])[:, 2]
-            toe_now = np.arctan2(toe[1], toe[0])
-            turn = np.pi - toe_now  # the toe ends at world -x
-            cur = quat_to_mat(world.tcp_pose(arm)[3:])[:, 1]
-            best, cost = None, np.inf
-            for sign in (1.0, -1.0):
-                o = sign * np.array([toe[0], toe[1], 0.0])
-                c, s_ = np.cos(turn), np.sin(turn)
-                o_place = np.array([c * o[0] - s_ * o[1], s_ * o[0] + c * o[1], 0.0])
-                k = max(_angle_between(o, cur), _angle_between(o_place, cur))
-                if k < cost:
-                    best, cost = o, k
-            return np.asarray(tcp_quat([0.0, 0.0, -1.0], best))
-
-        # a shoe that slipped out is picked again where it lies (heel aimed from its present pose)
-        def aim(a: str):
-            return lambda pose: (transform_point(pose, grasp), pick_quat(a))
-
-        up = np.array([0.0, 0.0, HOVER])
+        shoes = _ShoePlacing(call, world)
         # from a later state (a fork): a shoe already in its place stays there, a shoe in hand is
         # carried on; neither at the scene's start
-        placed = {a: self._placed(world, a) for a in arms}
-        held = {a: self._holds(world, a) for a in arms}
+        placed = {a: self._placed(world, a) for a in shoes.arms}
+        held = {a: self._holds(world, a) for a in shoes.arms}
         if not any(placed.values()) and not any(held.values()):
-            # 1. both arms: fingers half open (a shoe may stand with its heel close to the box), hover
-            # above the heels, descend, pinch, lift
-            for a in arms:
-                hands[a].grip(PRE_GRIP)
-            grasp_w = {a: transform_point(world.pose(shoe_of[a]), grasp) for a in arms}
-            q = {a: pick_quat(a) for a in arms}
-            r = call("reach_both_tcp", left_xyz=(grasp_w["left"] + up).tolist(),
-                     right_xyz=(grasp_w["right"] + up).tolist(), left_quat=q["left"].tolist(),
-                     right_quat=q["right"].tolist())
-            if r.get("status") != "SUCCESS":
-                raise OracleFailed(f"hover above the heels: {r.get('status')} {r.get('failure')}")
-            down = {a: (grasp_w[a] - world.tcp_pose(a)[:3]).tolist() for a in arms}
-            call("move_both_delta", left_delta=down["left"], right_delta=down["right"])
-            for a in arms:
-                hands[a].grip(0.0)
-            call("move_both_delta", left_delta=[0.0, 0.0, LIFT], right_delta=[0.0, 0.0, LIFT])
+            shoes.pick_both()
         else:
-            floor = float(info["box"]["floor_top_z"])
-            for a in arms:
-                if placed[a] and not held[a]:  # a hand by its placed shoe lets go, rises clear
-                    if float(world.tcp_pose(a)[2]) < floor + 0.12:
-                        if world.gripper_command(a) < PRE_GRIP:
-                            hands[a].grip(PRE_GRIP)
-                        hands[a].move(dz=0.10, what="rise", ok=TOLERANT)
-                    if world.gripper_command(a) < 1.0:
-                        hands[a].grip(1.0)
-                elif held[a] and float(world.pose(shoe_of[a])[2]) < float(info["table_top_z"]) + 0.05:
-                    hands[a].move(dz=LIFT, what="lift", ok=TOLERANT)
-            if placed["left"] and not held["left"]:
-                self._park_left(world, hands["left"])
-            for a in arms:
-                if not placed[a] and not held[a]:
-                    hands[a].grip(PRE_GRIP)
-                    hands[a].pick_held(world, shoe_of[a], aim(a), lift=LIFT)
-
-        for a in arms:
-            if not placed[a] and not world.gripper_holds(a, shoe_of[a]):
-                hands[a].grip(PRE_GRIP)
-                hands[a].pick_held(world, shoe_of[a], aim(a), lift=LIFT)
-
-        # the right arm waits out of the left arm's way (a heel picked near the box would leave its
-        # wrist where the left wrist comes down to place)
-        wait_dx = RIGHT_WAIT_X - float(world.tcp_pose("right")[0])
-        if wait_dx > 0.01 and not placed["right"]:
-            hands["right"].move(dx=wait_dx, what="wait aside with the right shoe", ok=TOLERANT)
-
+            shoes.go_on(placed, held)
+        shoes.pick_again(placed)
+        shoes.wait_right(placed)
         # 2. one after the other: carry over the place (turning the toe to -x), set down, let go
-        for arm in arms:
-            if placed[arm]:
-                continue
-            spread = -PLACE_SPREAD if arm == "left" else PLACE_SPREAD
-            px, py = PLACE_X + box[0] - BOX_XY[0], place_of[arm][1] + spread
-            shoe_goal = np.array([px, py, float(info["box"]["floor_top_z"]) + RELEASE_DROP, *target_q])
-            h = hands[arm]
-            # the shoe, held by its heel, can turn in the grip while it is carried: the TCP's goal
-            # is aimed again from where the shoe hangs once over the box
-            for _ in range(REAIM_TRIES):
-                s = np.asarray(world.pose(shoe_of[arm]), float)
-                held = pose_mul(pose_inv(s), world.tcp_pose(arm))  # the TCP in the shoe frame
-                tcp_goal = pose_mul(shoe_goal, held)
-                h.reach(tcp_goal[:3] + up, tcp_goal[3:], f"carry the {arm} shoe over the box")
-                if _quat_error(world.pose(shoe_of[arm])[3:], target_q) < REAIM_QUAT_ERROR:
-                    break
-            h.descend_to(float(tcp_goal[2]), f"set the {arm} shoe down", ok=TOLERANT)
-            # let go half open: a fully open inner finger ends under the front of the heel opening
-            # and can catch the collar on the way up (the shoe is then lifted with the gripper);
-            # the fingers open fully once clear above the shoe
-            h.grip(PRE_GRIP)
-            h.move(dz=0.10, what="rise", ok=TOLERANT)
-            h.grip(1.0)
-            if arm == "left":  # well clear of the right shoe's swing on its way to the box
-                self._park_left(world, h)
+        for arm in shoes.arms:
+            if not placed[arm]:
+                shoes.put_down(arm)
         call("done", report="put both shoes into the shoe box side by side, toes pointing left, and let go",
              success_claim=True)
 
@@ -415,6 +321,131 @@ class PlaceDualShoes(CodeActionTask):
                     world.tcp_pose(a)[:3] - world.pose(shoe)[:3]) < 0.2):
                 return True
         return False
+
+
+class _ShoePlacing:
+    """The stages of the reference solution (:meth:`PlaceDualShoes.solve`): the box's pose is the
+    one read before the first move."""
+
+    arms = ("left", "right")
+
+    def __init__(self, call, world: WorldView):
+        self.call, self.world = call, world
+        info = world.info
+        self.info = info
+        self.grasp = np.asarray(info["shoe"]["grasp_tcp_point"], float)
+        self.target_q = np.asarray(info["target_quat"], float)
+        self.box = np.asarray(world.pose(info["box"]["name"]), float)
+        self.shoe_of = {a: info["shoes"][a]["name"] for a in self.arms}
+        self.place_of = {"left": info["places"]["left"], "right": info["places"]["right"]}
+        self.hands = {a: Hands(call, a) for a in self.arms}
+        self.up = np.array([0.0, 0.0, HOVER])
+
+    def pick_quat(self, arm: str) -> np.ndarray:
+        """Top-down, opening line along the shoe; of its two senses, the one that keeps both
+        the pick and the place orientation closest to the gripper's present roll."""
+        world = self.world
+        s = np.asarray(world.pose(self.shoe_of[arm]), float)
+        toe = quat_to_mat(s[3:])[:, 2]
+        toe_now = np.arctan2(toe[1], toe[0])
+        turn = np.pi - toe_now  # the toe ends at world -x
+        cur = quat_to_mat(world.tcp_pose(arm)[3:])[:, 1]
+        best, cost = None, np.inf
+        for sign in (1.0, -1.0):
+            o = sign * np.array([toe[0], toe[1], 0.0])
+            c, s_ = np.cos(turn), np.sin(turn)
+            o_place = np.array([c * o[0] - s_ * o[1], s_ * o[0] + c * o[1], 0.0])
+            k = max(_angle_between(o, cur), _angle_between(o_place, cur))
+            if k < cost:
+                best, cost = o, k
+        return np.asarray(tcp_quat([0.0, 0.0, -1.0], best))
+
+    def aim(self, a: str):
+        """A shoe that slipped out is picked again where it lies (heel aimed from its present pose)."""
+        return lambda pose: (transform_point(pose, self.grasp), self.pick_quat(a))
+
+    def pick_both(self) -> None:
+        """1. Both arms at once: fingers half open (a shoe may stand with its heel close to the box),
+        hover above the heels, descend, pinch, lift."""
+        world, call, arms = self.world, self.call, self.arms
+        for a in arms:
+            self.hands[a].grip(PRE_GRIP)
+        grasp_w = {a: transform_point(world.pose(self.shoe_of[a]), self.grasp) for a in arms}
+        q = {a: self.pick_quat(a) for a in arms}
+        r = call("reach_both_tcp", left_xyz=(grasp_w["left"] + self.up).tolist(),
+                 right_xyz=(grasp_w["right"] + self.up).tolist(), left_quat=q["left"].tolist(),
+                 right_quat=q["right"].tolist())
+        if r.get("status") != "SUCCESS":
+            raise OracleFailed(f"hover above the heels: {r.get('status')} {r.get('failure')}")
+        down = {a: (grasp_w[a] - world.tcp_pose(a)[:3]).tolist() for a in arms}
+        call("move_both_delta", left_delta=down["left"], right_delta=down["right"])
+        for a in arms:
+            self.hands[a].grip(0.0)
+        call("move_both_delta", left_delta=[0.0, 0.0, LIFT], right_delta=[0.0, 0.0, LIFT])
+
+    def go_on(self, placed: dict[str, bool], held: dict[str, bool]) -> None:
+        """From a later state: a hand by its placed shoe lets go and rises clear, a held shoe still
+        down is lifted, the left hand parks once its shoe is placed, and the shoes neither placed nor
+        held are picked one arm at a time."""
+        world, info, hands = self.world, self.info, self.hands
+        floor = float(info["box"]["floor_top_z"])
+        for a in self.arms:
+            if placed[a] and not held[a]:  # a hand by its placed shoe lets go, rises clear
+                if float(world.tcp_pose(a)[2]) < floor + 0.12:
+                    if world.gripper_command(a) < PRE_GRIP:
+                        hands[a].grip(PRE_GRIP)
+                    hands[a].move(dz=0.10, what="rise", ok=TOLERANT)
+                if world.gripper_command(a) < 1.0:
+                    hands[a].grip(1.0)
+            elif held[a] and float(world.pose(self.shoe_of[a])[2]) < float(info["table_top_z"]) + 0.05:
+                hands[a].move(dz=LIFT, what="lift", ok=TOLERANT)
+        if placed["left"] and not held["left"]:
+            PlaceDualShoes._park_left(world, hands["left"])
+        for a in self.arms:
+            if not placed[a] and not held[a]:
+                hands[a].grip(PRE_GRIP)
+                hands[a].pick_held(world, self.shoe_of[a], self.aim(a), lift=LIFT)
+
+    def pick_again(self, placed: dict[str, bool]) -> None:
+        """A shoe still to place that no hand holds is picked again where it lies."""
+        for a in self.arms:
+            if not placed[a] and not self.world.gripper_holds(a, self.shoe_of[a]):
+                self.hands[a].grip(PRE_GRIP)
+                self.hands[a].pick_held(self.world, self.shoe_of[a], self.aim(a), lift=LIFT)
+
+    def wait_right(self, placed: dict[str, bool]) -> None:
+        """The right arm waits out of the left arm's way (a heel picked near the box would leave its
+        wrist where the left wrist comes down to place)."""
+        wait_dx = RIGHT_WAIT_X - float(self.world.tcp_pose("right")[0])
+        if wait_dx > 0.01 and not placed["right"]:
+            self.hands["right"].move(dx=wait_dx, what="wait aside with the right shoe", ok=TOLERANT)
+
+    def put_down(self, arm: str) -> None:
+        """``arm`` carries its shoe over its place (turning the toe to -x), sets it down, lets go
+        half open, rises and opens fully; the left hand then parks."""
+        world, info = self.world, self.info
+        spread = -PLACE_SPREAD if arm == "left" else PLACE_SPREAD
+        px, py = PLACE_X + self.box[0] - BOX_XY[0], self.place_of[arm][1] + spread
+        shoe_goal = np.array([px, py, float(info["box"]["floor_top_z"]) + RELEASE_DROP, *self.target_q])
+        h = self.hands[arm]
+        # the shoe, held by its heel, can turn in the grip while it is carried: the TCP's goal
+        # is aimed again from where the shoe hangs once over the box
+        for _ in range(REAIM_TRIES):
+            s = np.asarray(world.pose(self.shoe_of[arm]), float)
+            held = pose_mul(pose_inv(s), world.tcp_pose(arm))  # the TCP in the shoe frame
+            tcp_goal = pose_mul(shoe_goal, held)
+            h.reach(tcp_goal[:3] + self.up, tcp_goal[3:], f"carry the {arm} shoe over the box")
+            if _quat_error(world.pose(self.shoe_of[arm])[3:], self.target_q) < REAIM_QUAT_ERROR:
+                break
+        h.descend_to(float(tcp_goal[2]), f"set the {arm} shoe down", ok=TOLERANT)
+        # let go half open: a fully open inner finger ends under the front of the heel opening
+        # and can catch the collar on the way up (the shoe is then lifted with the gripper);
+        # the fingers open fully once clear above the shoe
+        h.grip(PRE_GRIP)
+        h.move(dz=0.10, what="rise", ok=TOLERANT)
+        h.grip(1.0)
+        if arm == "left":  # well clear of the right shoe's swing on its way to the box
+            PlaceDualShoes._park_left(world, h)
 
 
 def _angle_between(a, b) -> float:

@@ -186,10 +186,20 @@ class PlaceObjectBasket(CodeActionTask):
         handle) and lets go, then steps aside. An object that slips out on the way is picked again
         from where it fell. The other arm takes the handle bar from above, fingers across it, and
         lifts the basket 10 cm."""
+        self._put_object_in(call, world)
+        self._lift_basket(call, world)
+        call("done", report="put the object into the basket and lifted the basket by its handle", success_claim=True)
+
+    @staticmethod
+    def _put_object_in(call, world: WorldView) -> None:
+        """Steps 1 and 2, the object's arm: the object picked, laid in the basket's front half, let
+        go; then the arm steps aside. From a later stage (a fork; ``keeps_hands``): an object resting
+        in the basket, in no hand, stays there; one the object's arm holds is not picked again (and
+        is let go at once where it touches the basket already)."""
         info = world.info
         obj, bk = info["object"], info["basket"]
         name = obj["name"]
-        o_arm, b_arm = info["object_arm"], info["basket_arm"]
+        o_arm = info["object_arm"]
         hands = Hands(call, o_arm)
         qr = top_down_quat([1.0, 0.0, 0.0])
         h = float(obj["size"][2])
@@ -198,10 +208,6 @@ class PlaceObjectBasket(CodeActionTask):
             slot = transform_point(world.pose(bk["name"]), info["slot_in_basket"])
             return np.array([slot[0] - held[0], slot[1] - held[1], slot[2] + RELEASE_GAP + h / 2 - held[2]])
 
-        # from a later stage (a fork; ``keeps_hands``): an object resting in the basket, in no hand,
-        # stays there; one the object's arm holds is not picked again (and is let go at once where
-        # it touches the basket already); a basket the other arm holds, or is open around the
-        # handle of, is lifted from there
         obj_done = _in_basket(world, name, bk["name"]) and not any(world.gripper_holds(a, name) for a in info["arms"])
         if not obj_done:
             held = world.gripper_holds(o_arm, name)
@@ -244,9 +250,13 @@ class PlaceObjectBasket(CodeActionTask):
         if not obj_done or np.linalg.norm(world.tcp_pose(o_arm)[:2] - world.pose(bk["name"])[:2]) < 0.15:
             hands.move(dx=-0.18 if o_arm == "left" else 0.18, dz=0.05, what="step aside", ok=TOLERANT)
 
-        # 3. the other arm: the handle bar from above, fingers across it (along y)
-        # (the planned reach turns the wrist and dips the hand ~8 cm on the way: rise first and
-        # come from 20 cm above the bar, so the fingers pass over the handle)
+    def _lift_basket(self, call, world: WorldView) -> None:
+        """Step 3, the other arm: the handle bar from above, fingers across it (along y), and up by
+        10 cm (the planned reach turns the wrist and dips the hand ~8 cm on the way: rise first and
+        come from 20 cm above the bar, so the fingers pass over the handle). From a fork, a basket
+        this arm holds, or is open around the handle of, is lifted from there."""
+        info = world.info
+        bk, b_arm = info["basket"], info["basket_arm"]
         lifter = Hands(call, b_arm)
         if world.gripper_holds(b_arm, bk["name"]):
             if not self.evaluate(world).predicates["basket_raised"]:
@@ -263,7 +273,6 @@ class PlaceObjectBasket(CodeActionTask):
         # a basket hanging from its handle still sways after the lift: hold it closed a moment so
         # the object rests in it again before reporting
         lifter.grip(0.0)
-        call("done", report="put the object into the basket and lifted the basket by its handle", success_claim=True)
 
     def keeps_hands(self, world: WorldView) -> bool:
         """Whether the object's arm holds the object or is open down in the basket (the object just
