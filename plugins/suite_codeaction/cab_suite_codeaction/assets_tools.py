@@ -416,7 +416,7 @@ def gripper_bodies(embodiment: Any) -> dict[str, list[str]] | None:
     embodiment's ee link, and both fingers), as contact names; None without an embodiment."""
     if embodiment is None or not getattr(embodiment, "arms", None):
         return None
-    return {a: [f"robot/{s.ee_link}", *(f"robot/{l}" for l in s.gripper.finger_links)]
+    return {a: [f"robot/{s.ee_link}", *(f"robot/{link}" for link in s.gripper.finger_links)]
             for a, s in sorted(embodiment.arms.items())}
 
 

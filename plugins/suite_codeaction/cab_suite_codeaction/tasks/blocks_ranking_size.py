@@ -125,13 +125,13 @@ class BlocksRankingSize(CodeActionTask):
         while True:
             drawn: list[np.ndarray] = []
             for i, h in enumerate(halves):
-                def ok(p: np.ndarray) -> bool:
+                def ok(p: np.ndarray, drawn: list[np.ndarray] = drawn) -> bool:
                     return (abs(p[0]) >= 0.05
                             and np.hypot(p[0] - CLEAR_CENTRE[0], p[1] - CLEAR_CENTRE[1]) >= CLEAR_RADIUS
                             and all(np.hypot(*(p[:2] - q[:2])) >= MIN_PAIR_DIST for q in drawn))
 
                 drawn.append(sample_until(
-                    lambda: rand_pose(rng, (-0.28, 0.28), (-0.08, 0.05), (0.741 + h,), ylim_prop=True,
+                    lambda h=h: rand_pose(rng, (-0.28, 0.28), (-0.08, 0.05), (0.741 + h,), ylim_prop=True,
                                       rotate_rand=True, rotate_lim=(0.0, 0.0, 0.75)),
                     ok, what=f"block{i + 1}"))
             if not all(ranked(*drawn, tol=PRESOLVED_TOLERANCE).values()):

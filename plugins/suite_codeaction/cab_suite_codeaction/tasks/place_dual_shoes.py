@@ -184,7 +184,7 @@ class PlaceDualShoes(CodeActionTask):
                 return bool(np.all(np.hypot(d[:, 0], d[:, 1]) >= BOX_CLEARANCE))
 
             pose = sample_until(
-                lambda: rand_pose(rng, xlim, (-0.1, 0.05), (top + 0.001,), ylim_prop=True, rotate_rand=True,
+                lambda xlim=xlim: rand_pose(rng, xlim, (-0.1, 0.05), (top + 0.001,), ylim_prop=True, rotate_rand=True,
                                   rotate_lim=(0.0, np.pi, 0.0), qpos=SPAWN_QUAT),
                 ok, what=f"the {side} shoe")
             name = f"{side}_shoe"

@@ -151,7 +151,7 @@ class PutBottlesDustbin(CodeActionTask):
         for key, model_id in zip(KEYS, BOTTLE_IDS):
             style = DRINK_BOTTLES[model_id]
             pose = sample_until(
-                lambda: rand_pose(rng, (-0.25, 0.3), (0.03, 0.23), (top + style.height / 2 + 0.001,)),
+                lambda style=style: rand_pose(rng, (-0.25, 0.3), (0.03, 0.23), (top + style.height / 2 + 0.001,)),
                 lambda p: abs(p[0]) >= 0.05 and all(np.hypot(*(p[:2] - q[:2])) >= MIN_PAIR_DIST for q in drawn),
                 what=f"{key}")
             drawn.append(pose)

@@ -46,6 +46,7 @@ GRIPPER_OPEN = 0.8
 PARK_X = 0.28  # reference solution: |x| an arm's TCP withdraws to after its placement
 GRASP_ABOVE_CENTRE = 0.012  # the expert grasps a cube top-down with the TCP this far above its centre
 COLOURS = (("red", RED), ("green", GREEN), ("blue", BLUE))  # bottom -> top of the goal stack
+NO_OFFSET = np.zeros(3)  # a checkpoint's reference point exactly at the object (read only)
 
 
 class StackBlocksThreeVerifier(Verifier):
@@ -126,7 +127,7 @@ class StackBlocksThree(CodeActionTask):
         lift = np.array([0.0, 0.0, GRASP_ABOVE_CENTRE])
         step = np.array([0.0, 0.0, 2 * float(info["block_half_size"])])
 
-        def at(name, extra=np.zeros(3)):
+        def at(name, extra=NO_OFFSET):
             return lambda w: np.asarray(w.pose(name)[:3]) + lift + extra
 
         rules = [SpatialRule(f"Approach block {i + 1}", "either", at(n), sphere(2)) for i, n in enumerate(order)]
@@ -156,7 +157,7 @@ class StackBlocksThree(CodeActionTask):
             hands = Hands(call, arm)
             now = world.tcp_pose(arm)
 
-            def aim(p, name=name):
+            def aim(p, name=name, now=now):
                 # fingers across the faces needing the least wrist roll, unless an open finger would
                 # come down on another cube: then across the other two, or whichever is clearer
                 faces = [yaw_axis(p[3:], (1, 0, 0)), yaw_axis(p[3:], (0, 1, 0))]
