@@ -1,4 +1,4 @@
-"""The tool contract: the 29 robot tools of the paper plus ``run_code`` and ``done``.
+"""The tool contract: the robot tools (the paper's 29) plus ``run_code`` and ``done``, and the list of them all.
 
 Each robot tool is declared once, in its handler's module (``observe``, ``estimate``, ``motion``):
 its argument and result models beside the handler, the handler declared with
