@@ -47,6 +47,11 @@ def shown(value: Any) -> str:
     return repr(value)
 
 
+def given(value: Any) -> str:
+    """A value as the command line or a yaml file gave it."""
+    return repr(value.value) if isinstance(value, Enum) else repr(value)
+
+
 class Section:
     """A dataclass of the schema: ``SECTION`` is its key in the configuration ('' for the top level)."""
     SECTION: ClassVar[str] = ""
@@ -160,7 +165,7 @@ class SweepConfig(Section):
 class CabConfig(Section):
     """cab's own top-level keys of an attempt (or, with -m, a sweep)."""
     seed: int | None = setting(None, "a non-negative integer, or null (the task's fixed seed)")
-    seed_set: str | None = setting(None, "the name of a seed set (with -m), or null")
+    seed_set: Any = setting(None, "the name of a seed set (with -m), or null")  # Task.seeds(NAME) refuses an unknown one
     attempt: int = setting(1, "a positive integer (1, 2, ...: the repetition of the attempt)")
     budget: BudgetConfig = field(default_factory=BudgetConfig)
     sandbox: SandboxConfig = field(default_factory=SandboxConfig)
@@ -206,6 +211,8 @@ def checked_view(cfg: dict, open_keys: dict[str, Any] | None = None) -> DictConf
         OmegaConf.to_object(view)
     except OmegaConfBaseException as e:
         raise ConfigError(one_line_error(e, view, lambda key: OmegaConf.select(OmegaConf.create(own), key))) from None
+    for key, value in own.items():
+        refuse_converted(view, key, value)
     return view
 
 
@@ -218,7 +225,44 @@ def check_value(view: DictConfig, key: str, value: Any, option: str | None = Non
         OmegaConf.update(trial, key, value, merge=True)
         OmegaConf.to_object(trial)
     except OmegaConfBaseException as e:
-        raise ConfigError(one_line_error(e, view, lambda _: value, key, option)) from None
+        raise ConfigError(one_line_error(e, view, lambda name: _part(value, key, name), key, option)) from None
+    refuse_converted(trial, key, value)
+
+
+def refuse_converted(view: DictConfig, key: str, value: Any) -> None:
+    """Refuse a value OmegaConf accepted by converting it (``record.video=yes`` to true, ``seed='5'``
+    to 5): the composed configuration keeps the value as given, so it must be of the field's type."""
+    typed = OmegaConf.select(view, key)
+    if OmegaConf.is_config(typed):
+        typed = OmegaConf.to_container(typed, resolve=False)
+    where = _converted(value, typed, key)
+    if where is not None:
+        section, _, leaf = where.rpartition(".")
+        must_be = _must_be(section, leaf) or "of its declared type"
+        raise ConfigError(f"{where} must be {must_be}, got {given(_part(value, key, where))}")
+
+
+def _converted(raw: Any, typed: Any, key: str) -> str | None:
+    """The key of the first value in ``raw`` that is not ``typed`` as given, or None."""
+    if isinstance(raw, dict) and isinstance(typed, dict):
+        return next((w for k, v in raw.items() if k in typed and (w := _converted(v, typed[k], f"{key}.{k}"))), None)
+    if isinstance(typed, Enum):
+        return None if raw == typed.value else key
+    if isinstance(raw, list) and isinstance(typed, list):
+        same = len(raw) == len(typed) and all(_converted(r, t, key) is None for r, t in zip(raw, typed))
+        return None if same else key
+    if isinstance(raw, str) and "${" in raw:
+        return None  # an interpolation: its value is checked where it is resolved
+    if isinstance(raw, bool) or isinstance(typed, bool) or isinstance(raw, str) or isinstance(typed, str):
+        return None if type(raw) is type(typed) and raw == typed else key
+    return None if raw == typed else key
+
+
+def _part(value: Any, key: str, name: str) -> Any:
+    """The value of ``name`` in ``key=value`` (``sandbox={mode:bogus}``: ``sandbox.mode`` is 'bogus')."""
+    if name == key or not name.startswith(key + "."):
+        return value
+    return OmegaConf.select(OmegaConf.create({"v": value}), "v." + name[len(key) + 1:], default=value)
 
 
 def one_line_error(e: OmegaConfBaseException, view: DictConfig, value_of: Any, key: str | None = None,
@@ -233,7 +277,7 @@ def one_line_error(e: OmegaConfBaseException, view: DictConfig, value_of: Any, k
         section, _, leaf = name.rpartition(".")
         must_be = _must_be(section, leaf)
         if must_be is not None:
-            return f"{name} must be {must_be}, got {shown(value_of(name))}"
+            return f"{name} must be {must_be}, got {given(value_of(name))}"
     return one_line(e)
 
 
@@ -259,7 +303,7 @@ def unknown_key(view: DictConfig, failed: str, key: str, option: str | None = No
     near = closest(name, valid)
     if not where:
         hint = f"did you mean {' or '.join(near)}? " if near else ""
-        return f"unknown key {key!r}; {hint}valid top-level keys: {', '.join(valid)}"
+        return f"unknown key {name!r}; {hint}valid top-level keys: {', '.join(valid)}"
     hint = f"did you mean {' or '.join(f'{where}.{n}' for n in near)}? " if near else ""
     of = f" ({key.split('.')[0]}={option})" if option else ""
     return f"unknown key {key!r}; {hint}valid keys under {where}{of}: {', '.join(valid) or '(none)'}"
