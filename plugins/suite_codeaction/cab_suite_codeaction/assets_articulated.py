@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.kits.assets import box_inertia, hinged_urdf, trimesh_module, urdf_inertial, urdf_part
+from cab_core.contracts.scene import Box, Shape, cache_dir
+from cab_core.kits.assets import box_inertia, hinged_urdf, mesh_shape, trimesh_module, urdf_inertial, urdf_part
 from cab_core.kits.scene import material, srgb
 
 
@@ -245,15 +246,11 @@ def shoe_shapes(style: ShoeStyle, foot: str, stem: str) -> list:
     """Convex collision pieces (each also drawn): the sole, the toe box / vamp (solid), and collar
     wall segments around the heel cavity; plus visual details (insole, laces, heel tab). Generated
     once per process and asset cache folder (the meshes are content-addressed files)."""
-    from cab_core.contracts.scene import cache_dir
-
     return list(_shoe_shapes(style, foot, stem, str(cache_dir())))
 
 
 @lru_cache(maxsize=64)
 def _shoe_shapes(style: ShoeStyle, foot: str, stem: str, _cache: str) -> tuple:
-    from cab_core.kits.assets import mesh_shape
-
     L, st, H, t = style.length, style.sole_t, style.heel_h, SHOE_WALL_T
     outline = shoe_outline(style, foot)
     n = len(outline)
@@ -348,8 +345,6 @@ SHOE_BOX = ShoeBoxStyle((0.30, 0.18), 0.085, 0.008, 0.01, (0.72, 0.52, 0.32), (0
 
 def shoe_box_shapes(style: ShoeBoxStyle = SHOE_BOX) -> list:
     """Floor and four walls (boxes), a printed band round the outside and tissue paper inside."""
-    from cab_core.contracts.scene import Box, Shape
-
     (li, wi), h, t, f = style.inner, style.height, style.wall_t, style.floor_t
     lo, wo = li + 2 * t, wi + 2 * t
     card = _mat(style.rgb, roughness=0.9)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cab_core.contracts.scene import Cylinder, Material, Mesh, Shape
+from cab_core.contracts.scene import Capsule, Cylinder, Material, Mesh, Shape
 from cab_core.geometry import axis_angle_quat, quat_to_mat
 from cab_core.kits.assets import mesh_asset
 
@@ -172,8 +172,6 @@ def x_to(direction) -> tuple[float, float, float, float]:
 def rod(p0, p1, radius: float, material: Material, *, capsule: bool = True, **kw) -> Shape:
     """A round bar from ``p0`` to ``p1`` (capsule: rounded ends, reaching ``radius`` beyond them;
     cylinder: flat ends at the points)."""
-    from cab_core.contracts.scene import Capsule
-
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     half = float(np.linalg.norm(p1 - p0)) / 2
     geom = Capsule(radius, half) if capsule else Cylinder(radius, half)
