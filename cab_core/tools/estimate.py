@@ -40,7 +40,6 @@ from cab_core.tools.models import (
     Arm,
     CameraName,
     Direction3,
-    Num,
     ObservationSummary,
     ObsId,
     Pixel,
@@ -49,6 +48,7 @@ from cab_core.tools.models import (
     Result,
     Vec3,
     WristCamera,
+    bounded,
 )
 from cab_core.tools.overlay import AXIS_COLOURS, PALETTE, Canvas, convex_hull, in_frame
 from cab_core.tools.registry import ToolOutput, observation_output, tool
@@ -194,9 +194,9 @@ class PlaneIntersectArgs(Args):
     plane_point_xyz: Vec3 = Field(description="Any world point on the plane [x, y, z], metres.")
     plane_normal_xyz: Direction3 = Field(
         description="Plane normal in world coordinates (non-zero; normalised internally).")
-    plane_offset_sigma_m: Num(0.0, 10.0) = Field(
+    plane_offset_sigma_m: Annotated[float, bounded(0.0, 10.0)] = Field(
         description="Your 1-sigma uncertainty of the plane's position along its normal, metres (>= 0).")
-    pixel_sigma_px: Num(0.0, 100.0) = Field(
+    pixel_sigma_px: Annotated[float, bounded(0.0, 100.0)] = Field(
         default=2.0,
         description="Your 1-sigma uncertainty of the pixel location, pixels (default 2.0).")
 
@@ -303,7 +303,7 @@ class TriangulateCorrespondenceArgs(Args):
         description="pair_id returned by capture_motion_pair.")
     px_before: Pixel = Field(description="Pixel [u, v] of the scene point in the pair's 'before' image.")
     px_after: Pixel = Field(description="Pixel [u, v] of the same scene point in the pair's 'after' image.")
-    pixel_sigma_px: Num(0.0, 100.0) = Field(
+    pixel_sigma_px: Annotated[float, bounded(0.0, 100.0)] = Field(
         default=2.0,
         description="Your 1-sigma pixel uncertainty for both points, pixels (default 2.0).")
 
@@ -395,9 +395,9 @@ class ScaleFromObjectSizeArgs(Args):
         description="Object bounding box [x1, y1, x2, y2] in pixels of that image (x1 < x2, y1 < y2).")
     extent_axis: Literal["width", "height", "diagonal"] = Field(
         description="Which box extent matches the known size: 'width' (u), 'height' (v) or 'diagonal'.")
-    known_extent_m: Num(1e-6, 10.0) = Field(
+    known_extent_m: Annotated[float, bounded(1e-6, 10.0)] = Field(
         description="Your prior for the object's physical extent along that axis, metres.")
-    known_extent_sigma_m: Num(0.0, 10.0) | None = Field(
+    known_extent_sigma_m: Annotated[float, bounded(0.0, 10.0)] | None = Field(
         default=None,
         description="Optional 1-sigma uncertainty of that prior, metres; without it the uncertainty is null.")
 
@@ -712,11 +712,11 @@ class CameraAimPoseArgs(Args):
     camera: WristCamera = Field(
         description="Wrist camera to aim: 'left_camera' (left arm) or 'right_camera' (right arm).")
     target_xyz: Vec3 = Field(description="World point [x, y, z] (metres) the camera should look at.")
-    pitch: Num(60.0, 90.0) = Field(
+    pitch: Annotated[float, bounded(60.0, 90.0)] = Field(
         default=80.0,
         description="Approach tilt below horizontal, degrees (60-90, default 80; 90 = approach straight down, "
                     "the top-down family); a rotation about world Y applied before the heading.")
-    standoff: Num(0.05, 1.0) = Field(
+    standoff: Annotated[float, bounded(0.05, 1.0)] = Field(
         default=0.28,
         description="Height of the TCP above the target's z, metres (default 0.28).")
 
@@ -911,7 +911,7 @@ class PreviewTcpPoseArgs(Args):
     arm: Arm = Field(description="Arm whose gripper geometry to draw.")
     tcp_xyz: Vec3 = Field(description=_D_TCP)
     quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
-    finger_gap_m: Num(*FINGER_GAP_RANGE_M) | None = Field(default=None, description=_D_GAP)
+    finger_gap_m: Annotated[float, bounded(*FINGER_GAP_RANGE_M)] | None = Field(default=None, description=_D_GAP)
     reference_px: Pixel | None = Field(
         default=None, description="Optional pixel [u, v] to report offsets to; exclusive with reference_xyz_world.")
     reference_xyz_world: Vec3 | None = Field(
@@ -986,7 +986,7 @@ class TcpCandidate(Args):
     arm: Arm = Field(description="Arm this TCP pose is for.")
     tcp_xyz: Vec3 = Field(description=_D_TCP)
     quat_wxyz: QuatWXYZ = Field(description=_D_QUAT)
-    finger_gap_m: Num(*FINGER_GAP_RANGE_M) | None = Field(default=None, description=_D_GAP)
+    finger_gap_m: Annotated[float, bounded(*FINGER_GAP_RANGE_M)] | None = Field(default=None, description=_D_GAP)
 
 
 class CompareTcpPosesArgs(Args):

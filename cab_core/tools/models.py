@@ -58,17 +58,18 @@ def _unit_quaternion(q: list[float]) -> list[float]:
     return [x / n for x in q]
 
 
-def Num(lo: float, hi: float, *, lo_open: bool = False) -> Any:
-    """A finite number within [lo, hi] (or (lo, hi] with ``lo_open``): a JSON integer is accepted,
-    a string, a boolean or null is refused (strict, never coerced)."""
+def bounded(lo: float, hi: float, *, lo_open: bool = False) -> Any:
+    """The metadata of a number field, ``Annotated[float, bounded(lo, hi)]``: a finite number within
+    [lo, hi] (or (lo, hi] with ``lo_open``); a JSON integer is accepted, a string, a boolean or null
+    is refused (strict, never coerced)."""
     low = {"gt": lo} if lo_open else {"ge": lo}
-    return Annotated[float, Strict(), Field(allow_inf_nan=False, le=hi, **low)]
+    return Field(strict=True, allow_inf_nan=False, le=hi, **low)
 
 
-Coord = Num(-COORD_LIMIT_M, COORD_LIMIT_M)
-Delta = Num(-DELTA_LIMIT_M, DELTA_LIMIT_M)
-PixelCoord = Num(-PIXEL_LIMIT_PX, PIXEL_LIMIT_PX)
-AxisComponent = Num(-AXIS_LIMIT, AXIS_LIMIT)
+Coord = Annotated[float, bounded(-COORD_LIMIT_M, COORD_LIMIT_M)]
+Delta = Annotated[float, bounded(-DELTA_LIMIT_M, DELTA_LIMIT_M)]
+PixelCoord = Annotated[float, bounded(-PIXEL_LIMIT_PX, PIXEL_LIMIT_PX)]
+AxisComponent = Annotated[float, bounded(-AXIS_LIMIT, AXIS_LIMIT)]
 
 Vec3 = Annotated[list[Coord], Field(min_length=3, max_length=3)]
 Delta3 = Annotated[list[Delta], Field(min_length=3, max_length=3)]

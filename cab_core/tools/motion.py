@@ -10,7 +10,7 @@ allowance. The agent gets no error figures: it reads ``commanded`` against ``obs
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -26,11 +26,11 @@ from cab_core.tools.models import (
     Delta,
     Delta3,
     Direction3,
-    Num,
     ObservationSummary,
     QuatWXYZ,
     Result,
     Vec3,
+    bounded,
 )
 from cab_core.tools.registry import ToolOutput, tool
 
@@ -591,9 +591,9 @@ def reach_both_tcp(ctx: RobotContext, args: ReachBothTcpArgs) -> ToolOutput:
 class ProbeContactAlongArgs(Args):
     arm: Arm = Field(description="Arm to move.")
     direction_xyz: Direction3 = Field(description="World direction of travel (non-zero; normalised internally).")
-    distance_m: Num(0.0, DELTA_LIMIT_M, lo_open=True) = Field(
+    distance_m: Annotated[float, bounded(0.0, DELTA_LIMIT_M, lo_open=True)] = Field(
         description="Maximum travel, metres (> 0; clamped to 0.30).")
-    step_m: Num(0.002, DELTA_LIMIT_M) = Field(
+    step_m: Annotated[float, bounded(0.002, DELTA_LIMIT_M)] = Field(
         description="Step between contact checks, metres (>= 0.002; clamped to 0.03).")
 
 
@@ -645,7 +645,7 @@ def probe_contact_along(ctx: RobotContext, args: ProbeContactAlongArgs) -> ToolO
 
 class SetGripperArgs(Args):
     arm: Arm = Field(description="Arm whose gripper to actuate.")
-    pos: Num(0.0, 1.0) = Field(
+    pos: Annotated[float, bounded(0.0, 1.0)] = Field(
         description="Normalised opening command: 1 = fully open, 0 = fully closed.")
 
 
