@@ -156,7 +156,7 @@ def test_joint_and_link_names(urdf, spec, arm):
     assert a.gripper.finger_links == (f"{x}_link7", f"{x}_link8")
     assert set(a.gripper.finger_links) <= set(a.links)
     # every URDF link below the arm's base belongs to the arm
-    below = {l for l in urdf.links if l.startswith(f"{x}_")}
+    below = {link for link in urdf.links if link.startswith(f"{x}_")}
     assert set(a.links) == below
 
 

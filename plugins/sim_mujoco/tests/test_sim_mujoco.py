@@ -11,8 +11,9 @@ import pytest
 pytest.importorskip("mujoco")
 
 import sim_backend_checks as checks  # noqa: E402
-from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
+
 from cab_core.contracts.scene import Body, Mesh, SceneSpec, Shape  # noqa: E402
+from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_mujoco import gl  # noqa: E402
 from cab_sim_mujoco.simulator import MujocoSimulator  # noqa: E402
@@ -188,8 +189,8 @@ def test_object_velocity_is_the_centre_of_mass_velocity():
     """A body whose centre of mass is off its origin, spinning freely: the reported linear
     velocity is the (constant) velocity of its centre of mass, which a finite difference of
     the centre's position confirms."""
-    from cab_core.geometry import transform_point
     from cab_core.contracts.scene import Box
+    from cab_core.geometry import transform_point
 
     body = Body("bar", [Shape(Box((0.1, 0.02, 0.02)), pose=(0.2, 0, 0, 1, 0, 0, 0))], pose=(0, 0, 1, 1, 0, 0, 0),
                 angular_damping=0.0)

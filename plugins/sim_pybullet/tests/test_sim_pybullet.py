@@ -12,10 +12,10 @@ import pytest
 pytest.importorskip("pybullet")
 
 import sim_backend_checks as checks  # noqa: E402
+
+from cab_core.contracts.scene import Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Shape, Sphere  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.geometry import pose_inv, transform_point  # noqa: E402
-from cab_core.contracts.scene import (Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Shape,  # noqa: E402
-                            Sphere)
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_pybullet import massprops, renderer  # noqa: E402
 from cab_sim_pybullet.simulator import PybulletSimulator  # noqa: E402

@@ -17,7 +17,7 @@ render device and the Mesa version, and handed to each camera as its ``BRDFLUT``
 svulkan2 skip the generation. A key that does not match is a different file, so a stale table is
 never used; a file that does not load as the expected array is regenerated. Images rendered with the
 stored table are identical to SAPIEN's own, also under an environment map, where the table weighs the
-specular light (``tests/test_sapien_startup.py``; cab's scenes have no environment map, so there the
+specular light (``plugins/sim_sapien/tests/test_sapien_startup.py``; cab's scenes have no environment map, so there the
 table multiplies a zero term, which is no reason to hand the cameras anything but SAPIEN's table).
 """
 from __future__ import annotations

@@ -11,9 +11,10 @@ import pytest
 pytest.importorskip("sapien")
 
 import sim_backend_checks as checks  # noqa: E402
+
+from cab_core.contracts.scene import Body, CameraSpec, Mesh, SceneSpec, Shape  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.geometry import intrinsics, pose_inv, pose_to_mat  # noqa: E402
-from cab_core.contracts.scene import Body, CameraSpec, Mesh, SceneSpec, Shape  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_sapien import renderer as sapien_renderer  # noqa: E402
 from cab_sim_sapien.simulator import SapienSimulator  # noqa: E402
@@ -117,7 +118,7 @@ def test_shadows_option_changes_the_image():
     checks.require_renderer("sapien")
     images = []
     for shadows in (False, True):
-        sim = sc.build(lambda: SapienSimulator({"render": True, "shadows": shadows, "shadow_map_size": 512}))
+        sim = sc.build(lambda shadows=shadows: SapienSimulator({"render": True, "shadows": shadows, "shadow_map_size": 512}))
         try:
             assert sim.versions()["shadows"] == ("on (512)" if shadows else "off")
             images.append(sim.render(sc.HEAD_CAMERA).astype(int))
