@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import types
 import typing
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Annotated, Any
 
 from pydantic import BaseModel, Field, Strict, ValidationError
@@ -204,7 +204,7 @@ def _short(v: Any, n: int = 60) -> str:
     return r if len(r) <= n else r[: n - 3] + "..."
 
 
-def _fmt_error(e: dict) -> str:
+def _fmt_error(e: Mapping[str, Any]) -> str:
     loc = _fmt_loc(e.get("loc", ()))
     typ = e.get("type", "")
     if typ == "missing":

@@ -62,8 +62,9 @@ def bounded(lo: float, hi: float, *, lo_open: bool = False) -> Any:
     """The metadata of a number field, ``Annotated[float, bounded(lo, hi)]``: a finite number within
     [lo, hi] (or (lo, hi] with ``lo_open``); a JSON integer is accepted, a string, a boolean or null
     is refused (strict, never coerced)."""
-    low = {"gt": lo} if lo_open else {"ge": lo}
-    return Field(strict=True, allow_inf_nan=False, le=hi, **low)
+    if lo_open:
+        return Field(strict=True, allow_inf_nan=False, gt=lo, le=hi)
+    return Field(strict=True, allow_inf_nan=False, ge=lo, le=hi)
 
 
 Coord = Annotated[float, bounded(-COORD_LIMIT_M, COORD_LIMIT_M)]

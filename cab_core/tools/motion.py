@@ -285,8 +285,8 @@ def _legs(ctx: RobotContext, deltas: dict[str, np.ndarray], *, stop_on_contact_c
     norm = {a: float(np.linalg.norm(d)) for a, d in deltas.items()}
     legs_allowed = {a: max(1, 3 * int(math.ceil(norm[a] / leg_m - 1e-9))) for a in deltas}
     tol = {a: min(0.005, max(0.002, 0.25 * norm[a])) for a in deltas}
-    state = {a: {"status": "SUCCESS", "legs": 0, "reason": None, "failure": None, "no_progress": 0,
-                 "planner": None} for a in deltas}
+    state: dict[str, dict[str, Any]] = {a: {"status": "SUCCESS", "legs": 0, "reason": None, "failure": None,
+                                            "no_progress": 0, "planner": None} for a in deltas}
     active = {a for a in deltas if norm[a] > 1e-6}
     steps = 0
     start_contacts = {a: tuple(arm_contacts(ctx, a)["fingers_in_contact"]) for a in deltas}

@@ -370,9 +370,13 @@ def _joint_state(ctx: RobotContext, arm: str) -> dict:
             "units": {"revolute": ["rad", "rad/s"], "prismatic": ["m", "m/s"]}, "read_failures": fails}
 
 
+def _both_arms() -> list[Arm]:
+    return ["left", "right"]
+
+
 class GetRobotStateArgs(Args):
     arms: list[Arm] = Field(
-        default_factory=lambda: ["left", "right"], min_length=1, max_length=2,
+        default_factory=_both_arms, min_length=1, max_length=2,
         description="Arms to include, 1 or 2 distinct names from 'left'/'right'; default both.")
 
     @model_validator(mode="after")
@@ -469,12 +473,16 @@ def capture_wrist(ctx: RobotContext, args: CaptureWristArgs) -> ToolOutput:
     return _observation_set(ctx, shots)
 
 
+def _all_views() -> list[EvidenceView]:
+    return ["overview", "left_wrist", "right_wrist"]
+
+
 class CaptureEvidenceViewsArgs(Args):
     active_arm: Arm | None = Field(
         default=None,
         description="Optional arm whose wrist view is also labelled role 'active' (the other 'opposite').")
     views: list[EvidenceView] = Field(
-        default_factory=lambda: ["overview", "left_wrist", "right_wrist"], min_length=1, max_length=3,
+        default_factory=_all_views, min_length=1, max_length=3,
         description="Unique, non-empty subset of 'overview' (head camera), 'left_wrist', 'right_wrist'; "
                     "captured at the same tick in the given order. Default all three.")
 

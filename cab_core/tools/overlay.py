@@ -23,7 +23,7 @@ _CLIP = 1e5  # keep wildly off-screen coordinates finite for PIL
 
 
 @functools.lru_cache(maxsize=8)
-def font(size: int = 12) -> ImageFont.ImageFont:
+def font(size: int = 12) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
     try:
         return ImageFont.load_default(size=size)
     except (TypeError, OSError):  # Pillow without FreeType: the fixed bitmap font
@@ -116,7 +116,7 @@ class Canvas:
         tip = [tuple(b), tuple(b - h * d + 0.5 * h * perp), tuple(b - h * d - 0.5 * h * perp)]
         self.draw.polygon(tip, fill=(*colour, 255))
 
-    def text_size(self, text: str, size: int = 12) -> tuple[int, int]:
+    def text_size(self, text: str, size: int = 12) -> tuple[float, float]:
         """Width and height of a label box for ``text``, pixels."""
         x1, y1, x2, y2 = self.draw.textbbox((0, 0), text, font=font(size))
         return x2 - x1 + 4, y2 - y1 + 4
