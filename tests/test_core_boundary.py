@@ -71,7 +71,7 @@ def test_harness_mcp_needs_no_other_harness():
 
 
 def test_both_harnesses_use_the_cores_prompt_and_image_rule():
-    from cab_core.attempt import agent_io
+    from cab_core.kits.harness import prompts as agent_io
     from cab_harness_mcp import harness as mcp
     from cab_harness_reference import loop
 

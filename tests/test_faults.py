@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
-from cab_core.attempt import faults
+from cab_core.attempt.engine import faults
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.engine.episode import Episode
 from cab_core.errors import InfrastructureFault, SimulatorError

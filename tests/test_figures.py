@@ -15,6 +15,7 @@ from cab_core.analysis import figures as fg
 from cab_core.analysis import report as rep
 from cab_core.analysis.failure import LABELS, STAGES
 from cab_core.analysis.measures import CLAIMS
+from cab_core.apps.report_cli import main as report_main
 
 NS = "{http://www.w3.org/2000/svg}"
 NAMES = ["success", "outcomes", "claims", "coverage", "coverage_curve", "success_wall"]  # no cost in these records
@@ -124,7 +125,7 @@ def test_matplotlib_is_imported_only_to_draw():
 
 @pytest.mark.sim
 def test_no_figure_files(built, sweep, tmp_path, capsys):
-    rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--no-figure-files"])
+    report_main([str(sweep), "--out", str(tmp_path), "--no-views", "--no-figure-files"])
     assert not (tmp_path / "figures").exists() and "## Figures" not in (tmp_path / "report.md").read_text()
     assert list(inline(tmp_path)) == NAMES  # the page shows them all the same
     assert "figures/" not in capsys.readouterr().err

@@ -22,7 +22,7 @@ import sys
 import numpy as np
 import pytest
 
-from cab_core.attempt.records.schema import dumps, write_json_atomic
+from cab_core.attempt.records.result_format import dumps, write_json_atomic
 from cab_core.sandbox import Sandbox, SandboxConfig
 from cab_core.sandbox import guest
 
@@ -234,7 +234,7 @@ def test_the_record_writer_writes_strict_json_and_says_where(tmp_path):
 
 def test_a_tool_result_the_agent_sees_is_strict_json():
     """serving.py passes every tool result through ``strict_payload`` before the agent sees it."""
-    from cab_core.attempt import serving
+    from cab_core.attempt.engine import serving
     from cab_core.sandbox.truncate import strict_payload
 
     assert serving.strict_payload is strict_payload
@@ -295,7 +295,7 @@ def test_a_scripted_attempt_gets_refusals_and_strict_json_records(tmp_path):
     assert not any(s["namespace_reset"] for s in seen)
     assert not ADDRESS.search("\n".join(lines))
     # a record whose measurements went NaN (a body blown away) is still a valid, strict record
-    from cab_core.attempt.records.schema import AttemptRecord
+    from cab_core.attempt.records.result_format import AttemptRecord
 
     result["verdict"]["values"] = {"distance": float("nan")}
     result["verdict"]["margins"] = {"p": {"slack": float("nan"), "scale": 0.01, "fraction": float("-inf"), "unit": "m"}}

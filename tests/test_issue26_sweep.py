@@ -325,7 +325,7 @@ def test_a_write_that_fails_leaves_the_old_file_and_no_temporary_copy(tmp_path, 
     content and no half-written temporary file is left beside it."""
     import errno
 
-    from cab_core.attempt import record
+    from cab_core.attempt.records import result_format as record
 
     p = tmp_path / "result.json"
     record.write_json_atomic(p, {"a": 1})

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from cab_core import geometry
-from cab_suite_codeaction.catalog import task_info
-from cab_core.tools.context import ObservationStore, RobotContext
 from cab_core.tools import motion
+from cab_core.tools.context import ObservationStore, RobotContext
+from cab_suite_codeaction.catalog import task_info
 
 SIMS = ["mujoco", "pybullet", "sapien"]
 
@@ -180,7 +180,7 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
     """One scripted attempt; ``video``: 'samples' (the default path), 'loop' (the simulator made to
     refuse samples) or 'off'. Returns the raw frames handed to the encoder, the end state and the
     result."""
-    from cab_core.attempt import recording
+    from cab_core.attempt.records import writer as recording
 
     frames: list[np.ndarray] = []
     add = recording.VideoWriter.add
@@ -195,7 +195,8 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
 
 
 def _scripted(sim_name: str, out: Path, video: str, frames: list) -> dict:
-    from cab_core.attempt.engine.episode import AttemptSpec, Episode
+    from cab_core.attempt.engine.episode import Episode
+    from cab_core.attempt.spec import AttemptSpec
     from cab_core.plugins import all_tasks, create
 
     task = "beat_block_hammer"

@@ -18,7 +18,7 @@ import pytest
 from pydantic import BaseModel
 
 from cab_core.analysis.attempts import Attempt, InfrastructureResult, check_result, scan
-from cab_core.attempt.records.schema import (READABLE_VERSIONS, RECORD_VERSION, AttemptRecord, MalformedRecord, dumps,
+from cab_core.attempt.records.result_format import (READABLE_VERSIONS, RECORD_VERSION, AttemptRecord, MalformedRecord, dumps,
                                      parse_record, read_record)
 from cab_core.errors import RecordError
 from cab_core.sweep.attempt_state import annotate_result, check_attempt, write_infrastructure_result

@@ -13,6 +13,7 @@ from attempt_records import PLAN, TASKS, attempt_dir, events, results, shared_sw
 
 from cab_core.analysis import report as rep
 from cab_core.analysis.measures import wilson
+from cab_core.apps.report_cli import main as report_main
 from cab_core.sweep.attempt_state import annotate_result, set_aside, write_infrastructure_result
 
 pytestmark = pytest.mark.sim
@@ -179,7 +180,7 @@ def test_markdown_and_html(built, sweep):
 
 
 def test_cli_prints_the_summary_table(sweep, tmp_path, capsys):
-    rep.main([str(sweep), "--out", str(tmp_path), "--no-views"])
+    report_main([str(sweep), "--out", str(tmp_path), "--no-views"])
     printed = capsys.readouterr().out
     assert printed.splitlines()[0].startswith("| Configuration | Success | Rate | Wilson 95% | Coverage |")
     assert "| oracle (direct, sapien) | 4/4 | 100.0%" in printed
@@ -219,7 +220,7 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     assert problems[f"{TASKS[0]}/oracle/seed-0/attempt-2"].startswith("result.json is not valid JSON")
     assert problems[f"{TASKS[1]}/idle/seed-0/attempt-1"] == "result.json lacks 'verdict'"
     assert problems[f"{TASKS[1]}/scripted/seed-0/attempt-1"].startswith("events.jsonl line 3 is not valid JSON")
-    # refused when read: the record's model (cab_core.attempt.records.schema) names what the checkpoint lacks
+    # refused when read: the record's model (cab_core.attempt.records.result_format) names what the checkpoint lacks
     assert problems[f"{TASKS[0]}/idle/seed-0/attempt-2"].startswith("result.json lacks 'checkpoints.spatial[0].name'")
     assert "result.json lacks 'checkpoints.spatial[0].attained'" in problems[f"{TASKS[0]}/idle/seed-0/attempt-2"]
     assert r["attempts"] == len(results(sweep)) - 6
@@ -381,7 +382,7 @@ def test_pass_k_per_configuration(built, sweep):
 def test_compare_and_plan_from_the_command_line(sweep, tmp_path, capsys):
     from scipy.stats import binomtest
 
-    rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--compare", "oracle", "scripted",
+    report_main([str(sweep), "--out", str(tmp_path), "--no-views", "--compare", "oracle", "scripted",
               "--resamples", "500", "--plan-difference", "0.1"])
     printed = capsys.readouterr().out
     r = json.loads((tmp_path / "report.json").read_text())
@@ -404,13 +405,13 @@ def test_compare_and_plan_from_the_command_line(sweep, tmp_path, capsys):
 
 def test_compare_names_an_unknown_configuration(sweep, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
-        rep.main([str(sweep), "--out", str(tmp_path), "--no-views", "--compare", "oracle", "nobody"])
+        report_main([str(sweep), "--out", str(tmp_path), "--no-views", "--compare", "oracle", "nobody"])
     assert e.value.code == 2 and "no configuration 'nobody'" in capsys.readouterr().err
     assert not (tmp_path / "report.json").exists()
 
 
 def test_plan_without_a_directory(capsys):
-    rep.main(["--plan-difference", "0.2", "--plan-baseline", "0.3", "--plan-tasks", "25"])
+    report_main(["--plan-difference", "0.2", "--plan-baseline", "0.3", "--plan-tasks", "25"])
     printed = capsys.readouterr().out
     assert "| Success rates | 20.0% vs 40.0% |" in printed
     assert "| Attempts per configuration | 82 |" in printed and "| Attempts per task over 25 tasks | 4 (100 per" in printed

@@ -4,20 +4,19 @@ Analysis (report, viewer, replay, regrade) reads only these records, never a sim
 be partial (attempts still running, or killed: ``events.jsonl`` without ``result.json``) or hold
 corrupt files; :func:`scan` sorts directories into finished attempts, in-flight ones and problems,
 and never raises for a bad record. ``result.json`` is validated through its model
-(:class:`cab_core.attempt.records.schema.AttemptRecord`); analysis reads it as the typed record or, where
+(:class:`cab_core.attempt.records.result_format.AttemptRecord`); analysis reads it as the typed record or, where
 that is simpler, as the dict it was parsed from.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
-from cab_core.kits.harness.agent_info import AgentRecord
-from cab_core.attempt.records.schema import AttemptRecord, parse_record, read_json_object, read_jsonl  # noqa: F401  (read_jsonl: read here by the analyses)
+from cab_core.attempt.records.result_format import AttemptRecord, parse_record, read_json_object, read_jsonl  # noqa: F401  (read_jsonl: read here by the analyses)
 from cab_core.errors import RecordError
+from cab_core.kits.harness.agent_info import AgentRecord
 from cab_core.sweep.attempt_state import SET_ASIDE
 
 read_json = read_json_object  # one JSON object from a file; a missing or unparsable file is a RecordError
@@ -32,7 +31,7 @@ class InfrastructureResult(RecordError):
 
 def check_result(result: dict) -> AttemptRecord:
     """The typed record of a parsed ``result.json``: RecordError (:class:`MalformedRecord
-    <cab_core.attempt.records.schema.MalformedRecord>`) naming what does not match the record's model,
+    <cab_core.attempt.records.result_format.MalformedRecord>`) naming what does not match the record's model,
     InfrastructureResult for an attempt excluded as an infrastructure failure."""
     record = parse_record(result)
     if record.excluded:

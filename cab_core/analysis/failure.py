@@ -79,8 +79,8 @@ def transport_lost(snaps: list[dict], grip: Grip) -> bool:
 
 def final_subgoals(task, emb, info: dict, snaps: list[dict]) -> list[bool]:
     """The task's subgoal predicates on the recorded final snapshot."""
-    from cab_core.contracts.verifier import WorldView
     from cab_core.attempt.engine.checkpoint_scoring import SnapshotState
+    from cab_core.contracts.verifier import WorldView
 
     last = snaps[-1]
     w = WorldView(SnapshotState(last, emb), emb, {a: last["arms"][a]["gripper_cmd"] for a in last["arms"]}, info)

@@ -322,7 +322,7 @@ def fork_folders(rec: dict | None, out: Path) -> list[Path]:
 # ---------------------------------------------------------------------------------------------
 def finished(d: Path) -> bool:
     """Whether a fork folder holds a finished fork (``result.json`` that is no infrastructure failure)."""
-    from cab_core.attempt.records.schema import read_json_object
+    from cab_core.attempt.records.result_format import read_json_object
     from cab_core.errors import CabError
     from cab_core.sweep.attempt_state import is_infrastructure_failure
 
@@ -360,8 +360,8 @@ def run(root: Path, r: dict, folder: Path, out: Path, repeats: int = 0, jobs: in
     ``out``, the report's folder), ``repeats``, ``forks`` (how many in all), ``ran`` (how many were
     run now), ``cases`` (one per failed attempt: its
     points, first failed stage and each fork's outcome) and ``configs`` (:func:`summarize`)."""
-    from cab_core.analysis.failure import Classifier
     from cab_core.analysis.attempts import read_json
+    from cab_core.analysis.failure import Classifier
     from cab_core.sweep.supervisor import fork_configs, run_configs
 
     root, folder, out = Path(root), Path(folder), Path(out)

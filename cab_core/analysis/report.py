@@ -34,12 +34,20 @@ import json
 import os
 from pathlib import Path
 
-from cab_core.errors import CabError, RecordError
-from cab_core.contracts.verifier import BORDERLINE_FRACTION
-from cab_core.analysis.failure import LABELS, STAGES, Classifier
-from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, AttemptMeasures, ConfigSummary, matrix
-from cab_core.analysis.attempts import FORKS_FOLDER, Scan, read_json, scan
 from cab_core.analysis import instances, recoverability, stats
+from cab_core.analysis.attempts import FORKS_FOLDER, Scan, read_json, scan
+from cab_core.analysis.failure import LABELS, STAGES, Classifier
+from cab_core.analysis.measures import (
+    ACTION_CAUSES,
+    CLAIMS,
+    ESTIMATION_TOOLS,
+    STOPPING,
+    AttemptMeasures,
+    ConfigSummary,
+    matrix,
+)
+from cab_core.contracts.verifier import BORDERLINE_FRACTION
+from cab_core.errors import CabError, RecordError
 
 REPORT_VERSION = "cab-report/1"
 MALFORMED = (LookupError, TypeError, ValueError, AttributeError)  # a field of the wrong shape in a record

@@ -21,6 +21,7 @@ from cab_core.analysis.attempts import Attempt, attempt_dirs, read_jsonl
 from cab_core.attempt.fork import FORKS_FILE
 from cab_core.errors import CabError, RecordError
 
+
 def _json(obj) -> str:
     return json.dumps(obj, indent=1)
 

@@ -38,10 +38,10 @@ def _pct(xs: list[float], p: float) -> float:
 
 
 def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
-    from cab_core.config import default_selection
-    from cab_core.plugins import task_info
     from cab_core.attempt.engine.episode import Episode
     from cab_core.attempt.spec import AttemptSpec
+    from cab_core.config import default_selection
+    from cab_core.plugins import task_info
 
     info = task_info(task)
     d = default_selection(("embodiment", "planner"))

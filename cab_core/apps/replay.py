@@ -203,9 +203,9 @@ def replay(attempt_dir: Path, out: Path | None = None, tol: float = TOLERANCE_M)
 def regrade(attempt_dir: Path) -> dict:
     """Checkpoints, claim correctness and failure stage recomputed from the records alone, each
     beside the recorded value. No simulator runs."""
-    from cab_core.attempt.engine.checkpoint_scoring import evaluate_attempt
     from cab_core.analysis.failure import Classifier
     from cab_core.analysis.measures import claim_category
+    from cab_core.attempt.engine.checkpoint_scoring import evaluate_attempt
 
     a = Attempt.load(Path(attempt_dir))
     ck = evaluate_attempt(a.dir).as_dict()

@@ -1,2 +1,3 @@
-"""Moved to :mod:`cab_core.kits.harness.stdio`; kept until cab_core/apps/cli.py imports it from there (issue 27)."""
+"""Compatibility: moved to :mod:`cab_core.kits.harness.stdio` (issue 27); kept only while cab_core/apps/cli.py
+imports it from this path."""
 from cab_core.kits.harness.stdio import StdioChannel, claim, claimed  # noqa: F401

@@ -34,9 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.attempt.records.schema import read_json_object, read_jsonl
 from cab_core.errors import CabError, ConfigError, RecordError
 from cab_core.kits.harness.conversation import DIRECT
+from cab_core.kits.jsonfiles import read_jsonl
 
 FORK_TOLERANCE_M = 0.005
 #: the parent's settings a fork keeps: everything that decides the world and the budgets
@@ -124,7 +124,7 @@ class ForkPoint:
 
 def torn_last_line(path: Path) -> int:
     """The number of the last line of an append-only log when it is not valid JSON (a process
-    killed mid-write; :func:`~cab_core.attempt.records.schema.read_jsonl` drops it), else 0."""
+    killed mid-write; :func:`~cab_core.kits.jsonfiles.read_jsonl` drops it), else 0."""
     lines = Path(path).read_text(errors="replace").splitlines()  # a torn multi-byte character included
     while lines and not lines[-1].strip():
         lines.pop()

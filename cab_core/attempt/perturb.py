@@ -1,2 +1,3 @@
-"""Moved to :mod:`cab_core.attempt.variation.perturb`; kept until cab_core/attempt/spec.py imports it from there (issue 27)."""
+"""Compatibility: moved to :mod:`cab_core.attempt.variation.perturb` (issue 27); kept only while cab_core/attempt/spec.py
+imports it from this path."""
 from cab_core.attempt.variation.perturb import Perturbation  # noqa: F401

@@ -1,2 +1,3 @@
-"""Moved to :mod:`cab_core.attempt.engine.runner`; kept until cab_core/apps/cli.py and cab_core/apps/studio/child.py imports it from there (issue 27)."""
+"""Compatibility: moved to :mod:`cab_core.attempt.engine.runner` (issue 27); kept only while cab_core/apps/cli.py or cab_core/apps/studio/child.py
+imports it from this path."""
 from cab_core.attempt.engine.runner import attempt_spec, run_attempt  # noqa: F401

@@ -1,7 +1,7 @@
 """The state of one attempt directory inside a sweep, as resume and the supervisor see it.
 
 An attempt directory is *complete* when its ``result.json`` validates: the record schema
-(:class:`cab_core.attempt.records.schema.AttemptRecord`), the identity of the attempt it should hold, and the
+(:class:`cab_core.attempt.records.result_format.AttemptRecord`), the identity of the attempt it should hold, and the
 completeness of the records it points to (the event log ends with ``attempt_end``, the observations
 and the video it counts exist), and it is not an infrastructure failure. Anything else that holds
 records is *partial*: a worker killed mid-attempt, or a try that failed for reasons that are not the
@@ -16,8 +16,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cab_core.attempt.engine.faults import INFRASTRUCTURE_TERMINATIONS
-from cab_core.attempt.records.schema import (INFRA_REASON, RECORD_VERSION, AttemptRecord, Infrastructure,
-                                     MalformedRecord, parse_record, write_record)
+from cab_core.attempt.records.result_format import (
+    INFRA_REASON,
+    RECORD_VERSION,
+    AttemptRecord,
+    Infrastructure,
+    MalformedRecord,
+    parse_record,
+    write_record,
+)
 
 SET_ASIDE = "set_aside"
 # Why a resumed sweep sets an attempt's records aside: a half-written attempt (the sweep stopped

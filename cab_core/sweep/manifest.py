@@ -27,12 +27,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cab_core.attempt.records.result_format import write_json_atomic
 from cab_core.errors import ConfigError
-from cab_core.attempt.records.schema import write_json_atomic
+from cab_core.sweep.attempt_state import (
+    GIVEN_UP,
+    INTERRUPTED,
+    SET_ASIDE,
+    annotate_result,
+    check_attempt,
+    infrastructure_failures,
+    is_infrastructure_failure,
+    set_aside,
+    unlisted_set_aside,
+)
 from cab_core.sweep.layout import attempt_folders, check_distinct, varying_keys
-from cab_core.sweep.attempt_state import (GIVEN_UP, INTERRUPTED, SET_ASIDE, annotate_result, check_attempt,
-                                    infrastructure_failures, is_infrastructure_failure, set_aside,
-                                    unlisted_set_aside)
 from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig
 
 MANIFEST = "sweep.json"

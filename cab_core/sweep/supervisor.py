@@ -34,11 +34,20 @@ from pathlib import Path
 from typing import Callable
 
 from cab_core.errors import ConfigError
+from cab_core.sweep.attempt_state import (
+    INFRA_LOG,
+    INFRA_TERMINATIONS,
+    annotate_result,
+    check_attempt,
+    infrastructure_failures,
+    infrastructure_record,
+    is_infrastructure_failure,
+    log_infrastructure_failure,
+    record_entries,
+    set_aside,
+    write_infrastructure_result,
+)
 from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV, kill_group
-from cab_core.sweep.attempt_state import (INFRA_LOG, INFRA_TERMINATIONS, annotate_result, check_attempt,
-                                    infrastructure_failures, infrastructure_record, is_infrastructure_failure,
-                                    log_infrastructure_failure, record_entries, set_aside,
-                                    write_infrastructure_result)
 
 CHILD_LOG = "attempt.log"
 # Thread pools an attempt process may start: lavapipe's renderer (the largest), BLAS and OpenMP.

@@ -7,9 +7,9 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cab_core.errors import AttemptEnded, ConfigError
-from cab_core.contracts.hookspecs import hookimpl
 from cab_core.attempt.engine.human import HumanAgent
+from cab_core.contracts.hookspecs import hookimpl
+from cab_core.errors import AttemptEnded, ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.harness import AttemptSession

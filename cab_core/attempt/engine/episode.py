@@ -14,24 +14,27 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cab_core.attempt.budget import BudgetLedger
-from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkPoint, compare_prefix, link_parent
 from cab_core.attempt.engine.finishing import VerdictTracker, attempt_checkpoints, versions
-from cab_core.attempt.records.schema import RECORD_VERSION, AttemptRecord, MalformedRecord, read_jsonl
-from cab_core.attempt.records.writer import Recorder
 from cab_core.attempt.engine.serving import CallServer, StepClock, ToolResponse
-from cab_core.attempt.spec import AttemptSpec
 from cab_core.attempt.engine.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
+from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkPoint, compare_prefix, link_parent
+from cab_core.attempt.records.result_format import RECORD_VERSION, AttemptRecord, MalformedRecord, read_jsonl
+from cab_core.attempt.records.writer import Recorder
 from cab_core.contracts.task import SceneInstance, Task
 from cab_core.contracts.verifier import WorldView
 from cab_core.errors import AttemptEnded
 from cab_core.tools import build_registry
 from cab_core.tools.context import ObservationStore, RobotContext
 
-__all__ = ["AttemptSpec", "Episode", "RECORD_CAMERA", "ToolResponse"]
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.attempt.spec import AttemptSpec
+
+__all__ = ["Episode", "RECORD_CAMERA", "ToolResponse"]
 
 log = logging.getLogger("cab")
 

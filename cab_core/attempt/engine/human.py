@@ -36,10 +36,15 @@ from dataclasses import asdict, dataclass, field
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
-from cab_core.kits.harness.prompts import (continuation_note, first_user_message, result_images, run_code_limits,
-                                       system_prompt)
-from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
+from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
+from cab_core.kits.harness.prompts import (
+    continuation_note,
+    first_user_message,
+    result_images,
+    run_code_limits,
+    system_prompt,
+)
 from cab_core.tools.motion import HARNESS_PARAMETERS
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -22,7 +22,8 @@ from typing import Any, Iterable
 import numpy as np
 
 from cab_core.attempt.records.observers import Observers
-from cab_core.attempt.records.schema import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
+from cab_core.attempt.records.result_format import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
+
 
 class VideoWriter:
     """H.264 MP4 through imageio-ffmpeg, frames pushed as they are rendered. The frames go to

@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from cab_core.contracts.scene import ArticulatedObject, Body, SceneSpec
 from cab_core.errors import ConfigError
 from cab_core.geometry import quat_mul
-from cab_core.contracts.scene import ArticulatedObject, Body, SceneSpec
 
 KEYS = ("seed", "position_m", "angle_deg", "physics_fraction")
 

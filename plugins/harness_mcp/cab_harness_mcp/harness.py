@@ -39,10 +39,16 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cab_core.kits.harness.prompts import continuation_note, first_user_message, result_images, run_code_limits, system_prompt
-from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
 from cab_core.errors import AttemptEnded, ConfigError
 from cab_core.kits.harness import stdio
+from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
+from cab_core.kits.harness.prompts import (
+    continuation_note,
+    first_user_message,
+    result_images,
+    run_code_limits,
+    system_prompt,
+)
 from cab_core.tools.motion import HARNESS_PARAMETERS
 
 from .bridge import CallBridge, Job

@@ -21,8 +21,20 @@ from typing import Any
 from cab_core.errors import ConfigError
 
 from .retry import RetryPolicy, call_with_retries
-from .types import (Capabilities, Image, Message, Provider, ProviderError, Response, Text, Thinking, ToolCall,
-                    ToolResult, ToolSpec, Usage)
+from .types import (
+    Capabilities,
+    Image,
+    Message,
+    Provider,
+    ProviderError,
+    Response,
+    Text,
+    Thinking,
+    ToolCall,
+    ToolResult,
+    ToolSpec,
+    Usage,
+)
 
 MAX_CACHE_BREAKPOINTS = 4
 _STOP = {"tool_use": "tool_calls", "end_turn": "end_turn", "stop_sequence": "end_turn", "max_tokens": "max_tokens",

@@ -35,8 +35,18 @@ from cab_core.errors import ConfigError, MissingDependency
 
 from .retry import RetryPolicy, call_with_retries
 from .types import (
-    Capabilities, Image, Message, Provider, ProviderError, Response, Text, Thinking, ToolCall,
-    ToolResult, ToolSpec, Usage,
+    Capabilities,
+    Image,
+    Message,
+    Provider,
+    ProviderError,
+    Response,
+    Text,
+    Thinking,
+    ToolCall,
+    ToolResult,
+    ToolSpec,
+    Usage,
 )
 
 KEY_ENVS = ("GEMINI_API_KEY", "GOOGLE_API_KEY")

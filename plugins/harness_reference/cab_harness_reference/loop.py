@@ -11,11 +11,11 @@ import json
 import time
 from typing import TYPE_CHECKING
 
-from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.errors import AttemptEnded, CabError, ConfigError
+from cab_core.kits.harness import ToolResponse
 from cab_core.kits.harness.conversation import REBUILT, transcript
 from cab_core.kits.harness.pricing import cost, usage_dict
-from cab_core.kits.harness import ToolResponse
-from cab_core.errors import AttemptEnded, CabError, ConfigError
+from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.tools.motion import HARNESS_PARAMETERS
 
 from .context import ContextOverflow, ReferenceContextPolicy

@@ -21,8 +21,7 @@ import json
 from typing import Any
 
 from .openai_provider import _err, _i, _OpenAIBase, image_label, png_data_url
-from .types import (Capabilities, Image, Message, Response, Text, Thinking, ToolCall, ToolResult,
-                    ToolSpec, Usage)
+from .types import Capabilities, Image, Message, Response, Text, Thinking, ToolCall, ToolResult, ToolSpec, Usage
 
 
 class OpenAICompatibleProvider(_OpenAIBase):

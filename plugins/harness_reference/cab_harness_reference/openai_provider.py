@@ -27,8 +27,20 @@ from typing import Any, Callable
 from cab_core.errors import ConfigError, MissingDependency
 
 from .retry import RetryPolicy, call_with_retries
-from .types import (Capabilities, Image, Message, Provider, ProviderError, Response, Text,
-                    Thinking, ToolCall, ToolResult, ToolSpec, Usage)
+from .types import (
+    Capabilities,
+    Image,
+    Message,
+    Provider,
+    ProviderError,
+    Response,
+    Text,
+    Thinking,
+    ToolCall,
+    ToolResult,
+    ToolSpec,
+    Usage,
+)
 
 INSTALL = "pip install 'cab-harness-reference[openai]'"
 

@@ -6,6 +6,7 @@ from cab_core.contracts.hookspecs import hookimpl
 
 from .providers import PROVIDERS
 
+
 def _reference_harness(cfg: dict):
     from .loop import ReferenceHarness
 
