@@ -441,6 +441,7 @@ def scale_from_object_size(ctx: RobotContext, args: ScaleFromObjectSizeArgs) -> 
             "method": "Z = known_extent / (pixel_extent / f): pinhole similar triangles",
             "assumption": "the measured extent is parallel to the image plane at the object's depth; a tilted or "
                           "partly hidden extent biases Z"}
+    failure: tuple[str, str] | None
     if pix < MIN_BOX_EXTENT_PX:
         failure = ("DEGENERATE_GEOMETRY", f"the box spans {pix:.3g} px along that extent (under {MIN_BOX_EXTENT_PX:g} px): "
                                           "no scale can be read from it")
@@ -473,7 +474,7 @@ class GripperGeometry:
         numbers as fallbacks."""
         spec = ctx.arm(arm).gripper
         facts = ctx.emb.facts or {}
-        g = facts.get("gripper") if isinstance(facts.get("gripper"), dict) else {}
+        g: dict[str, Any] = facts["gripper"] if isinstance(facts.get("gripper"), dict) else {}
 
         def num(*keys: str, default: float) -> float:
             for k in keys:
@@ -819,12 +820,13 @@ def _gripper_at(ctx: RobotContext, obs: Observation, arm: str, xyz, quat, gap: f
         gap, src = float(ctx.finger_gap(arm)), "live_fk"
     pose = np.concatenate([np.asarray(xyz, float), np.asarray(quat, float)])
     T = pose_to_mat(pose)
-    fingers, tips = [], []
+    fingers: list[np.ndarray] = []
+    tip_points: list[np.ndarray] = []
     for sign in (1.0, -1.0):
         y = sign * gap / 2
         fingers.append(_to_world(T, geo.finger_corners_local(y, sign)))
-        tips.append(_to_world(T, geo.inner_tip_local(y, sign)[None])[0])
-    tips = np.array(tips)
+        tip_points.append(_to_world(T, geo.inner_tip_local(y, sign)[None])[0])
+    tips = np.array(tip_points)
     fuv, fz = zip(*(project_points(obs.K, obs.E, f) for f in fingers))
     tuv, _ = project_points(obs.K, obs.E, tips)
     cuv, cz = project_points(obs.K, obs.E, pose[:3])
