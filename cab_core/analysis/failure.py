@@ -22,10 +22,14 @@ snapshot; no simulator is involved.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cab_core.analysis.attempts import Attempt, read_json
+from cab_core.kits.jsonfiles import read_json_object as read_json
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.analysis.attempts import Attempt
 
 STAGES = ("arrival", "object_control", "subgoal_outcome", "state_loss", "final_condition", "unresolved")
 LABELS = {"arrival": "Unconfirmed arrival", "object_control": "Unconfirmed object control",

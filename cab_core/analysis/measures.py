@@ -29,9 +29,12 @@ import math
 from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
 from statistics import median
+from typing import TYPE_CHECKING
 
-from cab_core.analysis.attempts import Attempt
 from cab_core.analysis.stats import pass_k_curve
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.analysis.attempts import Attempt
 
 STOPPING = ("done", "tool", "phys", "other")
 CLAIMS = ("correct", "over", "under", "absent")
