@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from cab_core.errors import ConfigError
+
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.embodiment import EmbodimentSpec
     from cab_core.contracts.scene import SceneSpec
@@ -79,8 +81,6 @@ class Task(ABC):
         if seed_set == "catalog":
             return (self.info.seed,)
         if seed_set not in self.seed_sets:
-            from cab_core.errors import ConfigError
-
             known = ", ".join(["catalog", *self.seed_sets])
             raise ConfigError(f"task {self.info.name} has no seed set {seed_set!r}; its sets: {known}")
         return tuple(self.seed_sets[seed_set])

@@ -69,9 +69,13 @@ from functools import lru_cache
 
 import numpy as np
 
+from cab_core.config import default_selection
+from cab_core.contracts import texturing as tx
 from cab_core.contracts.scene import Box, Capsule, Cylinder, Mesh, SceneSpec, Sphere
 from cab_core.contracts.simulator import Simulator
+from cab_core.errors import ConfigError
 from cab_core.geometry import euler_quat, pose_inv, pose_mul, pose_to_mat
+from cab_core.plugins import all_tasks, create, registry
 
 SimFactory = Callable[[], Simulator]
 
@@ -144,8 +148,6 @@ def srgb_to_linear(img: np.ndarray) -> np.ndarray:
 def _primitive_triangles(g) -> np.ndarray:
     """(T, 3, 3) triangles of a primitive in its shape frame (cab's conventions: cylinder and
     capsule axes along local x), or of an OBJ mesh (scaled)."""
-    from cab_core.contracts import texturing as tx
-
     if isinstance(g, Mesh):
         v, f = _read_obj(g.path)
         return v[f] * np.asarray(g.scale, float)
@@ -378,17 +380,12 @@ def judge(regions: list[Region]) -> list[str]:
 
 
 def _embodiment():
-    from cab_core.config import default_selection
-    from cab_core.plugins import create
-
     return create("embodiments", default_selection(("embodiment",))["embodiment"], {})
 
 
 def task_regions(factory: SimFactory, task_name: str, emb=None) -> list[Region]:
     """Build ``task_name``'s scene at its catalog seed in a simulator from ``factory``, settle it
     as an attempt does, and measure its regions."""
-    from cab_core.plugins import all_tasks
-
     task = all_tasks()[task_name]
     emb = emb if emb is not None else _embodiment()
     inst = task.build(task.info.seed, emb)
@@ -434,8 +431,6 @@ def representative_tasks() -> tuple[str, ...]:
     between them show every feature of :func:`scene_features`, topped up to
     :data:`REPRESENTATIVE_COUNT` with the tasks of most object materials. Builds each scene
     description once (no simulator)."""
-    from cab_core.plugins import all_tasks
-
     emb = _embodiment()
     feats = {}
     for name, task in all_tasks().items():
@@ -453,8 +448,6 @@ def representative_tasks() -> tuple[str, ...]:
 def selected_tasks(value: str | None = None) -> list[str]:
     """The tasks to check: ``value`` (or ``$CAB_APPEARANCE_TASKS``): ``all``, a comma-separated
     list, or unset for :func:`representative_tasks`."""
-    from cab_core.plugins import all_tasks
-
     installed = list(all_tasks())
     value = os.environ.get(ENV_TASKS) if value is None else value
     if not value:
@@ -464,8 +457,6 @@ def selected_tasks(value: str | None = None) -> list[str]:
     wanted = [t.strip() for t in value.split(",") if t.strip()]
     unknown = [t for t in wanted if t not in installed]
     if unknown:
-        from cab_core.errors import ConfigError
-
         raise ConfigError(f"{ENV_TASKS}: unknown task(s) {', '.join(unknown)}; installed: {', '.join(installed)}")
     return wanted
 
@@ -486,8 +477,6 @@ def check_appearance(factory: SimFactory, tasks: list[str] | None = None) -> Non
 
 def main(argv: list[str] | None = None) -> int:
     """Print every region's figures per task and simulator; exit 1 where a check fails."""
-    from cab_core.plugins import registry
-
     ap = argparse.ArgumentParser(prog="python -m cab_core.testing.appearance_conformance",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--sims", default=None, help="comma-separated simulators (default: every installed one)")

@@ -7,14 +7,13 @@ from collections.abc import Callable
 
 import pytest
 
+from cab_core.plugins import registry
 from cab_core.testing import sim_conformance as sc
 from cab_core.testing import task_conformance as tc
 from cab_core.testing.selection import selection
 
 
 def _sim_factory(name: str, render: bool) -> Callable:
-    from cab_core.plugins import registry
-
     factory = registry("simulators")[name]
     return lambda: factory({"name": name, "render": render})
 

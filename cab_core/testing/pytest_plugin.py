@@ -90,6 +90,8 @@ def pytest_configure(config: pytest.Config) -> None:
     jobs = config.getoption("cab_jobs")
     if jobs is not None and jobs < 1:
         raise pytest.UsageError(f"--cab-jobs must be at least 1, got {jobs}")
+    # here, not at the top: pytest loads this plugin (pytest11) in every run in the environment; the
+    # registry is needed only with --cab-conformance
     from cab_core.plugins import all_tasks, registry
 
     sims = _restrict("simulator", "--cab-sims", _names(config.getoption("cab_sims")), list(registry("simulators")))
@@ -107,14 +109,20 @@ def pytest_report_header(config: pytest.Config) -> list[str] | None:
             + (f"; tasks: {len(sel.tasks)}" if sel.tasks else "")]
 
 
+def _suite_module():
+    """The module of the conformance checks, imported on first use: it imports the simulator and task
+    checks (4-7 s measured with python -X importtime), which only a run with --cab-conformance needs."""
+    from cab_core.testing import conformance_suite
+
+    return conformance_suite
+
+
 class _Suite(pytest.Module):
     """The plugin's own test module, imported by name (not from its path), under node id
     ``cab-conformance``."""
 
     def _getobj(self):
-        from cab_core.testing import conformance_suite
-
-        return conformance_suite
+        return _suite_module()
 
     def collect(self):
         sel = selection(self.config)
@@ -134,9 +142,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     sel = selection(config)
     if sel is None:
         return
-    from cab_core.testing import conformance_suite
-
-    suite = _Suite.from_parent(session, path=Path(conformance_suite.__file__), nodeid=NODE)
+    suite = _Suite.from_parent(session, path=Path(_suite_module().__file__), nodeid=NODE)
     for item in session.genitems(suite):
         item.add_marker("cab_conformance")
         items.append(item)

@@ -51,8 +51,10 @@ from cab_core.contracts.scene import (
     Sphere,
 )
 from cab_core.contracts.simulator import Contact, SimState, Simulator
-from cab_core.errors import BadCommand
+from cab_core.errors import BadCommand, RendererUnavailable, SimulatorError
 from cab_core.geometry import intrinsics, look_at_cv, pose_inv, pose_mul, quat_angle, quat_to_mat, transform_point
+from cab_core.testing import isolation_conformance as _isolation
+from cab_core.testing.appearance_conformance import check_appearance  # the tasks' colours
 
 SimFactory = Callable[[], Simulator]
 
@@ -819,8 +821,6 @@ def check_textures(factory: SimFactory) -> None:
     textured sphere, cylinder and capsule render; a world with textures steps bit for bit like the
     same world without (textures are visual only); a missing or unreadable texture file is a
     SimulatorError naming the file, at build."""
-    from cab_core.errors import SimulatorError
-
     png = stripes_png()
     emb = make_embodiment()
     a, b = factory(), factory()
@@ -866,7 +866,6 @@ def check_textures(factory: SimFactory) -> None:
             sim.close()
 
 
-from cab_core.testing.appearance_conformance import check_appearance  # noqa: E402 (tasks' colours)
 
 CHECKS: list[Callable[[SimFactory], object]] = [  # a check raises, or returns None or its figures
     check_build_and_names,
@@ -900,8 +899,6 @@ def check_id(check: Callable) -> str:
 def render_diagnosis(factory: SimFactory) -> str | None:
     """None if ``factory``'s simulator renders on this machine, else its RendererUnavailable
     diagnosis (run the checks of :data:`NEEDS_RENDERER` only where this is None)."""
-    from cab_core.errors import RendererUnavailable
-
     sim = factory()
     try:
         sim.build(SceneSpec(), make_embodiment())
@@ -924,7 +921,6 @@ def run_all(factory: SimFactory) -> dict[str, str]:
     return out
 
 # far-away bodies change nothing: cab_core.testing.isolation_conformance on this module's world
-from cab_core.testing import isolation_conformance as _isolation  # noqa: E402
 
 
 def check_isolation(factory: SimFactory) -> dict:

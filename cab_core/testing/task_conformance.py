@@ -21,6 +21,12 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cab_core.attempt.spec import attempt_spec
+from cab_core.attempt.world import BuiltWorld
+from cab_core.plugins import task_info
+from cab_core.sweep.supervisor import attempt_configs, run_batch
+from cab_core.tools.context import RobotContext
+
 AGENTS = ("oracle", "idle")
 
 
@@ -36,8 +42,6 @@ class PairResult:
 def run_attempts(pairs: list[tuple[str, str]], jobs: int, out: Path) -> dict[tuple[str, str], PairResult]:
     """Run the oracle and the idle agent of every ``(task, sim)`` pair at the task's catalog seed.
     Pairs are grouped so that the tasks shared by several simulators run in one batch."""
-    from cab_core.sweep.supervisor import run_batch
-
     by_sim: dict[str, list[str]] = {}
     for task, sim in pairs:
         if task not in by_sim.setdefault(sim, []):
@@ -163,12 +167,6 @@ MOTION_STEPS = 250
 def _world(task: str, sim: str, out: Path):
     """The world of ``cab task=T sim=S model=idle`` at the task's catalog seed, built as an attempt
     builds it (robot at home, settled), physics only; and a robot context to read it with."""
-    from cab_core.attempt.spec import attempt_spec
-    from cab_core.attempt.world import BuiltWorld
-    from cab_core.plugins import task_info
-    from cab_core.sweep.supervisor import attempt_configs
-    from cab_core.tools.context import RobotContext
-
     [cfg] = attempt_configs([(task, task_info(task).seed, "idle", str(out), sim)], cold=False)
     cfg["sim"] = {**cfg["sim"], "render": False}
     world = BuiltWorld.open(attempt_spec(cfg, out))

@@ -22,14 +22,13 @@ import sys
 from multiprocessing.connection import Connection
 from pathlib import Path
 
+from cab_core.attempt.human import SESSIONS, ChildBridge
+from cab_core.attempt.runner import attempt_spec, run_attempt
+from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
 from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_FAULT, EXIT_RENDERER, die_with_parent
 
 
 def run(job: dict, conn: Connection) -> int:
-    from cab_core.attempt.human import SESSIONS, ChildBridge
-    from cab_core.attempt.runner import attempt_spec, run_attempt
-    from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
-
     bridge = SESSIONS[job["session"]] = ChildBridge(conn, job["session"], job["handle"])
     try:
         run_attempt(attempt_spec(job["config"], Path(job["output_dir"])))

@@ -32,8 +32,13 @@ from multiprocessing import Pipe
 from pathlib import Path
 from typing import Any
 
+from omegaconf import OmegaConf
+
 from cab_core.attempt.human import PlayBridge, crash_error
+from cab_core.attempt.spec import attempt_spec
+from cab_core.config import composed
 from cab_core.errors import ConfigError
+from cab_core.plugins import registry, task_info, task_names
 from cab_core.sweep.protocol import PARENT_ENV, kill_group
 
 log = logging.getLogger(__name__)
@@ -78,8 +83,6 @@ class Play:
 
 def installed() -> dict:
     """The tasks and simulators a person may choose from."""
-    from cab_core.plugins import registry, task_names
-
     return {"tasks": sorted(task_names()), "sims": sorted(registry("simulators"))}
 
 
@@ -110,12 +113,6 @@ class Plays:
     def start(self, task: str, sim: str, seed: int | None, handle: str, into: str = PLAYED) -> Play:
         """Compose and start one attempt; ConfigError, in one line, for a choice that is not valid.
         Returns once its process is started (``play.pid``)."""
-        from omegaconf import OmegaConf
-
-        from cab_core.attempt.spec import attempt_spec
-        from cab_core.config import composed
-        from cab_core.plugins import task_info
-
         choices = installed()
         handle = (handle or "").strip()
         if not HANDLE.match(handle):

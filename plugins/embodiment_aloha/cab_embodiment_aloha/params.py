@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
+
+from cab_core.errors import ConfigError
 
 GENERATOR_VERSION = "aloha_agilex-gen-1"
 
@@ -92,10 +94,6 @@ class AlohaParams:
 
     def with_overrides(self, overrides: dict) -> AlohaParams:
         """A copy with some fields replaced (lists become tuples); unknown names raise."""
-        from dataclasses import fields, replace
-
-        from cab_core.errors import ConfigError
-
         known = {f.name for f in fields(self)}
         bad = sorted(set(overrides) - known)
         if bad:

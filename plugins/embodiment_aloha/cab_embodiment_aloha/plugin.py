@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import cab_core
 
+from .embodiment import factory
+
 
 @cab_core.hookimpl
 def cab_embodiments():
-    from .embodiment import factory
-
     return {"aloha_agilex": factory}
 
 

@@ -12,6 +12,7 @@ first row is the start and the last row is the goal.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -360,34 +361,45 @@ class MplibPlanner(Planner):
         common = dict(position_error_m=pe, rotation_error_rad=re)
 
         if straight_line:
-            self._reseed()
-            try:
-                res = ap.planner.plan_screw(self._pose(target), ap.full(start),
-                                            qpos_step=self.cfg.screw_qpos_step, time_step=self.dt,
-                                            wrt_world=True)
-            except RuntimeError as e:  # TOPP-RA could not time the path
-                res = {"status": f"screw path could not be timed: {e}"}
-            ok = res.get("status") == "Success" and len(res.get("position", ())) > 0
-            if ok:
-                end = np.asarray(res["position"][-1], float)
-                pe, re = self._errors(arm, end, target)
-                ok = pe < 0.002 and re < 0.01
-            if ok:
-                pos = self._resample(res["time"], res["position"], start, end)
-                return done("success", positions=pos, message="screw path", position_error_m=pe,
-                            rotation_error_rad=re, raw={"duration_s": float(res["duration"])})
-            # a move too small for the screw integrator: a short joint-space line is straight enough
-            near = sols[0]
-            if pe_move < SHORT_MOVE_M and re_move < SHORT_MOVE_RAD \
-                    and np.max(np.abs(near - start)) < SHORT_MOVE_RAD:
-                pos = self._interpolate(ap, start, near)
-                if pos is not None:
-                    pe, re = self._errors(arm, near, target)
-                    return done("success", positions=pos, message="short joint-space line",
-                                position_error_m=pe, rotation_error_rad=re)
-            return done("no_path", message=f"no straight-line (screw) path: {res.get('status')}",
-                        raw={"mplib_status": res.get("status")}, **common)
+            return self._plan_screw(arm, ap, start, target, sols, (pe_move, re_move), common, done)
+        return self._plan_joint_space(arm, ap, start, target, sols, common, done)
 
+    def _plan_screw(self, arm: str, ap, start: np.ndarray, target, sols: list, move_errors: tuple[float, float],
+                    common: dict, done: Callable[..., PlanResult]) -> PlanResult:
+        """A straight TCP line (mplib's screw motion); for a move too small for the screw integrator,
+        a short joint-space line. ``move_errors``: the start's position and rotation errors."""
+        pe_move, re_move = move_errors
+        self._reseed()
+        try:
+            res = ap.planner.plan_screw(self._pose(target), ap.full(start),
+                                        qpos_step=self.cfg.screw_qpos_step, time_step=self.dt,
+                                        wrt_world=True)
+        except RuntimeError as e:  # TOPP-RA could not time the path
+            res = {"status": f"screw path could not be timed: {e}"}
+        ok = res.get("status") == "Success" and len(res.get("position", ())) > 0
+        if ok:
+            end = np.asarray(res["position"][-1], float)
+            pe, re = self._errors(arm, end, target)
+            ok = pe < 0.002 and re < 0.01
+        if ok:
+            pos = self._resample(res["time"], res["position"], start, end)
+            return done("success", positions=pos, message="screw path", position_error_m=pe,
+                        rotation_error_rad=re, raw={"duration_s": float(res["duration"])})
+        # a move too small for the screw integrator: a short joint-space line is straight enough
+        near = sols[0]
+        if pe_move < SHORT_MOVE_M and re_move < SHORT_MOVE_RAD \
+                and np.max(np.abs(near - start)) < SHORT_MOVE_RAD:
+            pos = self._interpolate(ap, start, near)
+            if pos is not None:
+                pe, re = self._errors(arm, near, target)
+                return done("success", positions=pos, message="short joint-space line",
+                            position_error_m=pe, rotation_error_rad=re)
+        return done("no_path", message=f"no straight-line (screw) path: {res.get('status')}",
+                    raw={"mplib_status": res.get("status")}, **common)
+
+    def _plan_joint_space(self, arm: str, ap, start: np.ndarray, target, sols: list, common: dict,
+                          done: Callable[..., PlanResult]) -> PlanResult:
+        """A collision-free joint-space path (RRTConnect, timed by TOPP-RA) to one of the IK solutions ``sols``."""
         # the IK solution nearest the start first (short, predictable motions), then any of them
         res = {}
         for goals in ([sols[0]], sols[1:]) if len(sols) > 1 else ([sols[0]],):

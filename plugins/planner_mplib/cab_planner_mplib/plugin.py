@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import cab_core
 
+from .planner import factory
+
 
 @cab_core.hookimpl
 def cab_planners():
-    from .planner import factory
-
     return {"mplib": factory}
 
 

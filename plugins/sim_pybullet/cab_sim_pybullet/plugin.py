@@ -11,8 +11,8 @@ from cab_core.errors import MissingDependency
 
 def create_simulator(cfg: dict | None = None):
     """``cfg``: ``render``, ``renderer``, ``timestep``, ``physics``; returns it unbuilt."""
-    try:
-        from .simulator import PybulletSimulator
+    try:  # here, not at the top: cab loads every plugin at start-up, and this import costs 2.5-3.2 s
+        from .simulator import PybulletSimulator  # (python -X importtime, on top of cab_core and numpy)
     except ImportError as e:  # pragma: no cover - depends on the environment
         if getattr(e, "name", "") and str(e.name).split(".")[0] in ("pybullet", "pybullet_utils", "scipy"):
             raise MissingDependency("PyBullet", "pip install 'pybullet==3.2.7' scipy") from e
