@@ -17,7 +17,7 @@ from pathlib import Path
 from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 
 TASKS = ("beat_block_hammer", "stack_blocks_three")
 PLAN = (("oracle", (1, 2)), ("idle", (1, 2)), ("scripted", (1,)))

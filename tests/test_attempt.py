@@ -9,7 +9,7 @@ from hydra import compose, initialize_config_module
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.engine.episode import Episode
 from cab_core.plugins import all_tasks, create
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 
 pytestmark = pytest.mark.sim
 

@@ -5,7 +5,7 @@ from hydra.errors import MissingConfigException
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError
-from cab_core.attempt.engine.runner import attempt_spec
+from cab_core.attempt.runner import attempt_spec
 
 
 def _compose(overrides):

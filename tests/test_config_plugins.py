@@ -15,7 +15,7 @@ import cab_core
 from cab_core import plugins
 from cab_core.apps.cli import normalise_overrides
 from cab_core.errors import ConfigError
-from cab_core.attempt.engine.runner import attempt_spec
+from cab_core.attempt.runner import attempt_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_MODELS = {"astra_codex", "opus5", "opus5_claude_code", "gemini36flash", "gpt56", "qwen38max", "grok46",

@@ -82,7 +82,7 @@ def test_both_harnesses_use_the_cores_prompt_and_image_rule():
 
 
 def test_a_model_config_without_a_harness_is_refused(tmp_path):
-    from cab_core.attempt.engine.runner import attempt_spec
+    from cab_core.attempt.runner import attempt_spec
 
     cfg = {"task": {"name": "click_bell"}, "sim": {"name": "mujoco"}, "embodiment": {"name": "aloha_agilex"},
            "planner": {"name": "mplib"}, "harness": {"name": "auto"}, "model": {"name": "mine"}}

@@ -21,7 +21,7 @@ from cab_core.attempt.engine.episode import Episode
 from cab_core.errors import InfrastructureFault, SimulatorError
 from cab_core.plugins import all_tasks, create
 from cab_core import geometry
-from cab_core.attempt.engine.runner import attempt_spec
+from cab_core.attempt.runner import attempt_spec
 from cab_core.tools import TOOLS, validate_args
 
 pytestmark = pytest.mark.sim

@@ -17,7 +17,7 @@ from cab_core.analysis.viewer import forks_of
 from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkDiverged, ForkPoint, charged_calls
 from cab_core.attempt.records.recovery import recovery
 from cab_core.kits.harness.conversation import transcript
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.errors import ConfigError
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "agent_attempts"

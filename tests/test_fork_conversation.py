@@ -235,7 +235,7 @@ def test_fork_of_a_model_attempt_rebuilds_its_conversation(tmp_path):
 
 @pytest.mark.sim
 def test_fork_of_an_oracle_attempt_gives_one_turn_per_call(tmp_path):
-    from cab_core.attempt.engine.runner import run_attempt
+    from cab_core.attempt.runner import run_attempt
 
     assert run_attempt(spec_for(tmp_path / "parent", "model=oracle"))["termination"]["reason"] == "done"
     calls = recorded_calls(tmp_path / "parent")[:3]

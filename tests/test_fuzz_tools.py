@@ -69,7 +69,7 @@ from cab_core.apps.cli import normalise_overrides  # noqa: E402
 from cab_core.attempt.engine.episode import Episode  # noqa: E402
 from cab_core.errors import AttemptEnded  # noqa: E402
 from cab_core.plugins import all_tasks, create  # noqa: E402
-from cab_core.attempt.engine.runner import attempt_spec  # noqa: E402
+from cab_core.attempt.runner import attempt_spec  # noqa: E402
 from cab_core.tools import TOOLS, validate_args  # noqa: E402
 
 ROBOT_TOOLS = [n for n in TOOLS if n not in ("run_code", "done")]

@@ -81,7 +81,7 @@ def test_a_real_episode_is_an_attempt_session(tmp_path):
     from hydra import compose, initialize_config_module
 
     from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.engine.runner import attempt_spec
+    from cab_core.attempt.runner import attempt_spec
 
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         cfg = compose(config_name="config", overrides=normalise_overrides(

@@ -14,7 +14,7 @@ from test_cli_mistakes import BIN, cab_refuses, refused, run
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.cmdline import check_command_line
 from cab_core.attempt.fork import ForkPoint
-from cab_core.attempt.engine.runner import attempt_spec
+from cab_core.attempt.runner import attempt_spec
 from cab_core.errors import CabError, ConfigError
 
 UNWRITABLE = "/proc/1"  # an existing folder in which no file can be created, even by root

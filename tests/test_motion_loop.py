@@ -268,7 +268,7 @@ def test_latch_polling_answers_as_evaluate(task, tmp_path, monkeypatch):
 
     from cab_core.apps.cli import normalise_overrides
     from cab_core.attempt.engine.episode import VerdictTracker
-    from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+    from cab_core.attempt.runner import attempt_spec, run_attempt
 
     seen = {True: 0, False: 0}
     poll = VerdictTracker.poll

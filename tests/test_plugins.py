@@ -59,7 +59,7 @@ def test_core_imports_no_simulator_sdk_or_mcp():
     import subprocess
     import sys
 
-    code = ("import sys, cab_core, cab_core.plugins, cab_core.attempt.engine.episode, cab_core.attempt.engine.runner, cab_core.tools;"
+    code = ("import sys, cab_core, cab_core.plugins, cab_core.attempt.engine.episode, cab_core.attempt.runner, cab_core.tools;"
             "bad=[m for m in ('sapien','mplib','pybullet','mujoco','mcp','anthropic','openai') if m in sys.modules];"
             "print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

@@ -204,7 +204,7 @@ def test_full_attempt_with_sapien(server, monkeypatch, tmp_path):
     from cab_core.apps.cli import normalise_overrides
     from cab_core.attempt.engine.episode import Episode
     from cab_core.plugins import all_tasks, create
-    from cab_core.attempt.engine.runner import attempt_spec
+    from cab_core.attempt.runner import attempt_spec
     from cab_harness_reference.loop import ReferenceHarness
 
     monkeypatch.setenv("ANTHROPIC_API_KEY", "sk-test")

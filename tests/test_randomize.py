@@ -13,7 +13,7 @@ from PIL import Image
 from cab_core.analysis import instances
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.variation.randomize import Randomization, names_a_colour, randomize_instance
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.errors import ConfigError
 from cab_core.geometry import extrinsic_from_pose
 from cab_core.plugins import all_tasks

@@ -17,9 +17,15 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel
 
-from cab_core.analysis.attempts import Attempt, InfrastructureResult, check_result, scan
-from cab_core.attempt.records.result_format import (READABLE_VERSIONS, RECORD_VERSION, AttemptRecord, MalformedRecord, dumps,
-                                     parse_record, read_record)
+from cab_core.analysis.attempts import Attempt, InfrastructureResult, check_result, read_record, scan
+from cab_core.attempt.records.result_format import (
+    READABLE_VERSIONS,
+    RECORD_VERSION,
+    AttemptRecord,
+    MalformedRecord,
+    dumps,
+    parse_record,
+)
 from cab_core.errors import RecordError
 from cab_core.sweep.attempt_state import annotate_result, check_attempt, write_infrastructure_result
 
@@ -277,10 +283,10 @@ def test_an_attempt_whose_record_does_not_validate_is_still_written(tmp_path, mo
     is written as assembled, the event log says why, and every reader then refuses it."""
     from hydra import compose, initialize_config_module
 
+    from cab_core.analysis.attempts import read_jsonl
     from cab_core.apps.cli import normalise_overrides
     from cab_core.attempt.engine.episode import Episode
-    from cab_core.attempt.engine.runner import attempt_spec
-    from cab_core.analysis.attempts import read_jsonl
+    from cab_core.attempt.runner import attempt_spec
 
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         cfg = compose(config_name="config", overrides=normalise_overrides(

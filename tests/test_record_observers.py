@@ -16,7 +16,7 @@ from cab_core.errors import ConfigError, PluginError
 from cab_core.attempt.records.observers import ReadOnlyDict, freeze
 from cab_core.plugins import select_record_observers as select
 from cab_core.plugins import build_plugin_manager, distribution_versions
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 
 
 def _plain(frozen):

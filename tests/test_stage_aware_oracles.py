@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.records.recovery import recovery
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+from cab_core.attempt.runner import attempt_spec, run_attempt
 
 CASES = {
     # the left hand open around the second bottle (taking it home knocked the bottle down)

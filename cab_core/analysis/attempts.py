@@ -14,12 +14,20 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
-from cab_core.attempt.records.result_format import AttemptRecord, parse_record, read_json_object, read_jsonl  # noqa: F401  (read_jsonl: read here by the analyses)
+from cab_core.attempt.records.result_format import AttemptRecord, parse_record
 from cab_core.errors import RecordError
 from cab_core.kits.harness.agent_info import AgentRecord
+from cab_core.kits.jsonfiles import read_json_object, read_jsonl  # noqa: F401  (read_jsonl: read here by the analyses)
 from cab_core.sweep.attempt_state import SET_ASIDE
 
 read_json = read_json_object  # one JSON object from a file; a missing or unparsable file is a RecordError
+
+
+def read_record(path: Path) -> AttemptRecord:
+    """The record in ``path`` (a ``result.json``); RecordError when it is missing, not JSON or
+    malformed."""
+    return parse_record(read_json_object(path), Path(path).name)
+
 #: where ``cab-report --recoverability`` keeps the forks it makes (cab_core.analysis.recoverability):
 #: a folder of that name is not part of the sweep it sits in (the forks are no attempts of the sweep)
 FORKS_FOLDER = "recoverability"

@@ -1,3 +1,44 @@
-"""Compatibility: moved to :mod:`cab_core.attempt.engine.runner` (issue 27); kept only while cab_core/apps/cli.py or cab_core/apps/studio/child.py
-imports it from this path."""
-from cab_core.attempt.engine.runner import attempt_spec, run_attempt  # noqa: F401
+"""From a composed config to a finished, recorded attempt."""
+from __future__ import annotations
+
+import logging
+
+from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.engine.faults import is_infrastructure_fault
+from cab_core.attempt.spec import AttemptSpec, attempt_spec  # noqa: F401  (attempt_spec: a composed config's spec)
+from cab_core.errors import ConfigError
+
+log = logging.getLogger("cab")
+
+
+def run_attempt(spec: AttemptSpec) -> dict:
+    """Build everything through the plugin registry, run the harness, score, record."""
+    from cab_core.plugins import all_tasks, create, select_record_observers
+
+    tasks = all_tasks()
+    if spec.task not in tasks:
+        raise ConfigError(f"unknown task {spec.task!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")
+    observers = select_record_observers(spec.record)  # an unknown name is refused before anything starts
+    harness = create("harnesses", spec.harness, {**spec.harness_cfg, "name": spec.harness})
+    preflight = getattr(harness, "preflight", None)
+    if preflight is not None:  # credentials and endpoints are checked before any simulator starts
+        preflight(spec.model_cfg)
+    before_build = getattr(harness, "before_build", None)
+    if before_build is not None:  # e.g. a server that answers its client while the world is built
+        before_build(spec)
+    try:
+        episode = Episode.open(spec, observers)
+    except BaseException:
+        close = getattr(harness, "close", None)
+        if close is not None:
+            close()
+        raise
+    try:
+        try:
+            harness.run(episode, spec.model_cfg)
+        except Exception as e:  # the fault rule (cab_core.attempt.engine.faults): only a broken host is not scored
+            log.exception("harness failed")
+            episode.end("host_fault" if is_infrastructure_fault(e) else "harness_error", f"harness: {e!r}")
+        return episode.finish()
+    finally:
+        episode.close()

@@ -2,7 +2,7 @@
 harnesses and the attempt.
 
 A harness (hook ``cab_harnesses``: ``{name: factory(cfg)}``, :class:`HarnessFactory`) runs an agent
-through one attempt. The runner (:func:`cab_core.attempt.engine.runner.run_attempt`) creates it, calls the
+through one attempt. The runner (:func:`cab_core.attempt.runner.run_attempt`) creates it, calls the
 optional members it has (:class:`HarnessHooks`: ``preflight``, then ``before_build``), builds the
 attempt, and calls :meth:`Harness.run` with the running attempt seen as an :class:`AttemptSession`
 (:class:`cab_core.attempt.engine.episode.Episode` is one). A harness uses nothing of the attempt beyond

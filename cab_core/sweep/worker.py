@@ -32,7 +32,7 @@ from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_FAULT, EXIT_RENDERER, die_
 def run(job: dict) -> int:
     """Run one job's attempt; the status above (exceptions other than configuration and renderer
     problems propagate)."""
-    from cab_core.attempt.engine.runner import attempt_spec, run_attempt
+    from cab_core.attempt.runner import attempt_spec, run_attempt
     from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
 
     try:

@@ -23,11 +23,12 @@ from cab_core.attempt.engine.finishing import VerdictTracker, attempt_checkpoint
 from cab_core.attempt.engine.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.engine.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
 from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkPoint, compare_prefix, link_parent
-from cab_core.attempt.records.result_format import RECORD_VERSION, AttemptRecord, MalformedRecord, read_jsonl
+from cab_core.attempt.records.result_format import RECORD_VERSION, AttemptRecord, MalformedRecord
 from cab_core.attempt.records.writer import Recorder
 from cab_core.contracts.task import SceneInstance, Task
 from cab_core.contracts.verifier import WorldView
 from cab_core.errors import AttemptEnded
+from cab_core.kits.jsonfiles import read_jsonl
 from cab_core.tools import build_registry
 from cab_core.tools.context import ObservationStore, RobotContext
 

@@ -1,6 +1,6 @@
 """The ``human`` agent (``model=human``): a person plays an attempt from cab-studio's play page.
 
-The attempt runs through the normal runner (:func:`cab_core.attempt.engine.runner.run_attempt`) under the
+The attempt runs through the normal runner (:func:`cab_core.attempt.runner.run_attempt`) under the
 core's ``direct`` harness, in a child process of the studio of its own
 (:mod:`cab_core.apps.studio.child`, started by :mod:`cab_core.apps.studio.play`) that owns the
 simulator, planner and records, so that a simulator's crash ends that attempt only. The person's

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cab_core.attempt.records.result_format import read_json_object, read_jsonl
+from cab_core.kits.jsonfiles import read_json_object, read_jsonl
 
 BUDGET_ENDINGS = ("tool_budget", "sim_budget", "wall_budget")
 

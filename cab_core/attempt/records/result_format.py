@@ -1,6 +1,6 @@
 """The attempt record's format: ``result.json`` as a versioned pydantic model
-(:class:`AttemptRecord`), how it is read back (:func:`parse_record`, :func:`read_record`: a
-:class:`MalformedRecord` naming what is wrong), and how a record file is written (JSON that takes
+(:class:`AttemptRecord`), how it is read back (:func:`parse_record`: a :class:`MalformedRecord`
+naming what is wrong; :func:`cab_core.analysis.attempts.read_record` reads a file), and how a record file is written (JSON that takes
 numpy values; written atomically, so a reader never sees half a file).
 
 The model is the one definition of ``result.json``: the episode writes it
@@ -43,7 +43,6 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from cab_core.errors import RecordError
-from cab_core.kits.jsonfiles import read_json_object, read_jsonl  # noqa: F401  (read here and by the records' readers)
 from cab_core.sandbox.truncate import NON_FINITE_KEY, finite_json, non_finite_note
 
 RECORD_VERSION = "cab-record/1"  # what this cab writes
@@ -464,12 +463,6 @@ def parse_record(obj: Any, name: str = RESULT_FILE) -> AttemptRecord:
         return AttemptRecord.model_validate(obj)
     except ValidationError as e:
         raise MalformedRecord(problems_of(e, name)) from None
-
-
-def read_record(path: Path) -> AttemptRecord:
-    """The record in ``path`` (a ``result.json``); RecordError when it is missing, not JSON or
-    malformed."""
-    return parse_record(read_json_object(path), Path(path).name)
 
 
 def write_record(path: Path, record: AttemptRecord) -> dict:
