@@ -26,6 +26,23 @@ One line per attempt, sorted by key: ``identical`` or ``DIFFERS``, with the file
 (its ``seq``, kind and tool) and the path of the first differing field with both values; then ``only in A``
 or ``only in B`` for an attempt without a partner, and a summary line. Exit status: 0 when every attempt is
 paired and identical, 1 otherwise, 2 when a folder holds no attempt or two attempts with the same key.
+
+Checking that a change keeps behaviour (issue 27: oracle records identical at the catalog seeds on the three
+simulators): run the same sweep with the code before and after the change, one attempt at a time, and compare.
+
+    T=beat_block_hammer,blocks_ranking_size,click_bell,dump_bin_bigbin,grab_roller_dual_contact,handover_block
+    T=$T,handover_mic,hanging_mug,lift_pot,move_can_pot,open_laptop_setup_arm,open_microwave,pick_diverse_bottles
+    T=$T,place_bread_basket,place_bread_skillet,place_cans_plasticbox,place_dual_shoes,place_mouse_pad
+    T=$T,place_object_basket,press_stapler,put_bottles_dustbin,rotate_qrcode,scan_object,stack_blocks_three
+    T=$T,stack_bowls_three
+    cab -m task=$T model=oracle sim=sapien,pybullet,mujoco hydra.sweep.dir=/tmp/oracle_after hydra.launcher.n_jobs=1
+    python scripts/compare_oracle_records.py /tmp/oracle_before /tmp/oracle_after
+
+``seed`` is left unset: each task runs at its catalog seed. To run an older commit with the same virtual
+environment, check it out in a worktree (``git worktree add /tmp/before <commit>``) and put its package roots
+first on ``PYTHONPATH``: the worktree itself, each ``plugins/<p>``, and a folder holding a link ``cab_conf`` to
+its ``conf/``; run ``cab`` from the worktree (the installed entry points name modules, found on that path).
+On a 2-core machine shared with other work, the 75 attempts took 30 min 21 s (2026-11-27), all successes.
 """
 
 from __future__ import annotations
