@@ -75,3 +75,28 @@ def test_a_yaml_value_of_another_type_is_refused_when_the_attempt_is_specified()
         checked_view({"budget": {"tool_calsl": 5}})
     assert str(e.value) == ("unknown key 'budget.tool_calsl'; did you mean budget.tool_calls? valid keys under budget: "
                             "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls")
+
+
+@pytest.mark.parametrize("group, option, line", [
+    ("model", {"name": "x", "harness": 5}, "model.harness must be the name of the harness the model runs in "
+                                           "(harness=auto), or null, got 5"),
+    ("model", {"name": 5}, "model.name must be the name of the model configuration (a string), got 5"),
+    ("harness", {"name": ["a"]}, "harness.name must be the name of the harness (a string), got ['a']"),
+])
+def test_the_model_and_harness_basics_are_typed(group, option, line):
+    from cab_core.conf.schema import check_basics
+
+    with pytest.raises(ConfigError) as e:
+        check_basics({group: option})
+    assert str(e.value) == line
+
+
+def test_the_model_and_harness_groups_stay_open():
+    """An option's own keys (a provider's, a vendor's) are not the schema's business."""
+    from cab_core.conf.schema import check_basics
+
+    check_basics({"model": {"name": "x", "harness": "reference", "model_id": "m", "vendor": {"env": {}, "extra_args": []},
+                            "pricing": {"input_per_mtok": 1.0}},
+                  "harness": {"name": "mcp", "transport": "http", "port": 0}})
+    for name in ("cab_schema_model", "cab_schema_harness"):
+        assert ConfigStore.instance().load(f"{name}.yaml").node is not None

@@ -10,7 +10,7 @@ from typing import Any
 
 from cab_core.attempt.perturb import Perturbation
 from cab_core.attempt.randomize import Randomization
-from cab_core.conf.schema import checked_view
+from cab_core.conf.schema import check_basics, checked_view
 from cab_core.errors import ConfigError
 
 
@@ -83,6 +83,7 @@ def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
         if not isinstance(c[key], dict) or not c[key].get("name"):
             raise ConfigError(f"config group {key!r} has no name")
     checked_view(c)  # cab's own keys against the schema (cab_core.conf.schema): one line for the first mistake
+    check_basics(c)  # the model's and the harness's names (the options' other keys are theirs)
     info = task_info(c["task"]["name"])
     b = c.get("budget") or {}
     seed = c.get("seed")

@@ -21,7 +21,7 @@ from enum import Enum
 from typing import Any, ClassVar
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException, ValidationError
 
 from cab_core.errors import ConfigError, closest
@@ -180,8 +180,50 @@ class CabConfig(Section):
         self.positive("attempt")
 
 
+@dataclass
+class ModelBasics(Section):
+    """``model.*``: the keys cab itself reads of a model configuration; each option adds its own
+    (a provider's, a vendor's): the group is open."""
+    SECTION: ClassVar[str] = "model"
+    name: str = setting(MISSING, "the name of the model configuration (a string)")
+    agent: str | None = setting(None, "the name of a built-in agent (oracle, idle, scripted, human), or null")
+    harness: str | None = setting(None, "the name of the harness the model runs in (harness=auto), or null")
+
+
+@dataclass
+class HarnessBasics(Section):
+    """``harness.*``: the key cab itself reads; each harness declares its own (the group is open)."""
+    SECTION: ClassVar[str] = "harness"
+    name: str = setting(MISSING, "the name of the harness (a string)")
+
+
+#: the config groups whose basic keys the schema declares (the groups stay open to their options' keys)
+BASICS: dict[str, type[Section]] = {"model": ModelBasics, "harness": HarnessBasics}
+
+
+def check_basics(cfg: dict) -> None:
+    """Refuse (ConfigError, one line) a selected model or harness option whose basic keys
+    (:data:`BASICS`) are not of their types; their other keys are the options' own."""
+    for group, basics in BASICS.items():
+        option = cfg.get(group)
+        if not isinstance(option, dict):
+            continue
+        root = OmegaConf.create({group: OmegaConf.structured(basics)})  # refusals name the key from the group
+        OmegaConf.set_struct(root[group], False)  # open: the option's own keys are added as they are
+        try:
+            root[group].merge_with(option)
+        except OmegaConfBaseException as e:
+            raise ConfigError(one_line_error(e, root, lambda key, o=option, g=group: _part(o, g, key))) from None
+        where = _converted(option, OmegaConf.to_container(root[group], resolve=False), group)
+        if where is not None:
+            raise ConfigError(f"{where} must be {_must_be(group, where.rpartition('.')[2])}, "
+                              f"got {given(_part(option, group, where))}")
+
+
 SCHEMA_NAME = "cab_schema"  # a config of its own, not a group: `cab --help` lists no group "schema"
 ConfigStore.instance().store(name=SCHEMA_NAME, node=CabConfig, provider="cab")
+for _group, _basics in BASICS.items():
+    ConfigStore.instance().store(name=f"{SCHEMA_NAME}_{_group}", node=_basics, provider="cab")
 OWN_KEYS = tuple(f.name for f in fields(CabConfig))
 
 
@@ -288,7 +330,7 @@ def one_line(e: BaseException) -> str:
 
 
 def _must_be(section: str, leaf: str) -> str | None:
-    node = CabConfig if not section else next((f.default_factory for f in fields(CabConfig)  # type: ignore[misc]
+    node = CabConfig if not section else BASICS.get(section) or next((f.default_factory for f in fields(CabConfig)  # type: ignore[misc]
                                                if f.name == section and isinstance(f.default_factory, type)), None)
     if node is None:
         return None
