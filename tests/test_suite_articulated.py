@@ -13,15 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    SEEDS,
-    LaptopWorld,
-    _cache,
-    check_settled_scene_fails,
-    check_urdf_hinge,
-    sapien_world,
-    world_view,
-)
+import suite_helpers as sh
+from suite_helpers import SEEDS, LaptopWorld, _cache  # noqa: F401 (_cache: autouse)
 
 from cab_core.contracts.scene import ArticulatedObject
 from cab_core.geometry import quat_to_mat, transform_point
@@ -53,7 +46,7 @@ def test_laptop_layouts_and_urdf(task_builds):
         assert lap.qpos == pytest.approx((lo + 0.2 * (hi - lo),))
         assert m["success_qpos"] == pytest.approx(lo + 0.4 * (hi - lo))
         assert inst.info["suggested_arm"] == ("right" if yaw_of(lap.pose[3:]) > 0 else "left")
-        check_urdf_hinge(lap.urdf, (m["base_link"], m["lid_link"]), m["lid_joint"], (lo, hi), m["hinge_point_base"],
+        sh.check_urdf_hinge(lap.urdf, (m["base_link"], m["lid_link"]), m["lid_joint"], (lo, hi), m["hinge_point_base"],
                          m["hinge_axis_base"])
         w, d, t = m["size"]
         assert 0.28 <= w <= 0.36 and 0.20 <= d <= 0.24 and 0.012 <= t <= 0.025
@@ -129,10 +122,10 @@ def test_laptop_checkpoints():
 # --- with the SAPIEN backend --------------------------------------------------------------------
 @pytest.mark.sim
 def test_sim_laptop_frames_hinge_and_verdicts():
-    with sapien_world(LAPTOP) as (sim, emb, inst):
+    with sh.sapien_world(LAPTOP) as (sim, emb, inst):
         m = inst.info["laptop"]
         sim.step(LAPTOP.settle_steps())
-        w = world_view(sim, emb, inst)
+        w = sh.world_view(sim, emb, inst)
         v = LAPTOP.verifier(inst)
         assert v.evaluate(w).success is False
         q0 = m["initial_qpos"]
@@ -308,8 +301,8 @@ def test_shoes_checkpoints():
 
 @pytest.mark.sim
 def test_sim_shoes_settle_and_rest_in_the_box():
-    with sapien_world(SHOES) as (sim, emb, inst):
-        w, v, before = check_settled_scene_fails(SHOES, sim, emb, inst, 250)
+    with sh.sapien_world(SHOES) as (sim, emb, inst):
+        w, v, before = sh.check_settled_scene_fails(SHOES, sim, emb, inst, 250)
         for n in ("left_shoe", "right_shoe"):
             assert abs(before[n][2] - 0.64) < 2e-3  # the sole stands on the lowered table
         # both shoes into the box, toes left: they stand side by side on its floor

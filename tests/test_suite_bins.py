@@ -14,16 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    SEEDS,
-    TASKS,
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    sapien_world,
-    task_and_verifier,
-    world_view,
-)
+import suite_helpers as sh
+from suite_helpers import SEEDS, TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
 
 from cab_core.attempt.engine.episode import VerdictTracker
 from cab_core.geometry import axis_angle_quat, quat_to_mat, transform_point
@@ -273,21 +265,21 @@ def test_dump_bin_bigbin_latch_is_not_true_at_the_start():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    with sapien_world(TASKS[name]) as (sim, emb, inst):
-        check_settled_scene_fails(TASKS[name], sim, emb, inst, 100, tol=2e-3)
+    with sh.sapien_world(TASKS[name]) as (sim, emb, inst):
+        sh.check_settled_scene_fails(TASKS[name], sim, emb, inst, 100, tol=2e-3)
 
 
 @pytest.mark.sim
 def test_sim_bottles_resting_in_the_dustbin_pass():
     """Bottles dropped into the dustbin come to rest inside the verifier's region."""
     task = TASKS["put_bottles_dustbin"]
-    with sapien_world(task, seed=0) as (sim, emb, inst):
+    with sh.sapien_world(task, seed=0) as (sim, emb, inst):
         sim.step(10)
         for i, key in enumerate(("bottle1", "bottle2", "bottle3")):
             q = (1.0, 0.0, 0.0, 0.0) if i == 0 else tuple(axis_angle_quat([1, 0, 0], np.pi / 2))  # standing / lying
             sim.set_object_pose(key, (-0.45 + 0.08 * (i - 1), -0.13 + 0.13 * i, 0.45, *q))
         sim.step(500)
-        w = world_view(sim, emb, inst)
+        w = sh.world_view(sim, emb, inst)
         v = task.verifier(inst)
         ev = v.evaluate(w)
         assert ev.success, ev
@@ -297,14 +289,14 @@ def test_sim_bottles_resting_in_the_dustbin_pass():
 @pytest.mark.sim
 def test_sim_balls_resting_in_the_dustbin_are_in_the_band():
     task = TASKS["dump_bin_bigbin"]
-    with sapien_world(task, seed=3) as (sim, emb, inst):
+    with sh.sapien_world(task, seed=3) as (sim, emb, inst):
         sim.step(10)
         for i, n in enumerate(inst.info["balls"]["names"]):
             sim.set_object_pose(n, (-0.5 + 0.025 * i, 0.02 * i, 0.5, 1.0, 0.0, 0.0, 0.0))
         sim.step(300)
         sim.set_object_pose("small_bin", (-0.1, -0.1, 1.02, 1.0, 0.0, 0.0, 0.0))  # held up (about to fall)
         sim.step(1)
-        w = world_view(sim, emb, inst)
+        w = sh.world_view(sim, emb, inst)
         ev = task.verifier(inst).evaluate(w)
         assert ev.success, ev
         assert task.subgoals(w) == [True, True, True]

@@ -16,16 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    check_success_holds,
-    check_urdf_hinge,
-    sapien_world,
-    task_and_verifier,
-    world_view,
-)
+import suite_helpers as sh
+from suite_helpers import FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
 
 from cab_core.contracts.scene import ArticulatedObject, Box, Shape
 from cab_core.contracts.task import Task
@@ -145,7 +137,7 @@ def test_open_microwave_layouts_and_urdf(task_builds):
         m = inst.info["microwave"]
         models.add(m["model_id"])
         assert mw.pose[1] + m["size"][1] / 2 < 0.4  # clear of the wall
-        check_urdf_hinge(mw.urdf, (m["base_link"], m["door_link"]), m["door_joint"], m["door_limits"],
+        sh.check_urdf_hinge(mw.urdf, (m["base_link"], m["door_link"]), m["door_joint"], m["door_limits"],
                          m["hinge_point_base"], m["hinge_axis_base"])
         assert 1.5 <= m["door_limits"][1] <= 2.2
         assert m["hinge_side"] == "left" and m["hinge_point_base"][0] < 0
@@ -301,8 +293,8 @@ def test_base_scene_facts():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_sim_initial_scene_settles_and_fails(name):
-    with sapien_world(TASKS[name], sim_config={}) as (sim, emb, inst):
-        check_settled_scene_fails(TASKS[name], sim, emb, inst, 250)
+    with sh.sapien_world(TASKS[name], sim_config={}) as (sim, emb, inst):
+        sh.check_settled_scene_fails(TASKS[name], sim, emb, inst, 250)
 
 
 def _pose_success_state(name, inst, sim):
@@ -325,12 +317,12 @@ def _pose_success_state(name, inst, sim):
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_sim_success_state_passes(name):
     task = TASKS[name]
-    with sapien_world(task, sim_config={}) as (sim, emb, inst):
+    with sh.sapien_world(task, sim_config={}) as (sim, emb, inst):
         sim.step(task.settle_steps())
-        w = world_view(sim, emb, inst)
+        w = sh.world_view(sim, emb, inst)
         v = task.verifier(inst)
         _pose_success_state(name, inst, sim)
-        check_success_holds(task, sim, w, v, 2)
+        sh.check_success_holds(task, sim, w, v, 2)
         if name != "beat_block_hammer":  # the stack and the open door stay put
             sim.step(250)
             assert v.evaluate(w).success

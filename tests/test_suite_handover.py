@@ -10,16 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    TASKS,
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    check_success_holds,
-    sapien_world,
-    task_and_verifier,
-    task_module,
-)
+import suite_helpers as sh
+from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier, task_module  # noqa: F401 (_cache: autouse)
 
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.kits.scene import lowest_point_z, yaw_of
@@ -244,7 +236,7 @@ def test_rotate_qrcode_layouts_and_scannable_code(task_builds):
     # the printed code is real: rasterise the module matrix and decode it
     from cab_suite_codeaction import assets_handover as ah
 
-    for i, variant in ah.QR_VARIANTS.items():
+    for variant in ah.QR_VARIANTS.values():
         m = np.array(ah.qr_matrix(variant.text))
         img = np.full((m.shape[0] + 8, m.shape[1] + 8), 255, np.uint8)
         img[4:-4, 4:-4][m] = 0
@@ -325,11 +317,11 @@ def _success_state(name, inst, sim, emb) -> dict:
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
     task = TASKS[name]
-    with sapien_world(task) as (sim, emb, inst):
+    with sh.sapien_world(task) as (sim, emb, inst):
         _home(sim, emb)
         grips = {a: 1.0 for a in emb.arms}
-        w, v, _ = check_settled_scene_fails(task, sim, emb, inst, 125, grips=grips)
+        w, v, _ = sh.check_settled_scene_fails(task, sim, emb, inst, 125, grips=grips)
         grips.update(_success_state(name, inst, sim, emb))
-        check_success_holds(task, sim, w, v, 3)
+        sh.check_success_holds(task, sim, w, v, 3)
         sim.step(125)  # and it stays so
         assert v.evaluate(w).success

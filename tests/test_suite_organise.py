@@ -12,18 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    SEEDS,
-    TASKS,
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    check_success_holds,
-    sapien_world,
-    task_and_verifier,
-    task_module,
-    tcp_in_rule,
-)
+import suite_helpers as sh
+from suite_helpers import SEEDS, TASKS, FakeWorld, _cache, task_and_verifier, tcp_in_rule  # noqa: F401 (_cache: autouse)
 
 from cab_core.geometry import quat_to_mat, transform_point
 from cab_core.kits.scene import yaw_of
@@ -32,7 +22,7 @@ NAMES = ("blocks_ranking_size", "stack_bowls_three", "hanging_mug")
 
 
 def _task(name):
-    return task_module(name), TASKS[name]
+    return sh.task_module(name), TASKS[name]
 
 
 
@@ -336,7 +326,7 @@ def _pose_success_state(name, inst, sim):
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_fails_and_success_state_passes(name):
     task = TASKS[name]
-    with sapien_world(task) as (sim, emb, inst):
-        w, v, _ = check_settled_scene_fails(task, sim, emb, inst, 100)
+    with sh.sapien_world(task) as (sim, emb, inst):
+        w, v, _ = sh.check_settled_scene_fails(task, sim, emb, inst, 100)
         _pose_success_state(name, inst, sim)
-        check_success_holds(task, sim, w, v, 500)
+        sh.check_success_holds(task, sim, w, v, 500)

@@ -13,15 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    TASKS,
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    check_success_holds,
-    sapien_world,
-    task_module,
-)
+import suite_helpers as sh
+from suite_helpers import TASKS, FakeWorld, _cache, task_module  # noqa: F401 (_cache: autouse)
 
 from cab_core.contracts.scene import Body, Box, Cylinder, Shape
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
@@ -320,8 +313,8 @@ def _add_test_stand(inst):
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
     task = TASKS[name]
-    with sapien_world(task, edit=_add_test_stand if name == "place_object_basket" else None) as (sim, emb, inst):
-        w, v, before = check_settled_scene_fails(task, sim, emb, inst, 100)  # nothing moves once settled
+    with sh.sapien_world(task, edit=_add_test_stand if name == "place_object_basket" else None) as (sim, emb, inst):
+        w, v, before = sh.check_settled_scene_fails(task, sim, emb, inst, 100)  # nothing moves once settled
         for n in before:
             assert np.linalg.norm(before[n][:3] - np.asarray(inst.scene.body(n).pose[:3])) < 3e-3, n
         if name == "place_object_basket":
@@ -335,4 +328,4 @@ def test_sim_initial_scene_settles_fails_and_success_state_passes(name):
             sim.set_object_pose("object", op)
         else:
             _sim_success(name, inst, sim)
-        check_success_holds(task, sim, w, v, 150)
+        sh.check_success_holds(task, sim, w, v, 150)

@@ -12,15 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    TASKS,
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    sapien_world,
-    task_and_verifier,
-    tcp_in_rule,
-)
+import suite_helpers as sh
+from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier, tcp_in_rule  # noqa: F401 (_cache: autouse)
 
 from cab_core.geometry import axis_angle_quat, quat_mul, quat_to_mat, transform_point
 from cab_core.kits.scene import lowest_point_z, yaw_of
@@ -246,5 +239,5 @@ def test_move_can_pot_euler_matches_transforms3d_convention():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    with sapien_world(TASKS[name]) as (sim, emb, inst):
-        check_settled_scene_fails(TASKS[name], sim, emb, inst, 250)
+    with sh.sapien_world(TASKS[name]) as (sim, emb, inst):
+        sh.check_settled_scene_fails(TASKS[name], sim, emb, inst, 250)

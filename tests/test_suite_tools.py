@@ -9,15 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from suite_helpers import (  # noqa: F401 (_cache: autouse)
-    TASKS,
-    FakeWorld,
-    _cache,
-    check_settled_scene_fails,
-    check_urdf_hinge,
-    sapien_world,
-    task_and_verifier,
-)
+import suite_helpers as sh
+from suite_helpers import TASKS, FakeWorld, _cache, task_and_verifier  # noqa: F401 (_cache: autouse)
 
 from cab_core.contracts.scene import ArticulatedObject
 from cab_core.contracts.simulator import Contact
@@ -58,7 +51,7 @@ def test_press_stapler_layouts_and_urdf(task_builds):
         yaws.append(yaw_of(st.pose[3:]))
         s = inst.info["stapler"]
         models.add(s["model_id"])
-        check_urdf_hinge(st.urdf, (s["base_link"], s["arm_link"]), s["hinge_joint"], s["hinge_limits"],
+        sh.check_urdf_hinge(st.urdf, (s["base_link"], s["arm_link"]), s["hinge_joint"], s["hinge_limits"],
                          s["hinge_point_base"])
         # the press point is on the cover's top, in front of the hinge, behind the nose
         L, W, H = s["size"]
@@ -243,7 +236,7 @@ def test_scan_object_verifier():
 @pytest.mark.sim
 @pytest.mark.parametrize("name", NAMES)
 def test_sim_initial_scene_settles_and_fails(name):
-    with sapien_world(TASKS[name]) as (sim, emb, inst):
-        check_settled_scene_fails(TASKS[name], sim, emb, inst, 100)
+    with sh.sapien_world(TASKS[name]) as (sim, emb, inst):
+        sh.check_settled_scene_fails(TASKS[name], sim, emb, inst, 100)
         for a in inst.scene.articulations:
             assert np.allclose(sim.get_object_qpos(a.name), a.qpos or (), atol=1e-3)

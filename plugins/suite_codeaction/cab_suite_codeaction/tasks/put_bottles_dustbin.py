@@ -30,17 +30,9 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, cylinder
 from cab_core.contracts.scene import SceneSpec
-from cab_core.contracts.verifier import (
-    Evaluation,
-    Margin,
-    Verifier,
-    WorldView,
-    margin_above,
-    margin_all,
-    margin_below,
-    margin_within,
-)
+from cab_core.contracts.verifier import Evaluation, Margin, Verifier, WorldView
 from cab_core.geometry import transform_point
+from cab_core.kits.margins import margin_above, margin_all, margin_below, margin_within
 from cab_core.kits.oracle import OPEN, TOLERANT, Hands, OracleFailed, tcp_quat, world_point
 from cab_core.kits.scene import pose_list, rand_pose, sample_until
 

@@ -32,16 +32,9 @@ import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule, box, sphere
 from cab_core.contracts.scene import Body, SceneSpec
-from cab_core.contracts.verifier import (
-    Evaluation,
-    Verifier,
-    WorldView,
-    margin_above,
-    margin_all,
-    margin_below,
-    margin_within,
-)
+from cab_core.contracts.verifier import Evaluation, Verifier, WorldView
 from cab_core.geometry import mat_to_quat, quat_mul, quat_to_mat, transform_point
+from cab_core.kits.margins import margin_above, margin_all, margin_below, margin_within
 from cab_core.kits.oracle import TOLERANT, BothHands, Hands, top_down_quat, yaw_axis
 from cab_core.kits.scene import DESTRUCTIVE_DROP, pose_list, rand_pose, sample_until, vec, yaw_of
 
