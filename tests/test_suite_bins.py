@@ -37,7 +37,7 @@ def test_bottles_are_plausible_and_graspable():
         prof = assets_bins.bottle_profile(s)
         assert prof[0][0] == 0 and prof[-1][0] == 0 and np.all(prof[:, 0] >= 0)
     shapes = assets_bins.bottle_shapes(assets_bins.DIVERSE_BOTTLES[0], "t-bottle")
-    hull = [sh for sh in shapes if sh.collision]
+    hull = [s for s in shapes if s.collision]
     assert len(hull) == 1 and hull[0].geometry.convex
     m = trimesh.load(hull[0].geometry.path)
     s = assets_bins.DIVERSE_BOTTLES[0]
