@@ -9,7 +9,8 @@ import pytest
 
 from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.errors import ConfigError
-from cab_core.geometry import euler_quat, intrinsics, pose_to_mat, quat_to_mat
+from cab_core.geometry import axis_angle_quat, euler_quat, intrinsics, pose_to_mat, quat_to_mat
+from cab_core.plugins import build_plugin_manager, create
 from cab_embodiment_aloha import embodiment as emb
 from cab_embodiment_aloha import kinematics, plugin
 from cab_embodiment_aloha.params import DEFAULT_PARAMS
@@ -66,8 +67,6 @@ class URDFModel:
             axis = np.array([float(a) for a in ax.get("xyz").split()]) if ax is not None else None
             m = np.eye(4)
             if j.get("type") == "revolute":
-                from cab_core.geometry import axis_angle_quat
-
                 m[:3, :3] = quat_to_mat(axis_angle_quat(axis, v))
             elif j.get("type") == "prismatic":
                 m[:3, 3] = axis * v
@@ -363,8 +362,6 @@ def test_entry_point_is_declared():
 
 
 def test_plugin_manager_creates_the_embodiment(spec):
-    from cab_core.plugins import build_plugin_manager, create
-
     pm = build_plugin_manager(extra=[plugin], autoload=False)
     made = create("embodiments", "aloha_agilex", {}, pm=pm)
     assert made.urdf == spec.urdf and made.arms.keys() == {"left", "right"}

@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("mplib")
 
-from cab_core.errors import MissingDependency  # noqa: E402
-from cab_core.geometry import quat_angle  # noqa: E402
+from cab_core.errors import ConfigError, MissingDependency, PlannerError  # noqa: E402
+from cab_core.geometry import axis_angle_quat, quat_angle, quat_mul  # noqa: E402
 from cab_embodiment_aloha import kinematics  # noqa: E402
 from cab_embodiment_aloha.params import DEFAULT_PARAMS  # noqa: E402
 from cab_embodiment_aloha.reach import tcp_quat  # noqa: E402
@@ -71,8 +71,6 @@ def test_missing_mplib_raises_install_hint(monkeypatch):
 def test_config_validation():
     cfg = MplibConfig.from_dict({"planning_time": 0.5, "unrelated_key": 1})
     assert cfg.planning_time == 0.5
-    from cab_core.errors import ConfigError
-
     with pytest.raises(ConfigError):
         MplibConfig.from_dict({"fingers": "half"})
 
@@ -281,8 +279,6 @@ def test_malformed_goal_is_invalid_goal(planner, spec):
 
 
 def test_unknown_arm_is_an_error(planner, spec):
-    from cab_core.errors import PlannerError
-
     with pytest.raises(PlannerError, match="unknown arm"):
         planner.fk("middle", np.zeros(6))
 
@@ -309,8 +305,6 @@ def test_small_move(planner, spec, straight):
 def test_straight_line_into_a_joint_limit_is_no_path(planner, spec):
     """IK exists (the roll wraps around), but the straight screw motion would turn the wrist-roll
     joint past its limit: no_path, while a free-space plan still succeeds."""
-    from cab_core.geometry import axis_angle_quat, quat_mul
-
     q = home(spec, "left")
     q[5] = planner._arms["left"].limits[5, 1] - 0.1
     start = planner.fk("left", q)

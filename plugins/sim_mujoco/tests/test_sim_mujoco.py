@@ -12,8 +12,10 @@ pytest.importorskip("mujoco")
 
 import sim_backend_checks as checks  # noqa: E402
 
-from cab_core.contracts.scene import Body, Mesh, SceneSpec, Shape  # noqa: E402
+import cab_sim_mujoco  # noqa: E402
+from cab_core.contracts.scene import ArticulatedObject, Body, Box, Mesh, SceneSpec, Shape, Sphere  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
+from cab_core.geometry import transform_point  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_mujoco import gl  # noqa: E402
 from cab_sim_mujoco.simulator import MujocoSimulator  # noqa: E402
@@ -30,8 +32,6 @@ def test_hydra_config_builds_the_backend():
     from pathlib import Path
 
     import yaml
-
-    import cab_sim_mujoco
 
     cfg = yaml.safe_load((Path(cab_sim_mujoco.__file__).parent / "conf" / "sim" / "mujoco.yaml").read_text())
     assert cfg["name"] == "mujoco"
@@ -123,8 +123,6 @@ def test_nonconvex_collision_mesh_is_rejected():
 
 def test_body_damping_decays_velocity_as_physx_does():
     """PhysX scales a body's velocity by 1 / (1 + dt c) each step; so does this backend."""
-    from cab_core.contracts.scene import Sphere
-
     ball = Body("ball", [Shape(Sphere(0.05))], pose=(0, 0, 1, 1, 0, 0, 0), linear_damping=0.2, angular_damping=0.5)
     sim = MujocoSimulator({"render": False})
     sim.build(SceneSpec(bodies=[ball], gravity=(0.0, 0.0, 0.0)), sc.make_embodiment())
@@ -173,8 +171,6 @@ def test_an_operator_set_mujoco_gl_is_used_or_diagnosed(backend):
 
 
 def test_malformed_urdf_is_a_bad_command(tmp_path):
-    from cab_core.contracts.scene import ArticulatedObject
-
     bad = tmp_path / "bad.urdf"
     bad.write_text('<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="revolute">'
                    '<parent link="a"/><child link="b"/><limit lower="zero" upper="1"/></joint></robot>')
@@ -189,9 +185,6 @@ def test_object_velocity_is_the_centre_of_mass_velocity():
     """A body whose centre of mass is off its origin, spinning freely: the reported linear
     velocity is the (constant) velocity of its centre of mass, which a finite difference of
     the centre's position confirms."""
-    from cab_core.contracts.scene import Box
-    from cab_core.geometry import transform_point
-
     body = Body("bar", [Shape(Box((0.1, 0.02, 0.02)), pose=(0.2, 0, 0, 1, 0, 0, 0))], pose=(0, 0, 1, 1, 0, 0, 0),
                 angular_damping=0.0)
     sim = MujocoSimulator({"render": False})

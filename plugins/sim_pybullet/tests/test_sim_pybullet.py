@@ -16,6 +16,7 @@ import sim_backend_checks as checks  # noqa: E402
 from cab_core.contracts.scene import Body, Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Shape, Sphere  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
 from cab_core.geometry import pose_inv, transform_point  # noqa: E402
+from cab_core.plugins import create  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_pybullet import massprops, renderer  # noqa: E402
 from cab_sim_pybullet.simulator import PybulletSimulator  # noqa: E402
@@ -226,8 +227,6 @@ def test_body_with_more_shapes_than_a_bullet_link_takes():
 def test_the_two_arms_collide_but_one_arm_never_with_itself():
     """The aloha robot: its left arm swung across into the right one reports left-right link
     pairs only (an arm's own links and the body never pair up)."""
-    from cab_core.plugins import create
-
     emb = create("embodiments", "aloha_agilex", {})
     sim = PybulletSimulator({"render": False})
     sim.build(SceneSpec(), emb)

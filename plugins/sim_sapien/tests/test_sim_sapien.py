@@ -14,7 +14,7 @@ import sim_backend_checks as checks  # noqa: E402
 
 from cab_core.contracts.scene import Body, CameraSpec, Mesh, SceneSpec, Shape  # noqa: E402
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable  # noqa: E402
-from cab_core.geometry import intrinsics, pose_inv, pose_to_mat  # noqa: E402
+from cab_core.geometry import intrinsics, mat_to_pose, pose_inv, pose_to_mat  # noqa: E402
 from cab_core.testing import sim_conformance as sc  # noqa: E402
 from cab_sim_sapien import renderer as sapien_renderer  # noqa: E402
 from cab_sim_sapien.simulator import SapienSimulator  # noqa: E402
@@ -54,8 +54,6 @@ def test_head_camera_reproduces_codeactionbench_record():
     checks.require_renderer("sapien")
     E_rec = np.array([[1, 0, 0, 0.032], [0, -0.8, -0.6, 0.45], [0, 0.6, -0.8, 1.35]])
     cam_pose_world = np.linalg.inv(np.vstack([E_rec, [0, 0, 0, 1]]))
-    from cab_core.geometry import mat_to_pose
-
     head = CameraSpec("head_camera", 640, 480, 37.0, pose=tuple(mat_to_pose(cam_pose_world)))
     sim = SapienSimulator({"render": True})
     sim.build(SceneSpec(cameras=[head]), sc.make_embodiment())
