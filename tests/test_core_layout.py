@@ -11,7 +11,7 @@ type a module names is a dependency a reader follows, even though it never runs)
 
 The levels are counted on the imports Python executes (type-only imports left out): a module that
 imports no other ``cab_core`` module is on level 1, any other on one more than the highest module it
-imports; at most 7. Counted with the type-only imports as well, the chain is longer (14 on
+imports; at most 7. Counted with the type-only imports as well, the chain is longer (13 on
 2026-11-27) only because the contracts name one another's types for the type checker
 (``contracts.task -> verifier -> simulator -> embodiment -> scene``), which costs no start-up time
 and forms no loop.
