@@ -5,7 +5,7 @@ group's attempts, a group's report (the page ``cab-report`` writes, generated on
 studio's state folder and served with links to the studio's attempt pages), an attempt's page (the
 page ``cab-view`` writes, re-rendered as a running attempt grows), and the play page, where a person
 plays an attempt through the same tools, prompt and budgets a model gets (:mod:`.play`,
-:mod:`cab_core.attempt.human`); each played attempt runs in a child process of its own, so a
+:mod:`cab_core.attempt.engine.human`); each played attempt runs in a child process of its own, so a
 simulator's crash ends that play only, never the studio or its other plays. Docs: docs/studio.md.
 
 It listens on loopback by default. Bound to any other address it requires a token, generated at
@@ -42,7 +42,7 @@ from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
 from cab_core.analysis import pages, viewer
-from cab_core.analysis.records import Attempt
+from cab_core.analysis.attempts import Attempt
 from cab_core.apps.studio import tree
 from cab_core.apps.studio.play import PLAYED, Plays, installed
 from cab_core.errors import AttemptEnded, CabError
@@ -175,7 +175,7 @@ class Studio:
             if not (stamp.is_file() and stamp.read_text() == sig and (out / "report.html").is_file()):
                 out.mkdir(parents=True, exist_ok=True)
                 # cab-report itself, in its own process: the report exactly as it writes it
-                r = subprocess.run([sys.executable, "-c", "from cab_core.analysis.report import main; main()",
+                r = subprocess.run([sys.executable, "-c", "from cab_core.apps.report_cli import main; main()",
                                     str(folder), "--out", str(out), "--no-views", "--no-figure-files"],
                                    capture_output=True, text=True, timeout=600)
                 if r.returncode == 2 or not (out / "report.html").is_file():

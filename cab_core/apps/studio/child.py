@@ -5,7 +5,7 @@ its job as JSON on stdin, ``{"config": <plain resolved config>, "output_dir": <a
 "session": <id>, "handle": <the person's>}``, and dies with the studio (``PR_SET_PDEATHSIG``). Its
 one argument is the file descriptor of its end of a :class:`multiprocessing.connection.Connection`
 (a socket pair the studio made for this play alone: nothing else can connect to it). It registers
-the :class:`cab_core.attempt.human.ChildBridge` over that connection as the session's, which only
+the :class:`cab_core.attempt.engine.human.ChildBridge` over that connection as the session's, which only
 this entry point does (so ``cab model=human`` is refused before any simulator starts), then runs the
 attempt with the normal runner; the person's calls come over the connection.
 
@@ -22,7 +22,7 @@ import sys
 from multiprocessing.connection import Connection
 from pathlib import Path
 
-from cab_core.attempt.human import SESSIONS, ChildBridge
+from cab_core.attempt.engine.human import SESSIONS, ChildBridge
 from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
 from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_FAULT, EXIT_RENDERER, die_with_parent

@@ -1,14 +1,14 @@
 """Attempts a person plays from cab-studio: each one composed as ``cab task=<t> sim=<s> seed=<n>
 model=human`` would compose it, and run by the normal runner in a child process of its own
 (:mod:`cab_core.apps.studio.child`, started as a sweep starts its children: the plain resolved config
-on stdin, dying with the studio), its calls handed over by a :class:`cab_core.attempt.human.PlayBridge`
+on stdin, dying with the studio), its calls handed over by a :class:`cab_core.attempt.engine.human.PlayBridge`
 over a connection only the two of them hold (a socket pair). A thread of the studio per play starts
 that process, reads what it sends and waits for it.
 
 A crash loses at most the attempt in flight: when a play's process dies before its attempt ended (a
 segfault in a simulator's native code, ``os._exit``, the kernel's OOM killer, a kill), the studio and
 its other plays go on; that play's waiting and later calls are answered that the simulator process
-ended unexpectedly (:func:`cab_core.attempt.human.crash_error`), and it is ``failed`` with that
+ended unexpectedly (:func:`cab_core.attempt.engine.human.crash_error`), and it is ``failed`` with that
 error, or ``finished`` if its ``result.json`` was written. Stopping the studio abandons every play
 (recorded as ``interrupted``) and waits for their processes, killing one that does not end in time.
 
@@ -34,7 +34,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from cab_core.attempt.human import PlayBridge, crash_error
+from cab_core.attempt.engine.human import PlayBridge, crash_error
 from cab_core.attempt.spec import attempt_spec
 from cab_core.config import composed
 from cab_core.errors import ConfigError

@@ -4,7 +4,7 @@ progress of each, read from the files alone (never a simulator, never a running 
 A *group* is a sweep (a folder holding ``sweep.json``: its planned jobs and where each writes) or a
 folder of loose attempts (every attempt folder not inside a sweep, grouped by the first folder below
 the root that holds it; attempts directly in the root form the group ``.``). Attempt folders are
-found as :func:`cab_core.analysis.records.attempt_dirs` finds them (hidden folders, set-aside
+found as :func:`cab_core.analysis.attempts.attempt_dirs` finds them (hidden folders, set-aside
 records and recoverability forks skipped). Each attempt is
 
 * ``done``: ``result.json`` holds a verdict (``success`` says which);
@@ -24,9 +24,9 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from cab_core.analysis.records import FORKS_FOLDER, attempt_dirs
+from cab_core.analysis.attempts import FORKS_FOLDER, attempt_dirs
 from cab_core.sweep.manifest import MANIFEST
-from cab_core.sweep.records import SET_ASIDE, is_infrastructure_failure
+from cab_core.sweep.attempt_state import SET_ASIDE, is_infrastructure_failure
 
 STALE_S = 600.0  # a running attempt whose event log has not grown for this long is marked stale
 SKIP = (SET_ASIDE, FORKS_FOLDER)
