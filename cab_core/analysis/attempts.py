@@ -63,7 +63,7 @@ class Attempt:
             self.record = check_result(self.result)
 
     @classmethod
-    def load(cls, d: Path, root: Path | None = None) -> "Attempt":
+    def load(cls, d: Path, root: Path | None = None) -> Attempt:
         d = Path(d)
         result = read_json(d / "result.json")
         record = check_result(result)

@@ -147,7 +147,7 @@ class AttemptMeasures:
     randomize: str = "none"  # the appearance randomisation option (cab_core.attempt.variation.randomize)
 
     @classmethod
-    def of(cls, a: Attempt) -> "AttemptMeasures":
+    def of(cls, a: Attempt) -> AttemptMeasures:
         r = a.result
         ev = a.events
         calls = [e for e in ev if e.get("kind") == "call" and e.get("charged", True)]
@@ -256,7 +256,7 @@ class ConfigSummary:
     pass_k: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, config: str, ms: list[AttemptMeasures], max_calls: int) -> "ConfigSummary":
+    def of(cls, config: str, ms: list[AttemptMeasures], max_calls: int) -> ConfigSummary:
         n = len(ms)
         succ = sum(m.success for m in ms)
         by_task: dict[str, list[AttemptMeasures]] = defaultdict(list)

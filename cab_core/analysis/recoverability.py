@@ -322,8 +322,8 @@ def fork_folders(rec: dict | None, out: Path) -> list[Path]:
 # ---------------------------------------------------------------------------------------------
 def finished(d: Path) -> bool:
     """Whether a fork folder holds a finished fork (``result.json`` that is no infrastructure failure)."""
-    from cab_core.kits.jsonfiles import read_json_object
     from cab_core.errors import CabError
+    from cab_core.kits.jsonfiles import read_json_object
     from cab_core.sweep.attempt_state import is_infrastructure_failure
 
     try:

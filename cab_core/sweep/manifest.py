@@ -212,7 +212,7 @@ class SweepManifest:
     folders: list[str]
 
     @classmethod
-    def from_hydra(cls, cfg: Any) -> "SweepManifest":
+    def from_hydra(cls, cfg: Any) -> SweepManifest:
         """The manifest of the sweep Hydra is about to launch. Raises SweepJobsCollide when two of
         its jobs would write to the same attempt folder."""
         jobs = expand_jobs(cfg)

@@ -29,9 +29,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from cab_core.errors import ConfigError
 from cab_core.sweep.attempt_state import (
@@ -73,7 +73,7 @@ class SupervisorConfig:
     worker_max_rss_mb: float = 6144.0
 
     @classmethod
-    def from_cfg(cls, cfg: dict | None) -> "SupervisorConfig":
+    def from_cfg(cls, cfg: dict | None) -> SupervisorConfig:
         c = dict(cfg or {})
         out = cls(max_retries=int(c.get("max_infra_retries", cls.max_retries)),
                   hang_timeout_s=float(c.get("hang_timeout_s", cls.hang_timeout_s)),

@@ -25,8 +25,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from cab_core.analysis.attempts import FORKS_FOLDER, attempt_dirs
-from cab_core.sweep.manifest import MANIFEST
 from cab_core.sweep.attempt_state import SET_ASIDE, is_infrastructure_failure
+from cab_core.sweep.manifest import MANIFEST
 
 STALE_S = 600.0  # a running attempt whose event log has not grown for this long is marked stale
 SKIP = (SET_ASIDE, FORKS_FOLDER)
