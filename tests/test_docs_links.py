@@ -94,7 +94,7 @@ _MODULE = re.compile(r"(?<![\w./-])(cab_[a-z_]+(?:\.[A-Za-z_]\w*)+)")
 def _packages() -> dict[str, Path]:
     """The top-level packages of the repository (the core, each plugin's, the examples'), by name."""
     found = {}
-    for folder in [ROOT, *ROOT.glob("plugins/*"), *ROOT.glob("examples/*")]:
+    for folder in [ROOT, *(p for p in ROOT.glob("plugins/*") if p.is_dir()), *ROOT.glob("examples/*")]:
         for p in folder.iterdir():
             if p.is_dir() and (p / "__init__.py").exists():
                 found[p.name] = p
