@@ -72,7 +72,7 @@ class ForkPoint:
     lineage: list[dict] = field(default_factory=list)  # the parent's own fork, and its parent's...
 
     @classmethod
-    def load(cls, parent: str | Path, at: Any) -> "ForkPoint":
+    def load(cls, parent: str | Path, at: Any) -> ForkPoint:
         """The fork point of ``parent`` (an attempt directory) after its charged call ``at``;
         ConfigError for a K out of range or a folder that holds no attempt."""
         if isinstance(at, bool) or not isinstance(at, int) or at < 0:

@@ -10,8 +10,8 @@ from an attempt's records by :mod:`cab_core.attempt.engine.checkpoint_scoring`.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 

@@ -89,7 +89,7 @@ class ScriptedAgent:
             raise ConfigError(f"script file not found: {path}")
         text = p.read_text()
         try:
-            items = json.loads(text) if text.lstrip().startswith("[") else [json.loads(l) for l in text.splitlines() if l.strip()]
+            items = json.loads(text) if text.lstrip().startswith("[") else [json.loads(line) for line in text.splitlines() if line.strip()]
         except json.JSONDecodeError as e:
             raise ConfigError(f"script {path} is not valid JSON/JSONL: {e}") from e
         if not isinstance(items, list):

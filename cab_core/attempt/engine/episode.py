@@ -72,7 +72,7 @@ class Episode:
                                                       "max_object_error_m", "lineage")}
 
     @classmethod
-    def open(cls, spec: AttemptSpec, observers=None) -> "Episode":
+    def open(cls, spec: AttemptSpec, observers=None) -> Episode:
         """The attempt ``spec`` describes, its task, simulator, planner and embodiment created
         through the plugin registry (the simulator is closed again if building fails)."""
         return with_parts(spec, lambda *parts: cls(spec, *parts, observers))

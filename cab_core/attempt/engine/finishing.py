@@ -98,7 +98,7 @@ class VerdictTracker:
         }
 
 
-def attempt_checkpoints(world: "BuiltWorld", out: "Path", verdict: dict) -> dict | None:
+def attempt_checkpoints(world: BuiltWorld, out: Path, verdict: dict) -> dict | None:
     """Subgoal and spatial checkpoints of this attempt, from its own records (None: the task
     declares none)."""
     if not hasattr(world.task, "subgoals"):

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import time
 import traceback
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.engine.faults import is_infrastructure_fault, tool_error_payload
@@ -45,8 +46,8 @@ class CallServer:
     internal calls of its programs. ``on_end(reason, detail)`` ends the attempt;
     ``on_physics(label)`` is called after a call that advanced physics (a snapshot)."""
 
-    def __init__(self, spec: "AttemptSpec", registry: dict, ctx: "RobotContext", ledger: BudgetLedger,
-                 clock: StepClock, recorder: "Recorder", image: Callable[[str], Any],
+    def __init__(self, spec: AttemptSpec, registry: dict, ctx: RobotContext, ledger: BudgetLedger,
+                 clock: StepClock, recorder: Recorder, image: Callable[[str], Any],
                  on_end: Callable[[str, str], None], on_physics: Callable[[str], None], ended: Callable[[], bool]):
         self.spec, self.registry, self.ctx, self.ledger, self.clock = spec, registry, ctx, ledger, clock
         self.recorder, self._image, self._end, self._on_physics, self._ended = recorder, image, on_end, on_physics, ended

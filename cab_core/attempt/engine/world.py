@@ -27,7 +27,7 @@ class BuiltWorld:
     ``spec.perturb`` drew (None: the instance as sampled). ``video_size``: (w, h) adds the record
     camera (the head camera's pose and field of view) to the scene; None: no video."""
 
-    def __init__(self, spec: "AttemptSpec", task: "Task", sim, planner, embodiment,
+    def __init__(self, spec: AttemptSpec, task: Task, sim, planner, embodiment,
                  video_size: tuple[int, int] | None = None):
         self.spec, self.task, self.sim, self.planner, self.emb = spec, task, sim, planner, embodiment
         self.instance: SceneInstance = task.build(spec.seed, embodiment)
@@ -75,15 +75,15 @@ class BuiltWorld:
             q = sim.get_object_qpos(n)
             if len(q):
                 objs[n]["qpos"] = np.round(q, 6).tolist()
-                objs[n]["links"] = {l: np.round(sim.get_object_link_pose(n, l), 6).tolist()
-                                    for l in sim.get_object_link_names(n)}
+                objs[n]["links"] = {link: np.round(sim.get_object_link_pose(n, link), 6).tolist()
+                                    for link in sim.get_object_link_names(n)}
         return objs
 
     def contacts(self) -> list[list]:
         """The last step's contacts that carried impulse: [a, b, impulse]."""
         return [[c.a, c.b, round(float(c.impulse), 7)] for c in self.sim.get_contacts() if c.impulse > 1e-6]
 
-    def snapshot(self, ctx: "RobotContext", physics_step: int, calls: int = 0, latched: bool = False) -> dict:
+    def snapshot(self, ctx: RobotContext, physics_step: int, calls: int = 0, latched: bool = False) -> dict:
         """A privileged snapshot of the world (``privileged/snapshots.jsonl``; never for the agent):
         objects, each arm's TCP, gripper command and finger gap, contacts, the clock."""
         arms = {a: {"tcp_pose": np.round(ctx.tcp_pose(a), 6).tolist(), "gripper_cmd": ctx.gripper_cmd[a],
@@ -92,12 +92,12 @@ class BuiltWorld:
                 "arms": arms, "contacts": self.contacts(), "latched": bool(latched)}
 
     @classmethod
-    def open(cls, spec: "AttemptSpec", video_size: tuple[int, int] | None = None) -> "BuiltWorld":
+    def open(cls, spec: AttemptSpec, video_size: tuple[int, int] | None = None) -> BuiltWorld:
         """The world of ``spec``, its parts created through the plugin registry."""
         return with_parts(spec, lambda *parts: cls(spec, *parts, video_size))
 
 
-def create_parts(spec: "AttemptSpec") -> tuple:
+def create_parts(spec: AttemptSpec) -> tuple:
     """``(task, simulator, planner, embodiment)`` of ``spec``, created through the plugin registry."""
     from cab_core.errors import ConfigError
     from cab_core.plugins import all_tasks, create
@@ -111,7 +111,7 @@ def create_parts(spec: "AttemptSpec") -> tuple:
     return tasks[spec.task], sim, planner, emb
 
 
-def with_parts(spec: "AttemptSpec", make):
+def with_parts(spec: AttemptSpec, make):
     """``make(task, simulator, planner, embodiment)`` on the parts of ``spec`` (:func:`create_parts`);
     the simulator is closed again if ``make`` fails."""
     task, sim, planner, emb = create_parts(spec)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import (
@@ -102,7 +102,7 @@ def _number(v: Any) -> int | float:
 
 
 #: a JSON number, kept as written (an integer stays an integer, a float a float)
-Num = Annotated[Union[int, float], PlainValidator(_number)]
+Num = Annotated[int | float, PlainValidator(_number)]
 
 
 class Block(BaseModel):
@@ -385,7 +385,7 @@ class AttemptRecord(Block):
         return v
 
     @model_validator(mode="after")
-    def _scored(self) -> "AttemptRecord":
+    def _scored(self) -> AttemptRecord:
         if not self.excluded:
             if self.harness is None:
                 raise PydanticCustomError("scored", "a scored record needs 'harness'")
@@ -405,7 +405,7 @@ class AttemptRecord(Block):
         return self.model_dump(mode="python", exclude_unset=True)
 
     @classmethod
-    def build(cls, **fields: Any) -> "AttemptRecord":
+    def build(cls, **fields: Any) -> AttemptRecord:
         """A record from its fields as the host has them (numpy values, paths): made JSON first, so
         the record holds what ``result.json`` will, then validated (:class:`MalformedRecord`)."""
         return parse_record(json.loads(dumps(fields)))

@@ -40,7 +40,7 @@ class Perturbation:
     physics_fraction: float = 0.02
 
     @classmethod
-    def from_cfg(cls, cfg: dict | None) -> "Perturbation | None":
+    def from_cfg(cls, cfg: dict | None) -> Perturbation | None:
         """The ``perturb`` config section; None when ``seed`` is null (no perturbation)."""
         c = dict(cfg or {})
         unknown = sorted(set(c) - set(KEYS))

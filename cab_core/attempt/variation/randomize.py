@@ -67,7 +67,7 @@ class Randomization:
     parts: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @classmethod
-    def from_cfg(cls, cfg: dict | None) -> "Randomization | None":
+    def from_cfg(cls, cfg: dict | None) -> Randomization | None:
         """The ``randomize`` config group's option; None for ``none`` (nothing drawn)."""
         c = dict(cfg or {})
         name = str(c.pop("name", "none"))

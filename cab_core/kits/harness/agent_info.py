@@ -44,7 +44,7 @@ class ClientInfo:
         return {"name": self.name, "version": self.version, "session": self.session}
 
     @classmethod
-    def from_dict(cls, d, where: str = "agent.client") -> "ClientInfo":
+    def from_dict(cls, d, where: str = "agent.client") -> ClientInfo:
         if not isinstance(d, dict):
             raise RecordError(f"result.json {where} should be an object, got {type(d).__name__}")
         for k in ("name", "version"):
@@ -70,7 +70,7 @@ class AgentRecord:
                 "clients": [c.as_dict() for c in self.clients]}
 
     @classmethod
-    def from_dict(cls, d) -> "AgentRecord":
+    def from_dict(cls, d) -> AgentRecord:
         """The block as written; RecordError naming the first field of the wrong shape."""
         if not isinstance(d, dict):
             raise RecordError(f"result.json 'agent' should be an object, got {type(d).__name__}")
@@ -86,6 +86,6 @@ class AgentRecord:
                    [ClientInfo.from_dict(c, f"agent.clients[{i}]") for i, c in enumerate(clients)])
 
     @classmethod
-    def of_result(cls, result: dict) -> "AgentRecord | None":
+    def of_result(cls, result: dict) -> AgentRecord | None:
         """The block of a ``result.json``, None when it has none."""
         return None if result.get("agent") is None else cls.from_dict(result["agent"])
