@@ -28,8 +28,6 @@ IN_PROGRESS = {
     # (issue 27: harness kit in progress)
     "plugins/harness_mcp/cab_harness_mcp/harness.py": {"cab_core.plugins", "cab_core.tools"},
     # (issue 27: harness kit in progress)
-    "plugins/harness_mcp/cab_harness_mcp/plugin.py": {"cab_core"},
-    # (issue 27: harness kit in progress)
     "plugins/harness_mcp/cab_harness_mcp/server.py": {"cab_core.tools"},
     # (issue 27: harness kit in progress)
     "plugins/harness_reference/cab_harness_reference/loop.py": {"cab_core.plugins", "cab_core.tools"},
@@ -38,18 +36,11 @@ IN_PROGRESS = {
     "plugins/embodiment_aloha/cab_embodiment_aloha/reach.py": {"cab_core.plugins"},
 }
 
-#: other known imports outside the public surface: ``import cab_core`` for ``@cab_core.hookimpl``
-#: (the package root pins the numerics and re-exports the contract's marker; the public spelling is
-#: ``from cab_core.contracts.hookspecs import hookimpl``, as the suite and the example write it). These
-#: entry modules are not the task kit's to change (issue 27); an entry no longer needed fails
-#: ``test_the_allow_list_names_only_what_is_still_imported``
-ALLOWED = {
-    "plugins/embodiment_aloha/cab_embodiment_aloha/plugin.py": {"cab_core"},
-    "plugins/planner_mplib/cab_planner_mplib/plugin.py": {"cab_core"},
-    "plugins/sim_mujoco/cab_sim_mujoco/plugin.py": {"cab_core"},
-    "plugins/sim_pybullet/cab_sim_pybullet/plugin.py": {"cab_core"},
-    "plugins/sim_sapien/cab_sim_sapien/plugin.py": {"cab_core"},
-}
+#: other known imports outside the public surface: {file: {module, ...}}. None is left: the entry
+#: modules that imported the package root for ``@cab_core.hookimpl`` now write
+#: ``from cab_core.contracts.hookspecs import hookimpl``. An entry added here and no longer needed
+#: fails ``test_the_allow_list_names_only_what_is_still_imported``
+ALLOWED: dict[str, set[str]] = {}
 
 
 def under(module: str, packages: set[str]) -> bool:

@@ -4,7 +4,8 @@ The MCP SDK is imported only when a harness is created, so listing plugins stays
 missing SDK fails with the install command."""
 from __future__ import annotations
 
-import cab_core
+from cab_core.contracts.hookspecs import hookimpl
+from cab_core.contracts.plugin_helpers import config_dirs_hook
 from cab_core.errors import MissingDependency
 
 
@@ -40,12 +41,9 @@ def create_codex(cfg: dict | None = None):
     return CodexLauncher(cfg)
 
 
-@cab_core.hookimpl
+@hookimpl
 def cab_harnesses():
     return {"mcp": create_mcp, "claude_code": create_claude_code, "codex": create_codex}
 
 
-@cab_core.hookimpl
-def cab_config_dirs():
-    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
-    return ["pkg://cab_harness_mcp.conf"]
+cab_config_dirs = config_dirs_hook("cab_harness_mcp")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from cab_core.contracts.hookspecs import hookimpl
+from cab_core.contracts.plugin_helpers import config_dirs_hook
 
 from .providers import PROVIDERS
 
@@ -34,7 +35,4 @@ def cab_context_policies():
     return {"reference": _reference_policy}
 
 
-@hookimpl
-def cab_config_dirs():
-    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
-    return ["pkg://cab_harness_reference.conf"]
+cab_config_dirs = config_dirs_hook("cab_harness_reference")

@@ -1,17 +1,15 @@
 """cab plugin: registers the ``mplib`` motion planner (mplib is imported only when it is built)."""
 from __future__ import annotations
 
-import cab_core
+from cab_core.contracts.hookspecs import hookimpl
+from cab_core.contracts.plugin_helpers import config_dirs_hook
 
 from .planner import factory
 
 
-@cab_core.hookimpl
+@hookimpl
 def cab_planners():
     return {"mplib": factory}
 
 
-@cab_core.hookimpl
-def cab_config_dirs():
-    """This plugin's option files for Hydra (``conf/<group>/<option>.yaml``)."""
-    return ["pkg://cab_planner_mplib.conf"]
+cab_config_dirs = config_dirs_hook("cab_planner_mplib")
