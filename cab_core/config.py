@@ -113,6 +113,7 @@ class Compositions:
         from hydra import initialize_config_dir, initialize_config_module
         from hydra.core.global_hydra import GlobalHydra
 
+        init: Any
         if config_path:  # the app's config_path is relative to cab_core/apps
             here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "apps")
             init = initialize_config_dir(os.path.normpath(os.path.join(here, config_path)), job_name="cab",
@@ -136,7 +137,7 @@ class Compositions:
             from hydra.types import RunMode
             picked = [f"{g}={v}" for g, v in selection]
             cfg = self.loader.load_configuration(self.config_name, picked + self.searchpath, RunMode.RUN)
-            plain = OmegaConf.to_container(cfg, resolve=False)
+            plain: Any = OmegaConf.to_container(cfg, resolve=False)
             plain.pop("hydra", None)
             extra = {k: v for k, v in plain.items() if k not in OWN_KEYS and k not in self.groups}
             view = checked_view(plain, {**extra, **{g: plain.get(g) for g in self.groups}})

@@ -17,7 +17,7 @@ def wants_stdio_protocol(argv: list[str]) -> bool:
     with ``harness=<name>`` whose factory declares ``speaks_on_stdio = True`` (a protocol server),
     unless ``harness.transport=`` names another transport. Then stdout is reserved for protocol
     frames before Hydra starts, so that nothing it or anything after it prints can corrupt the
-    stream (cab_core.apps.stdio)."""
+    stream (cab_core.kits.harness.stdio)."""
     sel = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness=")]
     if not sel:
         return False
@@ -120,7 +120,7 @@ def main() -> None:
         _refuse(str(e))
     single = args is not None and not (args.multirun or args.cfg)
     if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:
-        from cab_core.apps import stdio
+        from cab_core.kits.harness import stdio
 
         stdio.claim()
     if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's tracebacks

@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import io
 import itertools
+from typing import Any
 
 from cab_core.conf.schema import one_line
 from cab_core.config import CLOSED_GROUPS, Compositions
@@ -79,7 +80,8 @@ def expand_seed_set(argv: list[str]) -> list[str]:
 
         tasks = [default_selection(("task",))["task"]]
     elif task.value_type == ValueType.GLOB_CHOICE_SWEEP:
-        tasks = list(task.value().filter(sorted(installed)))
+        glob: Any = task.value()
+        tasks = list(glob.filter(sorted(installed)))
     else:
         tasks = [str(v) for v in _values(task)]
     sets = {t: installed[t].seeds(name) for t in tasks if t in installed}  # an unknown task: refused later
@@ -166,7 +168,8 @@ class Check:
         key = o.key_or_group
         options = self.compositions.options(key)
         if o.value_type == ValueType.GLOB_CHOICE_SWEEP:  # task=glob(*): the options it matches
-            return list(o.value().filter(options))
+            glob: Any = o.value()
+            return list(glob.filter(options))
         values = [str(v) for v in _values(o) if v is not None and not _interpolated(v)]
         for v in values:
             if v not in options:
@@ -198,7 +201,7 @@ class Check:
                 select_record_observers({"observers": o.value()})  # an observer no plugin registers: refused here
 
 
-def unknown_option(group: str, value: str, options: list[str]) -> ConfigError:
+def unknown_option(group: str, value: str, options: list[str]) -> CabError:
     if group == "task":  # a name two suites define: say so, not "unknown"
         from cab_core.plugins import task_conflict
 

@@ -72,7 +72,7 @@ def _installed(group: str) -> str:
     return f"installed: {', '.join(names)}" if names else "none installed" if group != "model" else "see cab --help"
 
 
-def attempt_spec(cfg: Any, output_dir: Path) -> AttemptSpec:
+def attempt_spec(cfg: Any, output_dir: str | Path) -> AttemptSpec:
     """Validate a composed config into one AttemptSpec (budgets and seed from the task's suite)."""
     from cab_core.plugins import task_info
 

@@ -61,7 +61,7 @@ class Section:
         return f"{cls.SECTION}.{name}" if cls.SECTION else name
 
     def refuse(self, name: str) -> None:
-        must_be = next(f.metadata["must_be"] for f in fields(self) if f.name == name)  # type: ignore[arg-type]
+        must_be = _must_be(self.SECTION, name)
         raise ConfigError(f"{self.key(name)} must be {must_be}, got {shown(getattr(self, name))}")
 
     def positive(self, *names: str) -> None:
@@ -220,6 +220,11 @@ def check_basics(cfg: dict) -> None:
                               f"got {given(_part(option, group, where))}")
 
 
+#: each dataclass of the schema by its key ('' the top level)
+_ALL: tuple[type[Section], ...] = (CabConfig, BudgetConfig, SandboxConfig, RecordConfig, PerturbConfig, ForkConfig,
+                                    SweepConfig, *BASICS.values())
+SECTIONS: dict[str, type[Section]] = {section.SECTION: section for section in _ALL}
+
 SCHEMA_NAME = "cab_schema"  # a config of its own, not a group: `cab --help` lists no group "schema"
 ConfigStore.instance().store(name=SCHEMA_NAME, node=CabConfig, provider="cab")
 for _group, _basics in BASICS.items():
@@ -330,8 +335,8 @@ def one_line(e: BaseException) -> str:
 
 
 def _must_be(section: str, leaf: str) -> str | None:
-    node = CabConfig if not section else BASICS.get(section) or next((f.default_factory for f in fields(CabConfig)  # type: ignore[misc]
-                                               if f.name == section and isinstance(f.default_factory, type)), None)
+    """What the field ``leaf`` of ``section`` ('' the top level) must be, as its schema says."""
+    node: Any = SECTIONS.get(section)
     if node is None:
         return None
     return next((f.metadata.get("must_be") for f in fields(node) if f.name == leaf), None)
