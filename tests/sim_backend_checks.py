@@ -2,7 +2,8 @@
 :mod:`cab_core.testing.sim_conformance` (which ``pytest --cab-conformance`` runs on every installed
 backend, with and without a renderer): plugin registration, options, the physics-only mode and the
 snapshot, contact and shutdown guarantees. tests/test_sim_backends.py runs them on each simulator
-the plugin registry serves; tests/test_sim_<backend>.py hold what is particular to one backend.
+the plugin registry serves. What is particular to one backend moved beside its plugin, to
+plugins/sim_<backend>/tests/test_sim_<backend>.py (sim_mujoco, sim_pybullet, sim_sapien).
 
 :func:`backend` describes an installed backend (its registry factory, the class it must build,
 how to make it render, what its snapshots promise, and its simulator factories ``rendering``, a
@@ -13,16 +14,17 @@ from __future__ import annotations
 
 import functools
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import pytest
 
-from cab_core.errors import ConfigError, RendererUnavailable, SimulatorError
-from cab_core.plugins import registry
 from cab_core.contracts.scene import SceneSpec
 from cab_core.contracts.simulator import Simulator
+from cab_core.errors import ConfigError, RendererUnavailable, SimulatorError
+from cab_core.plugins import registry
 from cab_core.testing import sim_conformance as sc
+
 
 @dataclass(frozen=True)
 class Backend:
@@ -60,12 +62,12 @@ def installed() -> list[str]:
     return sorted(registry("simulators"))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def backend(name: str) -> Backend:
     return Backend(name, registry("simulators")[name], **KNOWN.get(name, {}))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def render_diagnosis(name: str) -> str | None:
     """None where backend ``name`` renders here, else why not (found out once a session)."""
     return sc.render_diagnosis(backend(name).rendering)

@@ -8,8 +8,8 @@ from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.engine.episode import Episode
-from cab_core.plugins import all_tasks, create
 from cab_core.attempt.runner import attempt_spec, run_attempt
+from cab_core.plugins import all_tasks, create
 
 pytestmark = pytest.mark.sim
 
@@ -29,7 +29,7 @@ def episode(tmp_path, *overrides):
 
 
 def events(d: Path):
-    return [json.loads(l) for l in (d / "events.jsonl").read_text().splitlines()]
+    return [json.loads(line) for line in (d / "events.jsonl").read_text().splitlines()]
 
 
 @pytest.mark.slow

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from cab_core.contracts.task import TaskInfo
+from cab_core.errors import ConfigError
 from cab_suite_codeaction import catalog
 from cab_suite_codeaction.tasks import TASK_MODULES
-from cab_core.errors import ConfigError
-from cab_core.contracts.task import TaskInfo
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared/spec/catalog.yaml"
 PACKAGED = Path(catalog.__file__).resolve().parent / "data" / "catalog.yaml"

@@ -4,15 +4,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from cab_core.contracts.checkpoints import SpatialRule, annulus, box, cylinder, sphere
-
 from cab_core.attempt.engine.checkpoint_scoring import evaluate
+from cab_core.contracts.checkpoints import SpatialRule, annulus, box, cylinder, sphere
 from cab_core.contracts.embodiment import ArmSpec, EmbodimentSpec, GripperSpec
 
 
 def emb():
     g = GripperSpec(("j7", "j8"), ("f7", "f8"), -0.01, 0.045, 0.048)
-    arm = lambda n: ArmSpec(n, ("j1",), "b", "ee", f"{n}_tcp", "cam", g, (0.0,))
+
+    def arm(n):
+        return ArmSpec(n, ("j1",), "b", "ee", f"{n}_tcp", "cam", g, (0.0,))
+
     return EmbodimentSpec("fake", "", "", (0, 0, 0, 1, 0, 0, 0), {"left": arm("left"), "right": arm("right")}, ())
 
 
@@ -31,7 +33,9 @@ class FakeTask:
         return [w.pose("cube")[2] > 0.80]
 
     def spatial_checkpoints(self, info):
-        cube = lambda w: w.pose("cube")[:3]
+        def cube(w):
+            return w.pose("cube")[:3]
+
         return [SpatialRule("approach", "either", cube, sphere(2)),
                 SpatialRule("lift", "left", None, None, prerequisites=(0,), lift_above_cm=5),
                 SpatialRule("right only", "right", cube, sphere(2))]

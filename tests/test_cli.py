@@ -93,7 +93,7 @@ def test_an_attempt_prints_one_line_on_every_simulator(sim, tmp_path):
     r = run(["cab", "task=click_bell", f"sim={sim}", "model=idle", "record.video=false", "hydra.run.dir=out"], tmp_path)
     assert r.returncode == 0, r.stderr
     out = (r.stdout + r.stderr).splitlines()
-    once = [l for l in out[:-1] if sim == "sapien" and "SAPIEN's BRDF table for this machine: generated" in l]
+    once = [line for line in out[:-1] if sim == "sapien" and "SAPIEN's BRDF table for this machine: generated" in line]
     assert out[:-1] == once[:1], out
     assert out[-1].startswith(f"cab: click_bell seed=0 attempt=1 model=idle sim={sim}: success=False"), out
 
@@ -105,6 +105,6 @@ def test_missing_key_is_one_line_before_any_simulator(model, var, tmp_path):
     r = subprocess.run([os.path.join(BIN, "cab"), "+sim=sapien", f"+model={model}", f"hydra.run.dir={tmp_path}/d"],
                        cwd=tmp_path, env=e, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
-    lines = [l for l in r.stderr.splitlines() if l.strip()]
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and var in lines[0], r.stderr
     assert not (tmp_path / "d" / "events.jsonl").exists()  # nothing was built

@@ -4,8 +4,8 @@ from hydra import compose, initialize_config_module
 from hydra.errors import MissingConfigException
 
 from cab_core.apps.cli import normalise_overrides
-from cab_core.errors import ConfigError
 from cab_core.attempt.runner import attempt_spec
+from cab_core.errors import ConfigError
 
 
 def _compose(overrides):

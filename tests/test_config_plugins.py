@@ -14,8 +14,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 import cab_core
 from cab_core import plugins
 from cab_core.apps.cli import normalise_overrides
-from cab_core.errors import ConfigError
 from cab_core.attempt.runner import attempt_spec
+from cab_core.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_MODELS = {"astra_codex", "opus5", "opus5_claude_code", "gemini36flash", "gpt56", "qwen38max", "grok46",

@@ -23,10 +23,10 @@ import math
 import numpy as np
 import pytest
 
+from cab_core.contracts.scene import Body, CameraSpec, Material, SceneSpec, Shape, Sphere
 from cab_core.errors import MissingDependency, RendererUnavailable
 from cab_core.geometry import look_at_cv, pose_inv, pose_mul, transform_point
 from cab_core.plugins import build_plugin_manager, registry
-from cab_core.contracts.scene import Body, CameraSpec, Material, SceneSpec, Shape, Sphere
 from cab_core.testing import sim_conformance as sc
 
 pytestmark = pytest.mark.sim

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_module
 
-from cab_core.attempt.engine import faults
+from cab_core import geometry
 from cab_core.apps.cli import normalise_overrides
+from cab_core.attempt.engine import faults
 from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.runner import attempt_spec
 from cab_core.errors import InfrastructureFault, SimulatorError
 from cab_core.plugins import all_tasks, create
-from cab_core import geometry
-from cab_core.attempt.runner import attempt_spec
-from cab_core.tools import TOOLS, validate_args
+from cab_core.tools import TOOLS
 
 pytestmark = pytest.mark.sim
 
@@ -180,7 +180,7 @@ def test_an_exception_while_serving_a_call_is_the_agents_tool_error(ep, monkeypa
     p = _call(ep, "run_code", {"code": "r = get_arm_pose(arm='left')\nresult = r"})
     assert p["ok"] is True and p["value"]["code"] == "tool_error"
     assert ep.tool_errors == n0 + 2 and not ep.ended
-    rec = [json.loads(l) for l in (ep.out / "events.jsonl").read_text().splitlines()]
+    rec = [json.loads(line) for line in (ep.out / "events.jsonl").read_text().splitlines()]
     errs = [e for e in rec if e["kind"] == "tool_error"][-2:]
     assert [e["direct"] for e in errs] == [True, False]
     assert all("Traceback" in e["traceback"] for e in errs)  # host-only record keeps the whole story

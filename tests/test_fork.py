@@ -11,14 +11,14 @@ import pytest
 from attempt_records import attempt_dir, events, shared_sweep
 from hydra import compose, initialize_config_module
 
+from cab_core.analysis.viewer import forks_of
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.cmdline import check_command_line
-from cab_core.analysis.viewer import forks_of
 from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkDiverged, ForkPoint, charged_calls
 from cab_core.attempt.records.recovery import recovery
-from cab_core.kits.harness.conversation import transcript
 from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.errors import ConfigError
+from cab_core.kits.harness.conversation import transcript
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "agent_attempts"
 TIMING = ("t_wall", "wall_seconds", "setup_seconds", "latency_s")
@@ -98,7 +98,7 @@ def test_a_fork_of_a_fork_keeps_its_lineage_and_replays(parent, tmp_path):
 def test_a_world_that_differs_from_the_parents_is_refused(parent, tmp_path):
     bad = tmp_path / "tampered"
     shutil.copytree(parent, bad)
-    snaps = [json.loads(l) for l in (bad / "privileged" / "snapshots.jsonl").read_text().splitlines()]
+    snaps = [json.loads(line) for line in (bad / "privileged" / "snapshots.jsonl").read_text().splitlines()]
     snaps[1]["objects"]["block"]["pose"][0] += 0.012  # after call 2
     (bad / "privileged" / "snapshots.jsonl").write_text("".join(json.dumps(s) + "\n" for s in snaps))
     with pytest.raises(ForkDiverged, match=r"12\.0 mm from the parent's"):

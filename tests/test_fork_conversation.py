@@ -10,8 +10,7 @@ import json
 from pathlib import Path
 
 import pytest
-
-from test_harness_reference import CANCELLED, FakeEpisode, ScriptedProvider  # first: it finds the plugin
+from test_harness_reference import CANCELLED, CAPS, FakeEpisode, ScriptedProvider  # first: it finds the plugin
 
 from cab_core.attempt.fork import ForkPoint
 from cab_core.kits.harness.conversation import transcript
@@ -61,7 +60,7 @@ class RecordedEpisode(FakeEpisode):
         return out
 
 
-def fork_of(parent: Path, at: int, script, caps=Capabilities(images_in_tool_results=True)):
+def fork_of(parent: Path, at: int, script, caps=CAPS):
     """A fake fork of ``parent`` at charged call ``at``, played by the harness with ``script``."""
     ep = RecordedEpisode()
     ep.fork = ForkPoint.load(parent, at)

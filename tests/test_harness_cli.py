@@ -24,8 +24,10 @@ pytest.importorskip("sapien")
 
 from test_provider_anthropic import FakeAnthropic, message, tool_use  # noqa: E402
 from test_provider_google import _ok, _Server  # noqa: E402
-from test_provider_openai import FakeServer as FakeResponses, fcall, response_body  # noqa: E402
-from test_provider_openai_compatible import FakeServer as FakeChat, completion, tc  # noqa: E402
+from test_provider_openai import FakeServer as FakeResponses  # noqa: E402
+from test_provider_openai import fcall, response_body
+from test_provider_openai_compatible import FakeServer as FakeChat  # noqa: E402
+from test_provider_openai_compatible import completion, tc
 
 BIN = os.path.dirname(sys.executable)
 CODE = "result = get_arm_pose(arm='left')['tcp_pose']"
@@ -54,7 +56,7 @@ def _check_records(r, out, model, priced, n_requests):
     assert res["termination"]["reason"] == "done", res["termination"]
     assert res["claim"]["success_claim"] is False and res["claim"]["report"] == DONE["report"]
     assert n_requests == 3
-    ev = [json.loads(l) for l in (out / "events.jsonl").read_text().splitlines() if l.strip()]
+    ev = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines() if line.strip()]
     turns = [e for e in ev if e.get("kind", e.get("event")) == "model_turn"]
     assert len(turns) == 3
     assert [t["tool_calls"][0]["name"] for t in turns] == ["capture_head", "run_code", "done"]

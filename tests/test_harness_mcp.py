@@ -10,7 +10,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -50,7 +49,7 @@ def result(out: Path) -> dict:
 
 
 def events(out: Path) -> list[dict]:
-    return [json.loads(l) for l in (out / "events.jsonl").read_text().splitlines()]
+    return [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
 
 
 def reference_tools() -> list[dict]:
@@ -134,9 +133,8 @@ def compose_model(*overrides: str) -> dict:
 def test_model_config_of_a_served_attempt():
     """harness=mcp selects the mcp_client placeholder (not the oracle, which plays no part);
     model.name names the configuration; the vendor launchers keep their own names."""
-    from cab_harness_mcp.harness import attempt_model_name, configured_name
-
     from cab_core.kits.harness.agent_info import ClientInfo
+    from cab_harness_mcp.harness import attempt_model_name, configured_name
 
     assert compose_model("+harness=mcp") == {"model": {"name": "mcp_client", "harness": "mcp"}, "harness": "mcp"}
     assert compose_model("+harness=mcp", "model.name=my-agent")["model"] == {"name": "my-agent", "harness": "mcp"}

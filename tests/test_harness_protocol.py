@@ -9,8 +9,15 @@ from pathlib import Path
 import pytest
 
 from cab_core.attempt.engine.episode import Episode
-from cab_core.contracts.harness import (AttemptSession, CallLimit, EventLog, Harness, HarnessHooks, ModelFreeAgent,
-                                        SessionLedger)
+from cab_core.contracts.harness import (
+    AttemptSession,
+    CallLimit,
+    EventLog,
+    Harness,
+    HarnessHooks,
+    ModelFreeAgent,
+    SessionLedger,
+)
 
 
 def members(proto) -> dict[str, object]:

@@ -75,8 +75,8 @@ def test_retry_bounded_with_growing_caps():
 
 
 def test_prompt_states_facts_and_both_budgets():
-    from cab_core.tools.motion import HARNESS_PARAMETERS
     from cab_core.kits.harness.prompts import first_user_message, system_prompt
+    from cab_core.tools.motion import HARNESS_PARAMETERS
 
     budget = {"tool_calls_remaining": 42, "tool_calls_limit": 42, "sim_seconds_remaining": 60.0, "sim_seconds_limit": 60.0}
     s = system_prompt(budget, HARNESS_PARAMETERS)
@@ -88,8 +88,7 @@ def test_prompt_states_facts_and_both_budgets():
 
 # --- context policy ---------------------------------------------------------------------------
 from cab_harness_reference.context import ContextOverflow, ReferenceContextPolicy  # noqa: E402
-from cab_harness_reference.types import (Capabilities, Image, Message, Text, Thinking, ToolCall,  # noqa: E402
-                                         ToolResult)
+from cab_harness_reference.types import Capabilities, Image, Message, Text, Thinking, ToolCall, ToolResult  # noqa: E402
 
 CAPS = Capabilities(images_in_tool_results=True)
 
@@ -102,7 +101,7 @@ def _conv(n_units: int, images_per_unit: int = 1, text_len: int = 40):
         msgs.append(Message("assistant", [Thinking("hmm " * 10), Text(f"step {i} " + "x" * text_len),
                                           ToolCall(cid, "capture_head", {"note": i})]))
         imgs = []
-        for j in range(images_per_unit):
+        for _ in range(images_per_unit):
             imgs.append(Image(png=f"png-{k}".encode(), obs_id=f"obs_{k:04d}", label=f"obs_{k:04d} head_camera"))
             k += 1
         payload = {"status": "OK", "obs_id": imgs[-1].obs_id if imgs else None, "achieved": [i, 0, 0], "filler": "y" * text_len}
@@ -186,8 +185,11 @@ def test_context_overflow_raises():
 import numpy as np  # noqa: E402
 
 from cab_core.attempt.engine.episode import ToolResponse  # noqa: E402
-from cab_harness_reference.loop import CANCELLED, ReferenceHarness  # noqa: E402
-from cab_harness_reference.loop import NUDGE  # noqa: E402
+from cab_harness_reference.loop import (  # noqa: E402
+    CANCELLED,
+    NUDGE,  # noqa: E402
+    ReferenceHarness,
+)
 from cab_harness_reference.types import Provider, Response, Usage  # noqa: E402
 
 
@@ -265,7 +267,7 @@ class ScriptedProvider(Provider):
     name = "scripted"
     key_env = None
 
-    def __init__(self, script, caps=Capabilities(images_in_tool_results=True)):
+    def __init__(self, script, caps=CAPS):
         self.script = list(script)
         self.capabilities = caps
         self.requests = []

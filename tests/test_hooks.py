@@ -6,7 +6,6 @@ import types
 import pytest
 
 from cab_core import hookimpl
-
 from cab_core.contracts import hookspecs
 from cab_core.plugins import KINDS, build_plugin_manager, registry
 

@@ -30,9 +30,9 @@ pytest.importorskip("mujoco")
 from hydra import compose, initialize_config_module  # noqa: E402
 
 from cab_core.apps.cli import normalise_overrides  # noqa: E402
-from cab_core.kits.harness.stdio import StdioChannel  # noqa: E402
 from cab_core.attempt.engine.episode import Episode  # noqa: E402
 from cab_core.attempt.spec import attempt_spec  # noqa: E402
+from cab_core.kits.harness.stdio import StdioChannel  # noqa: E402
 from cab_core.plugins import all_tasks, create  # noqa: E402
 from cab_harness_mcp.bridge import CallBridge  # noqa: E402
 from cab_harness_mcp.harness import McpHarness  # noqa: E402
@@ -93,7 +93,7 @@ def sse_messages(body: str) -> list[dict]:
 def test_http_request_with_an_id_mcp_does_not_allow_gets_invalid_request(http_server, rid):
     """Was: HTTP 202 and no answer (the SDK took the message for a notification)."""
     h = session_headers(http_server.url)
-    status, _, body = post(http_server.url, '{"jsonrpc": "2.0", "id": %s, "method": "tools/list"}' % rid, h)
+    status, _, body = post(http_server.url, f'{{"jsonrpc": "2.0", "id": {rid}, "method": "tools/list"}}', h)
     assert status == 400
     err = json.loads(body)
     assert err["jsonrpc"] == "2.0" and err["id"] is None and err["error"]["code"] == -32600
@@ -103,7 +103,7 @@ def test_http_request_with_an_id_mcp_does_not_allow_gets_invalid_request(http_se
 def test_http_well_formed_ids_are_still_answered(http_server):
     h = session_headers(http_server.url)
     for rid in ('"abc"', "7", "-3", "0"):
-        status, _, body = post(http_server.url, '{"jsonrpc": "2.0", "id": %s, "method": "tools/list"}' % rid, h)
+        status, _, body = post(http_server.url, f'{{"jsonrpc": "2.0", "id": {rid}, "method": "tools/list"}}', h)
         assert status == 200, body
         [msg] = sse_messages(body)
         assert msg["id"] == json.loads(rid) and len(msg["result"]["tools"]) == len(tool_list())
@@ -120,7 +120,7 @@ def test_stdio_frames_with_an_id_mcp_does_not_allow_get_invalid_request():
     out_r, out_w = os.pipe()
     t = StdioServerThread(server(), StdioChannel(in_r, out_w)).start()
     frames = [json.dumps(INIT), '{"jsonrpc": "2.0", "method": "notifications/initialized"}']
-    frames += ['{"jsonrpc": "2.0", "id": %s, "method": "tools/list"}' % rid for rid in BAD_IDS]
+    frames += [f'{{"jsonrpc": "2.0", "id": {rid}, "method": "tools/list"}}' for rid in BAD_IDS]
     frames += ['{"jsonrpc": "2.0", "id": "last", "method": "ping"}']
     reader = os.fdopen(out_r, "rb")
     try:

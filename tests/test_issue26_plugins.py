@@ -259,8 +259,8 @@ def test_cab_plugins_lists_each_suites_tasks():
     assert row["tasks"] == {"codeaction": list(TASK_MODULES)} and row["task_conflicts"] == {}
     r = subprocess.run([str(BIN / "cab-plugins")], capture_output=True, text=True, env=_env(), timeout=300)
     lines = r.stdout.splitlines()
-    start = next(i for i, l in enumerate(lines) if l.startswith("    tasks of codeaction "))
-    block = [lines[start]] + [l for l in lines[start + 1:start + 10] if l.startswith(" " * 24)]
+    start = next(i for i, line in enumerate(lines) if line.startswith("    tasks of codeaction "))
+    block = [lines[start]] + [line for line in lines[start + 1:start + 10] if line.startswith(" " * 24)]
     listed = " ".join(block)[len("    tasks of codeaction "):].replace(" ", "").split(",")
     assert listed == list(TASK_MODULES)
 

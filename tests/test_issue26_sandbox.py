@@ -21,16 +21,17 @@ import sys
 
 import numpy as np
 import pytest
+import test_sandbox_policy
 
 from cab_core.attempt.records.result_format import dumps, write_json_atomic
-from cab_core.sandbox import Sandbox, SandboxConfig
-from cab_core.sandbox import guest
+from cab_core.sandbox import Sandbox, SandboxConfig, guest
 
 CAB = os.path.join(os.path.dirname(sys.executable), "cab")
 ADDRESS = re.compile(r"0x[0-9a-fA-F]{6,}")
 
-
-from test_sandbox_policy import sb  # noqa: F401  (the module's sandbox: no tool is called by these programs)
+# the module-scoped sandbox fixture of test_sandbox_policy (no tool is called by these programs), bound
+# here by assignment so that pytest finds it in this module and the tests' ``sb`` parameters shadow no import
+sb = test_sandbox_policy.sb
 
 
 @pytest.fixture(autouse=True)

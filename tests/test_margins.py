@@ -7,8 +7,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cab_core.contracts.verifier import (BORDERLINE_FRACTION, Evaluation, Margin, Verifier, deciding_margin, margin_above,
-                               margin_all, margin_any, margin_below, margin_within)
+from cab_core.contracts.verifier import (
+    BORDERLINE_FRACTION,
+    Evaluation,
+    Margin,
+    Verifier,
+    deciding_margin,
+    margin_above,
+    margin_all,
+    margin_any,
+    margin_below,
+    margin_within,
+)
 
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False)
 positive = st.floats(min_value=1e-3, max_value=1e3, allow_nan=False)

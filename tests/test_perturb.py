@@ -4,12 +4,11 @@ import math
 
 import numpy as np
 import pytest
-
-from cab_core.errors import ConfigError
-from cab_core.attempt.variation.perturb import Perturbation, perturb_scene
-from cab_core.plugins import all_tasks
-
 from suite_helpers import _cache  # noqa: F401  (autouse: generated assets in a temp cache)
+
+from cab_core.attempt.variation.perturb import Perturbation, perturb_scene
+from cab_core.errors import ConfigError
+from cab_core.plugins import all_tasks
 
 
 def yaw(q):

@@ -8,7 +8,6 @@ from importlib import metadata
 
 import pytest
 
-from cab_core.errors import PluginError
 from cab_core.plugins import build_plugin_manager, describe, distribution_versions, registry
 
 CAB_PLUGINS = [sys.executable, "-c", "from cab_core.apps.cli import plugins_main; plugins_main()"]
@@ -57,7 +56,7 @@ def test_a_disabled_plugin_is_not_loaded_and_listed_as_disabled(broken, name):
     r = _run(CAB_PLUGINS, broken, CAB_DISABLE_PLUGINS=f" other ,{name}")
     assert r.returncode == 0, r.stderr
     assert r.stderr == ""
-    rows = {l.split()[0]: l for l in r.stdout.splitlines() if l and not l.startswith(" ")}
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line and not line.startswith(" ")}
     assert rows["broken_fixture"].split() == ["broken_fixture", "cab-broken-fixture", "0.3", "(disabled)"]
     assert "(disabled)" not in rows["core"]  # everything else is there and enabled
     r = _run(CAB_PLUGINS + ["--json"], broken, CAB_DISABLE_PLUGINS=name)

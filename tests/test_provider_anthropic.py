@@ -15,10 +15,11 @@ try:
 except ImportError:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
+from fake_json_api import JsonServer
+
 from cab_core.errors import ConfigError
 from cab_harness_reference.anthropic_provider import AnthropicProvider, to_wire
 from cab_harness_reference.types import Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
-from fake_json_api import JsonServer
 
 
 class FakeAnthropic(JsonServer):
@@ -182,8 +183,8 @@ CONF = Path(__file__).resolve().parents[1] / "plugins" / "harness_reference" / "
 def test_paper_config_preflight_names_the_variable(name, env, monkeypatch):
     import yaml
 
-    from cab_harness_reference.loop import ReferenceHarness
     from cab_core.kits.harness.pricing import rates
+    from cab_harness_reference.loop import ReferenceHarness
 
     cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
     assert cfg["harness"] == "reference" and cfg["provider"] == "anthropic" and cfg["max_output_tokens"] == 128000
@@ -203,8 +204,8 @@ def test_full_attempt_with_sapien(server, monkeypatch, tmp_path):
 
     from cab_core.apps.cli import normalise_overrides
     from cab_core.attempt.engine.episode import Episode
-    from cab_core.plugins import all_tasks, create
     from cab_core.attempt.runner import attempt_spec
+    from cab_core.plugins import all_tasks, create
     from cab_harness_reference.loop import ReferenceHarness
 
     monkeypatch.setenv("ANTHROPIC_API_KEY", "sk-test")
@@ -241,7 +242,7 @@ def test_full_attempt_with_sapien(server, monkeypatch, tmp_path):
     tr = server.requests[3]["messages"][-1]["content"][0]
     payload = json.loads(tr["content"][0]["text"])
     assert payload["value"]["obs"].startswith("obs") and any(b["type"] == "image" for b in tr["content"])
-    ev = [json.loads(l) for l in (tmp_path / "events.jsonl").read_text().splitlines()]
+    ev = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     turns = [e for e in ev if e.get("kind", e.get("event")) == "model_turn"]
     assert len(turns) == 3 and turns[1]["waited_s"] >= 0
 

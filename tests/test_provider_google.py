@@ -17,12 +17,20 @@ try:
 except ImportError:  # the plugin is not installed: use the source tree
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
+from fake_json_api import JsonServer
+
 from cab_core.errors import ConfigError
 from cab_harness_reference.google_provider import GoogleProvider, inline_schema
 from cab_harness_reference.types import (
-    Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec,
+    Image,
+    Message,
+    ProviderError,
+    Text,
+    Thinking,
+    ToolCall,
+    ToolResult,
+    ToolSpec,
 )
-from fake_json_api import JsonServer
 
 PNG = base64.b64decode(  # 1x1 PNG
     "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNk+M9QDwADhgGAWjR9awAAAABJRU5ErkJggg==")

@@ -12,8 +12,8 @@ from PIL import Image
 
 from cab_core.analysis import instances
 from cab_core.apps.cli import normalise_overrides
-from cab_core.attempt.variation.randomize import Randomization, names_a_colour, randomize_instance
 from cab_core.attempt.runner import attempt_spec, run_attempt
+from cab_core.attempt.variation.randomize import Randomization, names_a_colour, randomize_instance
 from cab_core.errors import ConfigError
 from cab_core.geometry import extrinsic_from_pose
 from cab_core.plugins import all_tasks
@@ -114,8 +114,8 @@ def test_a_randomised_attempt_looks_different_and_its_calibration_follows_the_ca
     a = np.asarray(Image.open(tmp_path / "plain" / "observations" / "obs_0001.png"), float)
     b = np.asarray(Image.open(tmp_path / "all" / "observations" / "obs_0001.png"), float)
     assert np.abs(a - b).mean() > 10  # visibly different
-    first = lambda d: next(json.loads(l) for l in (d / "events.jsonl").read_text().splitlines()  # noqa: E731
-                           if '"capture_head"' in l and '"kind": "call"' in l)
+    first = lambda d: next(json.loads(line) for line in (d / "events.jsonl").read_text().splitlines()  # noqa: E731
+                           if '"capture_head"' in line and '"kind": "call"' in line)
     E = np.asarray(first(tmp_path / "all")["result"]["cam_pose_snapshot"]["E"], float)
     pose = rnd["randomization"]["camera"]["head_camera"]["pose"]
     assert np.allclose(E, extrinsic_from_pose(np.asarray(pose))[:3], atol=2e-5)

@@ -12,11 +12,11 @@ from hydra import compose, initialize_config_module
 
 from cab_core import hookimpl
 from cab_core.apps.cli import normalise_overrides
-from cab_core.errors import ConfigError, PluginError
 from cab_core.attempt.records.observers import ReadOnlyDict, freeze
-from cab_core.plugins import select_record_observers as select
-from cab_core.plugins import build_plugin_manager, distribution_versions
 from cab_core.attempt.runner import attempt_spec, run_attempt
+from cab_core.errors import ConfigError, PluginError
+from cab_core.plugins import build_plugin_manager, distribution_versions
+from cab_core.plugins import select_record_observers as select
 
 
 def _plain(frozen):
@@ -86,7 +86,7 @@ def _spec(out, observers):
 
 
 def _events(d: Path):
-    return [json.loads(l) for l in (d / "events.jsonl").read_text().splitlines()]
+    return [json.loads(line) for line in (d / "events.jsonl").read_text().splitlines()]
 
 
 @pytest.mark.sim

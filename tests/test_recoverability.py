@@ -16,8 +16,8 @@ import pytest
 from browser import chromium
 
 from cab_core.analysis import recoverability as rc
-from cab_core.analysis.figures import inline_svg
 from cab_core.analysis.attempts import scan
+from cab_core.analysis.figures import inline_svg
 
 TASK = "grab_roller_dual_contact"  # cheap on MuJoCo: the oracle needs 7 calls
 BIN = os.path.dirname(sys.executable)

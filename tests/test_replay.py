@@ -6,8 +6,8 @@ import shutil
 import pytest
 from attempt_records import TASKS, attempt_dir, events, shared_sweep
 
-from cab_core.apps import replay as rp
 from cab_core.analysis.attempts import Attempt, read_jsonl, scan
+from cab_core.apps import replay as rp
 from cab_core.errors import RecordError
 
 pytestmark = pytest.mark.sim

@@ -438,7 +438,7 @@ def assert_fails_then_works(sandbox, code, *, expect=("Error",)):
 def test_os_layer_imports_of_host_packages_fail(bare):
     assert_fails_then_works(bare, "import cab_core\nprint('ESCAPED')", expect=("ModuleNotFoundError",))
     assert_fails_then_works(bare, "import sapien\nprint('ESCAPED')", expect=("ModuleNotFoundError",))
-    assert_fails_then_works(bare, "import sys\nsys.path.append(%r)\nimport cab_core\nprint('ESCAPED')" % REPO,
+    assert_fails_then_works(bare, f"import sys\nsys.path.append({REPO!r})\nimport cab_core\nprint('ESCAPED')",
                             expect=("ModuleNotFoundError", "PermissionError"))
 
 
@@ -479,7 +479,7 @@ def test_os_layer_no_processes(bare, tmp_path):
     assert_fails_then_works(bare, f"import subprocess\nsubprocess.run(['/usr/bin/touch', '{marker}'])\nprint('ESCAPED')",
                             expect=("PermissionError", "FileNotFoundError"))
     assert_fails_then_works(bare, "import os\npid = os.fork()\nprint('ESCAPED')", expect=("PermissionError",))
-    assert_fails_then_works(bare, "import ctypes\nrc = ctypes.CDLL(None).system(b'touch %s')\nresult = rc" % marker,
+    assert_fails_then_works(bare, f"import ctypes\nrc = ctypes.CDLL(None).system(b'touch {marker}')\nresult = rc",
                             expect=())
     assert not marker.exists()
 

@@ -6,7 +6,6 @@ The shared conformance suite (cab_core.testing.sim_conformance) runs through
 from __future__ import annotations
 
 import pytest
-
 import sim_backend_checks as checks
 
 pytestmark = pytest.mark.sim

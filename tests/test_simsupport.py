@@ -4,10 +4,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cab_core.errors import BadCommand
 from cab_core.contracts.scene import Body, Box, SceneSpec, Shape
-from cab_core.contracts.simsupport import (check_object_names, pose_or_bad, start_joint_values, step_count_or_bad,
-                                 vector_or_bad)
+from cab_core.contracts.simsupport import (
+    check_object_names,
+    pose_or_bad,
+    start_joint_values,
+    step_count_or_bad,
+    vector_or_bad,
+)
+from cab_core.errors import BadCommand
 from cab_core.testing import sim_conformance as sc
 
 
@@ -107,8 +112,8 @@ def test_camera_spec_and_mount_refusals():
 
 
 def test_options_and_timestep():
-    from cab_core.errors import ConfigError
     from cab_core.contracts.simsupport import simulator_options, timestep_option
+    from cab_core.errors import ConfigError
 
     assert simulator_options(None, {"render"}, "toy") == {}
     assert simulator_options({"render": False, "_private": 1}, {"render"}, "toy") == {"render": False, "_private": 1}
@@ -121,8 +126,8 @@ def test_options_and_timestep():
 
 
 def test_live_or_error_says_closed_or_never_built():
-    from cab_core.errors import SimulatorError
     from cab_core.contracts.simsupport import live_or_error
+    from cab_core.errors import SimulatorError
 
     handle = object()
     assert live_or_error(handle, False) is handle

@@ -456,8 +456,8 @@ def played(site):
 @pytest.mark.sim
 def test_a_person_plays_click_bell_to_success(site, played):
     from cab_core.kits.harness.prompts import first_user_message, system_prompt
-    from cab_core.tools.motion import HARNESS_PARAMETERS
     from cab_core.plugins import task_info
+    from cab_core.tools.motion import HARNESS_PARAMETERS
 
     d = played["dir"]
     r = json.loads((d / "result.json").read_text())

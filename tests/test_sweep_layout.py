@@ -14,8 +14,8 @@ import pytest
 from hydra import compose, initialize_config_module
 
 import cab_core.apps.cli  # noqa: F401  (registers the resolvers)
-from cab_core.sweep.manifest import MANIFEST, fingerprint
 from cab_core.sweep.layout import path_safe, swept_component, varying_keys
+from cab_core.sweep.manifest import MANIFEST, fingerprint
 
 BIN = os.path.dirname(sys.executable)
 CAB = os.path.join(BIN, "cab")
@@ -77,8 +77,8 @@ def test_swept_key_names_its_folder_and_resumes(tmp_path):
     assert r.stderr.splitlines()[-1] == f"cab sweep: 2/2 attempts complete; {sweep}"
     again = cab_m(sweep, *args)
     assert again.returncode == 0, again.stderr[-3000:]
-    skipped = sorted(l.split("] ", 1)[1].split(":", 1)[0] for l in again.stderr.splitlines()
-                     if l.endswith("complete already, skipped | sweep complete"))
+    skipped = sorted(line.split("] ", 1)[1].split(":", 1)[0] for line in again.stderr.splitlines()
+                     if line.endswith("complete already, skipped | sweep complete"))
     assert skipped == sorted(want)
     assert len(json.loads((sweep / MANIFEST).read_text())["sessions"]) == 2
 
@@ -145,5 +145,5 @@ def test_sweep_over_three_simulators_keeps_three_attempts(tmp_path):
     assert report["attempts"] == 3 and report["in_flight"] == [] and report["problems"] == []
     assert {c["config"]: c["attempts"] for c in report["configs"]} == {f"idle (direct, {s})": 1 for s in sims}
     assert report["sweep"]["jobs"] == 3 and report["sweep"]["not_started"] == 0
-    rows = [l for l in rep.stdout.splitlines() if l.startswith("| idle (direct, ")]
-    assert sorted(l.split(" | ")[0] for l in rows) == [f"| idle (direct, {s})" for s in sims]
+    rows = [line for line in rep.stdout.splitlines() if line.startswith("| idle (direct, ")]
+    assert sorted(line.split(" | ")[0] for line in rows) == [f"| idle (direct, {s})" for s in sims]

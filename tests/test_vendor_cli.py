@@ -24,8 +24,9 @@ import pytest
 pytest.importorskip("mcp")
 pytest.importorskip("sapien")
 
-from cab_core.tools import build_registry  # noqa: E402
 from fake_model_apis import FakeAnthropic, FakeResponses, Request, Turn  # noqa: E402
+
+from cab_core.tools import build_registry  # noqa: E402
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 

@@ -8,9 +8,9 @@ import pytest
 from attempt_records import RAISING_PROGRAM, TASKS, attempt_dir, events, shared_sweep
 
 from cab_core.analysis.attempts import Attempt
-from cab_core.errors import RecordError
 from cab_core.analysis.viewer import render, write_view
 from cab_core.apps.view import main
+from cab_core.errors import RecordError
 
 pytestmark = pytest.mark.sim
 
@@ -81,7 +81,7 @@ def test_unfinished_attempt_page_and_its_link_in_the_report(scripted, tmp_path):
     page = write_view(d).read_text()
     assert "unfinished: no result.json (still running, or interrupted)" in page
     assert "scripted (direct, sapien)" in page
-    made = [json.loads(l)["tool"] for l in lines[1:4]]
+    made = [json.loads(line)["tool"] for line in lines[1:4]]
     assert re.findall(r"<b>(?:↳ )?([a-z_]+)</b>", page) == made
     assert f"<th>tool calls so far</th><td>{len(made)}</td>" in page
     r = write(tmp_path / "sweep")
