@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from cab_core.attempt.engine.builtin import ScriptedAgent
 from cab_core.apps.cmdline import check_command_line
+from cab_core.attempt.engine.builtin import ScriptedAgent
 from cab_core.errors import ConfigError
 
 BIN = os.path.dirname(sys.executable)
@@ -24,6 +24,13 @@ def run(args, cwd):
 def refused(r, line: str, status: int = 2) -> None:
     assert (r.returncode, r.stderr) == (status, line + "\n"), (r.returncode, r.stderr)
     assert r.stdout == ""
+
+
+def command_line_refusal(args: list[str]) -> str:
+    """The message :func:`check_command_line` refuses ``args`` with (it must refuse them)."""
+    with pytest.raises(ConfigError) as e:
+        check_command_line(args)
+    return str(e.value)
 
 
 def cab_refuses(tmp_path, overrides, line, sweep=False):
@@ -112,16 +119,13 @@ def test_unknown_key_in_a_sweep(tmp_path):
                         "position_m, angle_deg, physics_fraction"),
 ])
 def test_unknown_keys_under_each_section(overrides, line):
-    with pytest.raises(ConfigError) as e:
-        check_command_line(overrides)
-    assert str(e.value) == line
+    assert command_line_refusal(overrides) == line
 
 
 def test_a_sweep_checks_keys_against_every_selected_option():
-    with pytest.raises(ConfigError) as e:
-        check_command_line(["-m", "sim=pybullet,mujoco", "+sim.renderer=tiny"])
-    assert str(e.value) == ("unknown key 'sim.renderer'; did you mean sim.render? valid keys under sim (sim=mujoco): "
-                            "name, render, physics")
+    line = command_line_refusal(["-m", "sim=pybullet,mujoco", "+sim.renderer=tiny"])
+    assert line == ("unknown key 'sim.renderer'; did you mean sim.render? valid keys under sim (sim=mujoco): "
+                    "name, render, physics")
 
 
 @pytest.mark.parametrize("overrides", [
@@ -153,12 +157,8 @@ def test_zero_budget_is_refused_not_the_catalogs(tmp_path):
     ("budget.tool_calls=true", "budget.tool_calls must be a positive integer or null (the catalog's budget for the task), got True"),
 ])
 def test_non_positive_budgets(override, line):
-    with pytest.raises(ConfigError) as e:
-        check_command_line([override])
-    assert str(e.value) == line
-    with pytest.raises(ConfigError) as e:  # every value of a sweep
-        check_command_line(["-m", override.replace("=", "=5,")])
-    assert str(e.value) == line
+    assert command_line_refusal([override]) == line
+    assert command_line_refusal(["-m", override.replace("=", "=5,")]) == line  # every value of a sweep
 
 
 # --- the output folder -----------------------------------------------------------------------

@@ -57,6 +57,7 @@ from pathlib import Path
 import jsonschema
 import pydantic
 import pytest
+from helpers_data import replaced
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
@@ -67,9 +68,9 @@ from hydra import compose, initialize_config_module  # noqa: E402
 
 from cab_core.apps.cli import normalise_overrides  # noqa: E402
 from cab_core.attempt.engine.episode import Episode  # noqa: E402
+from cab_core.attempt.runner import attempt_spec  # noqa: E402
 from cab_core.errors import AttemptEnded  # noqa: E402
 from cab_core.plugins import all_tasks, create  # noqa: E402
-from cab_core.attempt.runner import attempt_spec  # noqa: E402
 from cab_core.tools import TOOLS, validate_args  # noqa: E402
 
 ROBOT_TOOLS = [n for n in TOOLS if n not in ("run_code", "done")]
@@ -219,15 +220,6 @@ def slots(value, sub: dict, path: tuple = ()) -> list[tuple[tuple, dict, bool]]:
     return out
 
 
-def set_at(value, path: tuple, new):
-    value = copy.deepcopy(value)
-    node = value
-    for p in path[:-1]:
-        node = node[p]
-    node[path[-1]] = new
-    return value
-
-
 def example(sub: dict):
     """A simple instance of a schema (for boundary lists)."""
     sub = _nonnull(sub)
@@ -329,7 +321,7 @@ def cases(tool: str, fz: "Fuzz", kinds=("valid", "valid", "valid", "boundary", "
         if not pool:
             pool = ODD_VALUES
         new = copy.deepcopy(draw(st.sampled_from(pool)))
-        return Case(kind, ".".join(map(str, path)), set_at(args, path, new))
+        return Case(kind, ".".join(map(str, path)), replaced(args, path, new))
 
     return draw_case()
 
@@ -355,7 +347,7 @@ def grid(tool: str, fz: "Fuzz") -> list[Case]:
 
     where = [path for path, _, _ in slots(base, schema) if ends(path)]
     huge = [v for v in ODD_VALUES if v is HUGE_STR or v is HUGE_LIST]
-    out = [Case("odd_value", ".".join(map(str, path)), set_at(base, path, copy.deepcopy(v)))
+    out = [Case("odd_value", ".".join(map(str, path)), replaced(base, path, copy.deepcopy(v)))
            for i, path in enumerate(where) for v in ODD_VALUES if i == 0 or not any(v is h for h in huge)]
     out += [Case("structure", f"unknown field {_short(k, 12)}", {**base, k: 0.1}) for k in UNKNOWN_KEYS]
     out += [Case("structure", f"without {k}", {x: v for x, v in base.items() if x != k})

@@ -9,7 +9,7 @@ from importlib import metadata
 
 import pytest
 from hydra import compose, initialize_config_module
-from test_cli_mistakes import BIN, cab_refuses, refused, run
+from test_cli_mistakes import BIN, cab_refuses, command_line_refusal, refused, run
 
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.cmdline import check_command_line
@@ -53,9 +53,7 @@ def test_every_value_of_a_sweep_is_checked(override, line):
     good = {"sandbox.mode": "auto", "sandbox.timeout_s": "60", "sandbox.memory_mb": "4096",
             "record.video_size": "[640,480]", "record.video_every_steps": "10"}[key]
     sweep = f"{key}=choice({good},{value})" if value.startswith("[") else f"{key}={good},{value}"
-    with pytest.raises(ConfigError) as e:
-        check_command_line(["-m", sweep])
-    assert str(e.value) == line
+    assert command_line_refusal(["-m", sweep]) == line
 
 
 @pytest.mark.parametrize("override, line", [
@@ -73,9 +71,7 @@ def test_every_value_of_a_sweep_is_checked(override, line):
     ("attempt=0", "attempt must be a positive integer (1, 2, ...: the repetition of the attempt), got 0"),
 ])
 def test_other_out_of_range_values(override, line):
-    with pytest.raises(ConfigError) as e:
-        check_command_line([override])
-    assert str(e.value) == line
+    assert command_line_refusal([override]) == line
 
 
 def test_documented_values_pass():
@@ -167,9 +163,7 @@ def test_a_torn_parent_is_not_forked(tmp_path, last):
     with pytest.raises(CabError) as e:
         ForkPoint.load(parent, 1)
     assert str(e.value) == line
-    with pytest.raises(ConfigError) as e:
-        check_command_line([f"fork.from={parent}", "fork.at=1", "model=idle"])
-    assert str(e.value) == line
+    assert command_line_refusal([f"fork.from={parent}", "fork.at=1", "model=idle"]) == line
     r = run(["cab", f"fork.from={parent}", "fork.at=1", "model=idle"], tmp_path)
     refused(r, f"cab: {line}")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["parent"]

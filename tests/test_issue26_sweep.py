@@ -17,10 +17,10 @@ import time
 from pathlib import Path
 
 import pytest
+from test_sweep import CAB, end_group
 
-from cab_core.sweep.manifest import MANIFEST, progress_line
 from cab_core.sweep.attempt_state import check_attempt, infrastructure_failures, log_infrastructure_failure
-from test_sweep import CAB
+from cab_core.sweep.manifest import MANIFEST, progress_line
 
 LOOKING = [{"tool": "capture_head", "args": {}}] * 60 + [
     {"tool": "done", "args": {"report": "looked", "success_claim": False}}]
@@ -61,10 +61,13 @@ def counters(stderr: str) -> list[int]:
 # -- item 10: the progress counter -------------------------------------------------------------------
 
 
-def _fake_sweep(root: Path, n_jobs: int, started: float) -> Path:
+def _fake_sweep(root: Path, n_jobs: int) -> tuple[Path, int]:
+    """A sweep folder of ``n_jobs`` jobs whose session started 10 s ago (its manifest only), and a time
+    5 s ago, in nanoseconds, from which the tests date the results they write."""
+    t0 = time.time()
     root.mkdir()
-    (root / MANIFEST).write_text(json.dumps({"n_jobs": n_jobs, "sessions": [{"started": started}]}))
-    return root
+    (root / MANIFEST).write_text(json.dumps({"n_jobs": n_jobs, "sessions": [{"started": t0 - 10}]}))
+    return root, int((t0 - 5) * 1e9)
 
 
 def _result(d: Path, ns: int, infra: bool = False) -> Path:
@@ -78,9 +81,7 @@ def _result(d: Path, ns: int, infra: bool = False) -> Path:
 def test_jobs_finishing_together_each_get_their_own_count(tmp_path):
     """Two jobs whose results are both written before either prints its line: the counts were
     both the number of complete attempts then ([2/3] twice, never [1/3]); each is its own rank."""
-    t0 = time.time()
-    sweep = _fake_sweep(tmp_path / "sw", 3, t0 - 10)
-    base = int((t0 - 5) * 1e9)
+    sweep, base = _fake_sweep(tmp_path / "sw", 3)
     a = _result(sweep / "a", base + 2_000)
     b = _result(sweep / "b", base + 1_000)
     assert progress_line(sweep, "a", "done", a).startswith("cab sweep [2/3] a: done | ")
@@ -97,9 +98,7 @@ def test_a_result_written_again_after_the_other_job_counted_keeps_its_place(tmp_
     """``result.json`` is written twice (the verdict, then again once the video is closed): job a's
     first write, job b's result and count, then a's second write and count. Ordered by modification
     time, both jobs printed [2/2] (seen in CI); a keeps the first place b saw it in."""
-    t0 = time.time()
-    sweep = _fake_sweep(tmp_path / "sw", 2, t0 - 10)
-    base = int((t0 - 5) * 1e9)
+    sweep, base = _fake_sweep(tmp_path / "sw", 2)
     a = _result(sweep / "a", base + 1_000)
     b = _result(sweep / "b", base + 2_000)
     assert progress_line(sweep, "b", "done", b).startswith("cab sweep [2/2] b: done | ")
@@ -241,9 +240,7 @@ def test_a_second_sweep_into_a_running_sweeps_folder_is_refused(tmp_path):
         os.killpg(first.pid, signal.SIGCONT)
         _, err = first.communicate(timeout=900)
     finally:
-        if first.poll() is None:
-            os.killpg(first.pid, signal.SIGKILL)
-            first.wait()
+        end_group(first)
     assert first.returncode == 0, err[-3000:]
     assert not list(sweep.rglob("set_aside"))
     for a in (1, 2, 3, 4):

@@ -17,10 +17,11 @@ except ImportError:  # the plugin is not installed in this environment: use the 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
 from fake_json_api import PNG, FakeServer, offline_provider  # noqa: E402
+from helpers_provider import SYSTEM, TOOLS, first_turn  # noqa: E402
+
 from cab_core.errors import ConfigError  # noqa: E402
 from cab_harness_reference.openai_provider import OpenAIProvider  # noqa: E402
-from cab_harness_reference.types import (Image, Message, ProviderError, Text, Thinking,  # noqa: E402
-                                         ToolCall, ToolResult, ToolSpec)
+from cab_harness_reference.types import Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult  # noqa: E402
 
 
 def response_body(output, usage=None, status="completed", incomplete=None):
@@ -40,11 +41,6 @@ def fcall(call_id, name, args):
 REASONING = {"type": "reasoning", "id": "rs_1", "summary": [{"type": "summary_text",
                                                               "text": "look first"}],
              "encrypted_content": "ENC123"}
-
-TOOLS = [ToolSpec("run_code", "Run a program", {"type": "object", "properties": {
-    "code": {"type": "string"}}, "required": ["code"]}),
-         ToolSpec("done", "Finish", {"type": "object", "properties": {
-             "report": {"type": "string"}}, "required": ["report"]})]
 
 
 @pytest.fixture
@@ -90,9 +86,7 @@ def test_two_turns_with_image_tool_result_then_done(key):
     ]
     with FakeServer(replies) as srv:
         p = make(srv.url)
-        msgs = [Message("user", [Text("Put the cube in the bin.")])]
-        r1 = p.complete("You control a robot.", msgs, TOOLS)
-        assert r1.stop_reason == "tool_calls"
+        msgs, r1 = first_turn(p)
         calls = [x for x in r1.message.parts if isinstance(x, ToolCall)]
         assert calls[0].name == "run_code" and calls[0].arguments == {"code": "observe()"}
         assert any(isinstance(x, Thinking) and x.text == "look first" for x in r1.message.parts)
@@ -105,7 +99,7 @@ def test_two_turns_with_image_tool_result_then_done(key):
             "call_1", "run_code", '{"ok": true, "obs": ["obs_0001"]}',
             images=[Image(PNG, "obs_0001", "obs_0001 head_camera tick 4")])],
             cache_breakpoint=True)]
-        r2 = p.complete("You control a robot.", msgs, TOOLS)
+        r2 = p.complete(SYSTEM, msgs, TOOLS)
         assert r2.stop_reason == "tool_calls"
         done = r2.message.parts[0]
         assert done.name == "done" and done.arguments["success_claim"] is True

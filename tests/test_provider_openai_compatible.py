@@ -17,10 +17,11 @@ except ImportError:  # the plugin is not installed in this environment: use the 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
 from fake_json_api import PNG, FakeServer, offline_provider  # noqa: E402
+from helpers_provider import SYSTEM, TOOLS, first_turn  # noqa: E402
+
 from cab_core.errors import ConfigError  # noqa: E402
 from cab_harness_reference.openai_compatible_provider import OpenAICompatibleProvider  # noqa: E402
-from cab_harness_reference.types import (Image, Message, ProviderError, Text, Thinking,  # noqa: E402
-                                         ToolCall, ToolResult, ToolSpec)
+from cab_harness_reference.types import Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult  # noqa: E402
 
 
 def completion(message, finish="tool_calls", usage=None):
@@ -35,11 +36,6 @@ def completion(message, finish="tool_calls", usage=None):
 def tc(call_id, name, args):
     return {"id": call_id, "type": "function", "function": {"name": name, "arguments": json.dumps(args)}}
 
-
-TOOLS = [ToolSpec("run_code", "Run a program", {"type": "object", "properties": {
-    "code": {"type": "string"}}, "required": ["code"]}),
-         ToolSpec("done", "Finish", {"type": "object", "properties": {
-             "report": {"type": "string"}}, "required": ["report"]})]
 
 
 @pytest.fixture(autouse=True)
@@ -85,9 +81,7 @@ def test_two_turns_images_in_follow_up_user_message_then_done(monkeypatch):
     ]
     with FakeServer(replies) as srv:
         p = make(srv.url)
-        msgs = [Message("user", [Text("Put the cube in the bin.")])]
-        r1 = p.complete("You control a robot.", msgs, TOOLS)
-        assert r1.stop_reason == "tool_calls"
+        msgs, r1 = first_turn(p)
         calls = [x for x in r1.message.parts if isinstance(x, ToolCall)]
         assert [c.call_id for c in calls] == ["call_1", "call_2"]
         assert calls[0].arguments == {"code": "observe()"}
@@ -101,7 +95,7 @@ def test_two_turns_images_in_follow_up_user_message_then_done(monkeypatch):
                                              images=[Image(PNG, "obs_0001", "obs_0001 head tick 4")])]),
                  Message("tool", [ToolResult("call_2", "run_code", '{"obs": ["obs_0002"]}',
                                              images=[Image(PNG, "obs_0002")])])]
-        r2 = p.complete("You control a robot.", msgs, TOOLS)
+        r2 = p.complete(SYSTEM, msgs, TOOLS)
         assert r2.message.parts[0].name == "done" and r2.usage.input_tokens == 3000
 
     _, b1, h1 = srv.requests[0]

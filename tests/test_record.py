@@ -15,6 +15,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from helpers_data import replaced
 from pydantic import BaseModel
 
 from cab_core.analysis.attempts import Attempt, InfrastructureResult, check_result, read_record, scan
@@ -186,12 +187,7 @@ def _without(d: dict, *path: str) -> dict:
 
 
 def _with(d: dict, value, *path) -> dict:
-    d = copy.deepcopy(d)
-    node = d
-    for k in path[:-1]:
-        node = node[k]
-    node[path[-1]] = value
-    return d
+    return replaced(d, path, value)
 
 
 MALFORMED = [

@@ -18,8 +18,8 @@ import pytest
 from hydra import compose, initialize_config_module
 
 from cab_core.apps.cli import normalise_overrides
-from cab_core.sweep.manifest import MANIFEST, config_diff, fingerprint
 from cab_core.sweep.attempt_state import check_attempt, infrastructure_failures, is_infrastructure_failure
+from cab_core.sweep.manifest import MANIFEST, config_diff, fingerprint
 from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig
 
 CAB = os.path.join(os.path.dirname(sys.executable), "cab")
@@ -57,6 +57,14 @@ def fingerprints(d: Path) -> dict:
         st = os.stat(d / name)
         out[name] = (st.st_ino, st.st_mtime_ns, (d / name).read_bytes())
     return out
+
+
+def end_group(proc: subprocess.Popen) -> None:
+    """If ``proc`` (started with ``start_new_session=True``, so it leads a process group of its own) is
+    still running, SIGKILL its whole group and reap it."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 @pytest.fixture(scope="module")
@@ -235,9 +243,7 @@ def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
         os.kill(hit[1], signal.SIGKILL)  # the Ray worker running that job; Ray runs the job again
         out, err = proc.communicate(timeout=600)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        end_group(proc)
     assert proc.returncode == 0, err[-3000:]
     for a, d in attempt_dirs(sweep).items():
         if a > 3:
