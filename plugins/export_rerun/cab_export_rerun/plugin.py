@@ -8,8 +8,9 @@ line with the install command."""
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from cab_core.contracts.hookspecs import hookimpl
 from cab_core.errors import ConfigError, MissingDependency

@@ -37,7 +37,7 @@ class Job:
     """One tool call waiting for the owner thread."""
     name: str
     arguments: dict[str, Any]
-    client: "SeenClient | None" = None
+    client: SeenClient | None = None
     future: cf.Future = field(default_factory=cf.Future)
     queued_at: float = field(default_factory=time.monotonic)
 

@@ -104,7 +104,7 @@ class McpSettings:
     startup_timeout_s: float = 30.0
 
     @classmethod
-    def from_cfg(cls, cfg: dict | None, **overrides) -> "McpSettings":
+    def from_cfg(cls, cfg: dict | None, **overrides) -> McpSettings:
         cfg = {k: v for k, v in dict(cfg or {}).items() if k != "name"}
         cfg.update(overrides)
         known = {f.name for f in fields(cls)}

@@ -38,7 +38,7 @@ class ScriptRun:
 
 def load_calls(path: str | Path) -> list[dict]:
     text = Path(path).read_text()
-    items = json.loads(text) if text.lstrip().startswith("[") else [json.loads(l) for l in text.splitlines() if l.strip()]
+    items = json.loads(text) if text.lstrip().startswith("[") else [json.loads(line) for line in text.splitlines() if line.strip()]
     for i, it in enumerate(items):
         if not isinstance(it, dict) or "tool" not in it:
             raise ValueError(f"{path}: item {i} must be an object with a 'tool' key")

@@ -203,7 +203,7 @@ class ServerThread:
             self._ready.set()
             self._finished.set()
 
-    def start(self, ready_timeout: float = 30.0) -> "ServerThread":
+    def start(self, ready_timeout: float = 30.0) -> ServerThread:
         self._thread.start()
         if not self._ready.wait(ready_timeout):
             raise SimulatorError(f"the MCP {self.name} transport did not start within {ready_timeout:g} s")

@@ -104,7 +104,7 @@ class ReferenceContextPolicy:
     chars_per_token: float = 4.0
 
     @classmethod
-    def from_cfg(cls, cfg: dict | None) -> "ReferenceContextPolicy":
+    def from_cfg(cls, cfg: dict | None) -> ReferenceContextPolicy:
         cfg = dict(cfg or {})
         cfg.pop("name", None)
         known = set(cls.__dataclass_fields__)

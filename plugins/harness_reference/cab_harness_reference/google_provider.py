@@ -29,7 +29,8 @@ import json
 import os
 import random
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from cab_core.errors import ConfigError, MissingDependency
 

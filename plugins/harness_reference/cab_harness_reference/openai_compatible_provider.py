@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from .openai_provider import _err, _i, _OpenAIBase, image_label, png_data_url
+from .openai_provider import _err, _i, _OpenAIBase, image_label, parse_arguments, png_data_url, stop_reason
 from .types import Capabilities, Image, Message, Response, Text, Thinking, ToolCall, ToolResult, ToolSpec, Usage
 
 
@@ -28,14 +28,10 @@ class OpenAICompatibleProvider(_OpenAIBase):
     name = "openai_compatible"
     capabilities = Capabilities(images_in_tool_results=False, parallel_tool_calls=True,
                                 prompt_cache=False, reasoning=True)
-    default_key_env = "OPENAI_API_KEY"
-    base_url_env = "OPENAI_BASE_URL"
 
     def __init__(self, cfg: dict, **kw):
         super().__init__(cfg, **kw)
-        self.max_output_tokens = self.cfg.get("max_output_tokens")
         self.max_tokens_param = self.cfg.get("max_tokens_param", "max_tokens")
-        self.reasoning_effort = self.cfg.get("reasoning_effort")
         self.replay_reasoning = bool(self.cfg.get("replay_reasoning", True))
         self.cache_control = bool(self.cfg.get("cache_control", False))
 
@@ -143,49 +139,28 @@ class OpenAICompatibleProvider(_OpenAIBase):
             if fn is None:
                 continue
             raw = fn.arguments or ""
-            try:
-                args = json.loads(raw) if raw.strip() else {}
-                if not isinstance(args, dict):
-                    args = None
-            except ValueError:
-                args = None
-            parts.append(ToolCall(call_id=tc.id, name=fn.name, arguments=args, raw_arguments=raw))
+            parts.append(ToolCall(call_id=tc.id, name=fn.name, arguments=parse_arguments(raw), raw_arguments=raw))
         fr = choice.finish_reason or ""
-        if any(isinstance(p, ToolCall) for p in parts):
-            stop = "tool_calls"
-        elif refusal or fr == "content_filter":
-            stop = "refusal"
-        elif fr == "length":
-            stop = "max_tokens"
-        elif fr == "stop":
-            stop = "end_turn"
-        else:
-            stop = "other"
+        stop = stop_reason(parts, refusal=refusal or fr == "content_filter", truncated=fr == "length",
+                           finished=fr == "stop")
         return Response(message=Message("assistant", parts), stop_reason=stop,
                         usage=usage_from_chat(getattr(resp, "usage", None)),
                         model=getattr(resp, "model", "") or self.model,
                         request_id=getattr(resp, "_request_id", None) or getattr(resp, "id", None),
                         raw_stop_reason=fr)
 
-    def complete(self, system: str, messages: list[Message], tools: list[ToolSpec]) -> Response:
-        client = self.client()
-        kw = self.request_kwargs(system, messages, tools)
+    def send(self, client: Any, kw: dict) -> Any:
+        r = client.chat.completions.create(**kw)
+        if not r.choices:
+            raise _err("server", "empty completion (no choices)", 200, True)
+        m = r.choices[0].message
+        if not (m.content or m.tool_calls or getattr(m, "refusal", None)) and \
+                r.choices[0].finish_reason not in ("length", "content_filter"):
+            raise _err("server", "empty completion (no content, no tool calls)", 200, True)
+        return r
 
-        def once():
-            r = client.chat.completions.create(**kw)
-            if not r.choices:  # an empty 200 completion is transient
-                raise _err("server", "empty completion (no choices)", 200, True)
-            m = r.choices[0].message
-            if not (m.content or m.tool_calls or getattr(m, "refusal", None)) and \
-                    r.choices[0].finish_reason not in ("length", "content_filter"):
-                raise _err("server", "empty completion (no content, no tool calls)", 200, True)
-            return r
-
-        resp, latency, waited = self._call(once)
-        out = self.from_completion(resp)
-        out.latency_s = latency
-        out.waited_s = waited
-        return out
+    def read(self, resp: Any) -> Response:
+        return self.from_completion(resp)
 
 
 def usage_from_chat(u) -> Usage:

@@ -22,7 +22,8 @@ import json
 import os
 import random
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from cab_core.errors import ConfigError, MissingDependency
 
@@ -133,10 +134,11 @@ def image_label(img: Image) -> str:
 
 
 class _OpenAIBase(Provider):
-    """Shared config handling: key variable, base URL, timeouts, retry policy, injectable sleep."""
+    """Shared config handling: key variable, base URL, timeouts, retry policy, injectable sleep,
+    the output limit and the reasoning effort."""
 
     default_key_env: str | None = "OPENAI_API_KEY"
-    base_url_env: str | None = None
+    base_url_env: str | None = "OPENAI_BASE_URL"
 
     def __init__(self, cfg: dict, *, sleep: Callable[[float], None] | None = None,
                  rng: random.Random | None = None):
@@ -157,6 +159,8 @@ class _OpenAIBase(Provider):
         # retry: {max_attempts, base_delay_s: {rate_limit, timeout, server}, max_delay_s}
         self.retry = RetryPolicy.from_cfg(self.cfg.get("retry"), sleep=sleep or time.sleep,
                                           rng=rng or random.Random())
+        self.max_output_tokens = self.cfg.get("max_output_tokens")
+        self.reasoning_effort = self.cfg.get("reasoning_effort")
         self._client = None
 
     def check_credentials(self) -> None:
@@ -194,6 +198,51 @@ class _OpenAIBase(Provider):
         result, waited = call_with_retries(timed, self.classify, self.retry)
         return result, box.get("latency", 0.0), waited
 
+    def request_kwargs(self, system: str, messages: list[Message], tools: list[ToolSpec]) -> dict:
+        raise NotImplementedError
+
+    def send(self, client: Any, kw: dict) -> Any:
+        """One try of the request ``kw``: the SDK's answer; an empty one raises a retryable
+        ``ProviderError`` (an empty 200 completion is transient)."""
+        raise NotImplementedError
+
+    def read(self, resp: Any) -> Response:
+        """The SDK's answer as a neutral ``Response``."""
+        raise NotImplementedError
+
+    def complete(self, system: str, messages: list[Message], tools: list[ToolSpec]) -> Response:
+        client = self.client()
+        kw = self.request_kwargs(system, messages, tools)
+        resp, latency, waited = self._call(lambda: self.send(client, kw))
+        out = self.read(resp)
+        out.latency_s = latency
+        out.waited_s = waited
+        return out
+
+
+def parse_arguments(raw: str) -> dict | None:
+    """A tool call's JSON arguments as a dict (``{}`` for none); ``None`` where they are not a JSON
+    object, so that the loop answers the model with the error instead of calling the tool."""
+    try:
+        args = json.loads(raw) if raw.strip() else {}
+    except ValueError:
+        return None
+    return args if isinstance(args, dict) else None
+
+
+def stop_reason(parts: list, *, refusal: bool, truncated: bool, finished: bool) -> str:
+    """The neutral stop reason, in this order: a tool call, a refusal, the output limit, a normal
+    end, anything else."""
+    if any(isinstance(p, ToolCall) for p in parts):
+        return "tool_calls"
+    if refusal:
+        return "refusal"
+    if truncated:
+        return "max_tokens"
+    if finished:
+        return "end_turn"
+    return "other"
+
 
 # --- the Responses provider -------------------------------------------------------------------
 
@@ -216,14 +265,10 @@ class OpenAIProvider(_OpenAIBase):
     name = "openai"
     capabilities = Capabilities(images_in_tool_results=True, parallel_tool_calls=True,
                                 prompt_cache=True, reasoning=True)
-    default_key_env = "OPENAI_API_KEY"
-    base_url_env = "OPENAI_BASE_URL"
 
     def __init__(self, cfg: dict, **kw):
         super().__init__(cfg, **kw)
-        self.reasoning_effort = self.cfg.get("reasoning_effort")
         self.reasoning_summary = self.cfg.get("reasoning_summary", "auto")
-        self.max_output_tokens = self.cfg.get("max_output_tokens")
         self.cache_breakpoints = bool(self.cfg.get("cache_breakpoints", True))
         self.image_detail = self.cfg.get("image_detail")  # None: the API default
 
@@ -337,47 +382,26 @@ class OpenAIProvider(_OpenAIBase):
                         parts.append(Text(c.refusal))
             elif t == "function_call":
                 raw = item.arguments or ""
-                try:
-                    args = json.loads(raw) if raw.strip() else {}
-                    if not isinstance(args, dict):
-                        args = None
-                except ValueError:
-                    args = None
-                parts.append(ToolCall(call_id=item.call_id, name=item.name, arguments=args,
+                parts.append(ToolCall(call_id=item.call_id, name=item.name, arguments=parse_arguments(raw),
                                       raw_arguments=raw))
         status = getattr(resp, "status", None) or ""
         reason = getattr(getattr(resp, "incomplete_details", None), "reason", None) or ""
-        if any(isinstance(p, ToolCall) for p in parts):
-            stop = "tool_calls"
-        elif refusal or reason == "content_filter":
-            stop = "refusal"
-        elif reason == "max_output_tokens":
-            stop = "max_tokens"
-        elif status == "completed":
-            stop = "end_turn"
-        else:
-            stop = "other"
+        stop = stop_reason(parts, refusal=refusal or reason == "content_filter",
+                           truncated=reason == "max_output_tokens", finished=status == "completed")
         return Response(message=Message("assistant", parts), stop_reason=stop,
                         usage=usage_from_responses(getattr(resp, "usage", None)),
                         model=getattr(resp, "model", "") or self.model,
                         request_id=getattr(resp, "_request_id", None),
                         raw_stop_reason=reason or status)
 
-    def complete(self, system: str, messages: list[Message], tools: list[ToolSpec]) -> Response:
-        client = self.client()
-        kw = self.request_kwargs(system, messages, tools)
+    def send(self, client: Any, kw: dict) -> Any:
+        r = client.responses.create(**kw)
+        if not (r.output or []):
+            raise _err("server", "empty response output", 200, True)
+        return r
 
-        def once():
-            r = client.responses.create(**kw)
-            if not (r.output or []):  # an empty 200 completion is transient
-                raise _err("server", "empty response output", 200, True)
-            return r
-
-        resp, latency, waited = self._call(once)
-        out = self.from_response(resp)
-        out.latency_s = latency
-        out.waited_s = waited
-        return out
+    def read(self, resp: Any) -> Response:
+        return self.from_response(resp)
 
 
 def _i(v) -> int:

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import random
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, TypeVar
+from typing import TypeVar
 
 from .types import ProviderError
 
@@ -29,7 +30,7 @@ class RetryPolicy:
     rng: random.Random = field(default_factory=random.Random)
 
     @classmethod
-    def from_cfg(cls, cfg: dict | None, **kw) -> "RetryPolicy":
+    def from_cfg(cls, cfg: dict | None, **kw) -> RetryPolicy:
         cfg = dict(cfg or {})
         p = cls(**kw)
         if "max_attempts" in cfg:
@@ -69,7 +70,7 @@ def call_with_retries(fn: Callable[[], T], classify: Callable[[BaseException], P
             if not retryable or attempt >= policy.max_attempts:
                 err.attempts = attempt  # type: ignore[attr-defined]
                 err.waited_s = waited  # type: ignore[attr-defined]
-                raise err
+                raise err  # noqa: B904 - the cause is set above, only where err has none (err may be e itself)
             d = policy.delay(err.kind, attempt)
             t0 = time.monotonic()
             policy.sleep(d)

@@ -10,7 +10,7 @@ A conversation is a list of ``Message``. Roles: ``system`` (one, first), ``user`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, Union
+from typing import Any, Literal
 
 from cab_core.kits.harness.pricing import Usage  # noqa: F401  (a Response's usage; providers import it from here)
 
@@ -53,7 +53,7 @@ class Thinking:
     provider: str = ""
 
 
-Part = Union[Text, Image, ToolCall, ToolResult, Thinking]
+Part = Text | Image | ToolCall | ToolResult | Thinking
 
 
 @dataclass
