@@ -47,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from cab_core.kits.jsonfiles import read_json_object, read_jsonl
+
 FILE = "attempt.rrd"
 APP_ID = "cab"
 ARG_TEXT_LIMIT = 2000  # characters of a call's arguments shown in its log entry
@@ -55,8 +57,6 @@ CALL_KINDS = {"call": "log/calls", "internal_call": "log/internal_calls"}
 
 
 def _read_jsonl(path: Path) -> list[dict]:
-    from cab_core.kits.jsonfiles import read_jsonl
-
     return read_jsonl(path) if path.exists() else []
 
 
@@ -248,8 +248,6 @@ def convert(attempt_dir: str | os.PathLike, out: str | os.PathLike | None = None
     as a Rerun recording to ``out`` (default ``<attempt_dir>/attempt.rrd``; written to a temporary
     file and renamed, so a reader never sees half a file). Returns the path written."""
     import rerun as rr
-
-    from cab_core.kits.jsonfiles import read_json_object
 
     root = Path(attempt_dir)
     out = Path(out) if out is not None else root / FILE

@@ -43,6 +43,8 @@ class RerunObserver:
         self.file = self.dir / str(cfg.get("file") or "attempt.rrd")
 
     def on_result(self, result: Mapping[str, Any]) -> None:
+        # here and in export(), not at the top: cab loads every plugin at start-up, and the
+        # converter costs 0.7 s (python -X importtime on top of cab_core.plugins, 2026-11-27)
         from .convert import convert
 
         convert(self.dir, self.file, video=self.video)

@@ -49,6 +49,7 @@ from cab_core.kits.harness.prompts import (
     run_code_limits,
     system_prompt,
 )
+from cab_core.plugins import task_info
 from cab_core.tools.motion import HARNESS_PARAMETERS
 
 from .bridge import CallBridge, Job
@@ -197,8 +198,6 @@ class McpHarness:
             return
         s = self.settings
         self.preflight(spec.model_cfg)
-        from cab_core.plugins import task_info
-
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
         self.task_prompt = instructions_text(system_prompt(budget, HARNESS_PARAMETERS, run_code=run_code_limits(spec)),
                                              first_user_message(task_info(spec.task).instruction)

@@ -59,6 +59,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cab_core.errors import ConfigError, MissingDependency
+from cab_core.kits.harness.pricing import Usage, cost
 
 from .harness import McpHarness, write_private_json
 from .transport import HttpServerThread
@@ -205,8 +206,6 @@ class VendorLauncher(McpHarness):
                                                  "cache_read_tokens", "cache_write_tokens")}
         usd = usage.get("usd")
         if usd is None:
-            from cab_core.kits.harness.pricing import Usage, cost
-
             usd = cost(Usage(**totals), self.model_cfg.get("pricing")).get("usd")
         episode.recorder.event("model_usage_total", **totals, usd=usd, waited_s=0.0,
                                latency_s=usage.get("duration_s", 0.0), turns=usage.get("turns", 0),

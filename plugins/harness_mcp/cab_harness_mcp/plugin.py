@@ -19,6 +19,8 @@ def _require_sdk() -> None:
 
 def create_mcp(cfg: dict | None = None):
     _require_sdk()
+    # here and below, not at the top: cab loads every plugin at start-up, and the harness with the
+    # MCP SDK costs 7.3 s (python -X importtime on top of cab_core.plugins, 2026-11-27)
     from .harness import McpHarness
 
     return McpHarness(cfg)

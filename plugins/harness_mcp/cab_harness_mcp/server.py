@@ -15,6 +15,8 @@ import mcp_types as types
 from mcp.server.lowlevel import Server
 from mcp.shared.exceptions import MCPError
 
+from cab_core.tools import build_registry
+
 from .bridge import CallBridge, SeenClient
 
 SERVER_NAME = "cab"
@@ -27,8 +29,6 @@ def tool_list() -> list[types.Tool]:
     """The attempt's tools as MCP tools: the registry every episode is built from, so names,
     descriptions and input schemas are the reference harness's (``Episode.tool_specs``), with
     observation tools marked read-only and motion tools destructive."""
-    from cab_core.tools import build_registry
-
     tools = []
     for d in build_registry().values():
         spec = d.spec()

@@ -16,11 +16,12 @@ from cab_core.kits.harness import ToolResponse
 from cab_core.kits.harness.conversation import REBUILT, transcript
 from cab_core.kits.harness.pricing import cost, usage_dict
 from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
+from cab_core.plugins import create
 from cab_core.tools.motion import HARNESS_PARAMETERS
 
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
-from .types import Capabilities, Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
+from .types import Capabilities, Image, Message, ProviderError, Response, Text, Thinking, ToolCall, ToolResult, ToolSpec
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.harness import AttemptSession
@@ -44,13 +45,50 @@ def create_provider(model_cfg: dict):
     package's own providers when the plugin is not installed as an entry point)."""
     name = _provider_name(model_cfg)
     try:
-        from cab_core.plugins import create
-
         return create("model_providers", name, dict(model_cfg))
     except CabError:
         if name in PROVIDERS:
             return PROVIDERS[name](dict(model_cfg))
         raise
+
+
+def _add_usage(totals: dict, resp: Response, c: dict) -> None:
+    """Adds a turn's tokens, cost, waiting and latency to the attempt's totals."""
+    for k, v in usage_dict(resp.usage).items():
+        totals[k] += v
+    totals["usd"] += c["usd"] or 0.0
+    totals["waited_s"] += resp.waited_s
+    totals["latency_s"] += resp.latency_s
+
+
+def _record_turn(episode: AttemptSession, turn: int, resp: Response, c: dict, calls: list[ToolCall],
+                 request_messages: int, estimated: int) -> None:
+    """The ``model_turn`` event: what the model answered, what it cost, the request's size."""
+    msg = resp.message
+    episode.recorder.event(
+        "model_turn", turn=turn, model=resp.model, request_id=resp.request_id,
+        stop_reason=resp.stop_reason, raw_stop_reason=resp.raw_stop_reason,
+        usage=usage_dict(resp.usage), cost=c, latency_s=round(resp.latency_s, 3),
+        waited_s=round(resp.waited_s, 3), request_messages=request_messages,
+        request_estimated_tokens=estimated,
+        text="\n".join(p.text for p in msg.parts if isinstance(p, Text)),
+        thinking="\n".join(p.text for p in msg.parts if isinstance(p, Thinking)),
+        tool_calls=[{"call_id": p.call_id, "name": p.name, "arguments": p.arguments,
+                     **({"raw_arguments": p.raw_arguments} if p.arguments is None else {})} for p in calls])
+
+
+def _ended_without_calls(episode: AttemptSession, resp: Response, no_tool_turns: int) -> bool:
+    """After a turn without tool calls (the ``no_tool_turns``-th in a row): ends the attempt on a
+    refusal, on the output limit, or at ``MAX_NO_TOOL_TURNS`` such turns; whether it ended."""
+    if resp.stop_reason == "refusal":
+        episode.end("model_refusal", "the model refused")
+    elif resp.stop_reason == "max_tokens":
+        episode.end("output_length_exceeded", "the response hit the output limit without a tool call")
+    elif no_tool_turns >= MAX_NO_TOOL_TURNS:
+        episode.end("no_tool_calls", f"{MAX_NO_TOOL_TURNS} responses in a row without tool calls")
+    else:
+        return False
+    return True
 
 
 class ReferenceHarness:
@@ -81,8 +119,6 @@ class ReferenceHarness:
             return self.policy
         cfg = dict(model_cfg.get("context") or {})
         name = cfg.pop("policy", "reference")
-        from cab_core.plugins import create
-
         try:  # context policies are plugins: a third party's policy is chosen by name
             return create("context_policies", name, cfg)
         except Exception:
@@ -138,56 +174,20 @@ class ReferenceHarness:
             try:
                 resp = provider.complete(system, request, tools)
             except ProviderError as e:
-                waited = float(getattr(e, "waited_s", 0.0) or 0.0)
-                episode.ledger.credit_wall(waited)
-                totals["waited_s"] += waited
-                if e.kind == "context_length" and forced_limit is None:
-                    # one forced-compaction retry (FACTS A.10), declined at the floor
-                    est = policy.estimate(request, fixed)
-                    forced_limit = int(min(est, limit or est) * 0.7)
-                    episode.recorder.event("forced_compaction", turn=turn, estimated=est, new_limit=forced_limit,
-                                           error=str(e)[:240])
-                    continue
-                if e.kind == "context_length":
-                    episode.end("context_length_exceeded", str(e)[:240])
+                forced_limit = self._provider_failed(episode, e, turn, t0, totals, policy, request, fixed,
+                                                     limit, forced_limit)
+                if forced_limit is None:
                     break
-                episode.recorder.event("provider_failure", turn=turn, error_kind=e.kind, status=e.status,
-                                       retryable=e.retryable, attempts=getattr(e, "attempts", None),
-                                       waited_s=round(waited, 3), message=str(e)[:1000],
-                                       latency_s=round(time.monotonic() - t0, 3))
-                episode.end("provider_failure", f"{e.kind}" + (f" (HTTP {e.status})" if e.status else "")
-                            + f": {str(e)[:200]}")
-                break
+                continue
             episode.ledger.credit_wall(resp.waited_s)
             c = cost(resp.usage, pricing)
-            for k, v in usage_dict(resp.usage).items():
-                totals[k] += v
-            totals["usd"] += c["usd"] or 0.0
-            totals["waited_s"] += resp.waited_s
-            totals["latency_s"] += resp.latency_s
-            msg = resp.message
-            calls = [p for p in msg.parts if isinstance(p, ToolCall)]
-            episode.recorder.event(
-                "model_turn", turn=turn, model=resp.model, request_id=resp.request_id,
-                stop_reason=resp.stop_reason, raw_stop_reason=resp.raw_stop_reason,
-                usage=usage_dict(resp.usage), cost=c, latency_s=round(resp.latency_s, 3),
-                waited_s=round(resp.waited_s, 3), request_messages=len(request),
-                request_estimated_tokens=policy.estimate(request, fixed),
-                text="\n".join(p.text for p in msg.parts if isinstance(p, Text)),
-                thinking="\n".join(p.text for p in msg.parts if isinstance(p, Thinking)),
-                tool_calls=[{"call_id": p.call_id, "name": p.name, "arguments": p.arguments,
-                             **({"raw_arguments": p.raw_arguments} if p.arguments is None else {})} for p in calls])
-            history.append(msg)
+            _add_usage(totals, resp, c)
+            calls = [p for p in resp.message.parts if isinstance(p, ToolCall)]
+            _record_turn(episode, turn, resp, c, calls, len(request), policy.estimate(request, fixed))
+            history.append(resp.message)
             if not calls:
-                if resp.stop_reason == "refusal":
-                    episode.end("model_refusal", "the model refused")
-                    break
-                if resp.stop_reason == "max_tokens":
-                    episode.end("output_length_exceeded", "the response hit the output limit without a tool call")
-                    break
                 no_tool_turns += 1
-                if no_tool_turns >= MAX_NO_TOOL_TURNS:
-                    episode.end("no_tool_calls", f"{MAX_NO_TOOL_TURNS} responses in a row without tool calls")
+                if _ended_without_calls(episode, resp, no_tool_turns):
                     break
                 history.append(Message("user", [Text(NUDGE)]))
                 continue
@@ -195,6 +195,34 @@ class ReferenceHarness:
             self._run_calls(episode, calls, history, caps, max_images)
         episode.recorder.event("model_usage_total", **{k: round(v, 6) if isinstance(v, float) else v
                                                        for k, v in totals.items()}, turns=turn)
+
+    @staticmethod
+    def _provider_failed(episode: AttemptSession, e: ProviderError, turn: int, t0: float, totals: dict,
+                         policy, request: list[Message], fixed: int, limit: int | None,
+                         forced_limit: int | None) -> int | None:
+        """A request that failed after its retries: the wall time waited is credited back; a first
+        context-length failure forces one compaction (FACTS A.10) and returns the context limit to
+        retry with; any other failure ends the attempt and returns None."""
+        waited = float(getattr(e, "waited_s", 0.0) or 0.0)
+        episode.ledger.credit_wall(waited)
+        totals["waited_s"] += waited
+        if e.kind == "context_length" and forced_limit is None:
+            # one forced-compaction retry (FACTS A.10), declined at the floor
+            est = policy.estimate(request, fixed)
+            forced_limit = int(min(est, limit or est) * 0.7)
+            episode.recorder.event("forced_compaction", turn=turn, estimated=est, new_limit=forced_limit,
+                                   error=str(e)[:240])
+            return forced_limit
+        if e.kind == "context_length":
+            episode.end("context_length_exceeded", str(e)[:240])
+            return None
+        episode.recorder.event("provider_failure", turn=turn, error_kind=e.kind, status=e.status,
+                               retryable=e.retryable, attempts=getattr(e, "attempts", None),
+                               waited_s=round(waited, 3), message=str(e)[:1000],
+                               latency_s=round(time.monotonic() - t0, 3))
+        episode.end("provider_failure", f"{e.kind}" + (f" (HTTP {e.status})" if e.status else "")
+                    + f": {str(e)[:200]}")
+        return None
 
     def _rebuild(self, episode: AttemptSession, history: list[Message], caps: Capabilities, max_images: int) -> None:
         """A fork goes on from the conversation its parent's model had up to the fork point, not
