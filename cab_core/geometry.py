@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
+
+# a vector or a pose given by its numbers: a list or tuple of floats, or a numpy array
+Vector: TypeAlias = Sequence[float] | np.ndarray
 
 
 def quat_normalize(q) -> np.ndarray:
@@ -161,7 +164,7 @@ def camera_to_world(E, p_cam) -> np.ndarray:
     return E[:, :3].T @ (p_cam - E[:, 3])
 
 
-def back_project(K, px: Sequence[float]) -> np.ndarray:
+def back_project(K, px: Vector) -> np.ndarray:
     """The camera-frame point at depth 1 on the viewing ray of pixel ``px``: K^-1 [u, v, 1]."""
     return np.linalg.solve(np.asarray(K, float), np.array([px[0], px[1], 1.0]))
 
@@ -179,7 +182,7 @@ def project_points(K, E, pts) -> tuple[np.ndarray, np.ndarray]:
     return uv, z
 
 
-def pixel_ray(K, E, px: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+def pixel_ray(K, E, px: Vector) -> tuple[np.ndarray, np.ndarray]:
     """World origin (camera centre) and unit direction of the viewing ray through pixel ``px``. A
     ray without a usable direction (non-finite, or no length) has the direction [0, 0, 0]: check it
     with :func:`degenerate_direction`."""
@@ -219,7 +222,7 @@ def rnd(x: Any, nd: int = 6) -> Any:
     return x
 
 
-def pose_block(pose: Sequence[float]) -> list:
+def pose_block(pose: Vector) -> list:
     return rnd(np.asarray(pose, float), 6)
 
 
@@ -228,7 +231,7 @@ _DIR_NAMES = {(0, 1): "right (+x)", (0, -1): "left (-x)", (1, 1): "forward (+y)"
 _LINE_NAMES = {0: "left-right (x)", 1: "forward-backward (y)", 2: "vertical (z)"}
 
 
-def describe_direction(direction: Sequence[float] | np.ndarray) -> str:
+def describe_direction(direction: Vector) -> str:
     """Plain words for a world direction, e.g. 'down (-z)' or 'mostly forward (+y), tilted 20 deg down (-z)'."""
     v = np.asarray(direction, float)
     v = v / (np.linalg.norm(v) or 1.0)
@@ -241,7 +244,7 @@ def describe_direction(direction: Sequence[float] | np.ndarray) -> str:
     return f"mostly {main}, tilted {tilt:.0f} deg toward {_DIR_NAMES[(j, 1 if v[j] > 0 else -1)]}"
 
 
-def describe_line(direction: Sequence[float] | np.ndarray) -> str:
+def describe_line(direction: Vector) -> str:
     """Plain words for an unoriented line direction."""
     v = np.abs(np.asarray(direction, float))
     i = int(np.argmax(v))
@@ -263,7 +266,7 @@ def _snapshot_words(v, line: bool = False) -> str:
     return f"mostly {s}" if abs(v[i]) < 0.95 else s
 
 
-def orientation_block(quat_wxyz: Sequence[float], *, snapshot: bool = False) -> dict:
+def orientation_block(quat_wxyz: Vector, *, snapshot: bool = False) -> dict:
     """The ``orientation`` block that accompanies a reported gripper pose: the gripper's approach
     (+x) and opening (+y) axes in world coordinates, and how they read in words.
 

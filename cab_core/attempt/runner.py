@@ -7,14 +7,13 @@ from cab_core.attempt.engine.episode import Episode
 from cab_core.attempt.engine.faults import is_infrastructure_fault
 from cab_core.attempt.spec import AttemptSpec, attempt_spec  # noqa: F401  (attempt_spec: a composed config's spec)
 from cab_core.errors import ConfigError
+from cab_core.plugins import all_tasks, create, select_record_observers
 
 log = logging.getLogger("cab")
 
 
 def run_attempt(spec: AttemptSpec) -> dict:
     """Build everything through the plugin registry, run the harness, score, record."""
-    from cab_core.plugins import all_tasks, create, select_record_observers
-
     tasks = all_tasks()
     if spec.task not in tasks:
         raise ConfigError(f"unknown task {spec.task!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")

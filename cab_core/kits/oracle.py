@@ -55,6 +55,8 @@ def closest_opening(current_quat, candidates: list[np.ndarray]) -> np.ndarray:
             d = float(np.dot(cur, s * np.asarray(c)))
             if d > score:
                 best, score = s * np.asarray(c), d
+    if best is None:
+        raise ValueError("closest_opening: no candidate opening lines (or none of finite length)")
     return best
 
 
@@ -112,7 +114,8 @@ class Hands:
 
     def move_to(self, world, xyz, what="move", ok=("SUCCESS",)) -> dict:
         """A straight move that brings the TCP to ``xyz``, from where ``world`` sees it now."""
-        return self.move(*(np.asarray(xyz, float) - world.tcp_pose(self.arm)[:3]), what=what, ok=ok)
+        dx, dy, dz = np.asarray(xyz, float) - world.tcp_pose(self.arm)[:3]
+        return self.move(dx, dy, dz, what=what, ok=ok)
 
     def move_to_height(self, world, z: float, what="move", ok=("SUCCESS",)) -> dict:
         """A straight vertical move that brings the TCP to height ``z``, from where ``world`` sees it

@@ -4,7 +4,7 @@ verifier. A task written on them declares its :class:`~cab_core.contracts.task.T
 here looks a task up in any suite's catalog."""
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -64,7 +64,7 @@ class SceneTask(Task):
 
     name: str = ""
     #: the task's verifier class, built from a scene's info (``verifier`` and ``evaluate`` use it)
-    verifier_class: type[Verifier]
+    verifier_class: Callable[[dict[str, Any]], Verifier]
     #: the subgoals, in the order of ``info.subgoals``: each holds when all of these verifier
     #: predicates do
     subgoal_predicates: tuple[tuple[str, ...], ...] = ()

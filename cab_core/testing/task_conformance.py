@@ -21,8 +21,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cab_core.attempt.spec import attempt_spec
 from cab_core.attempt.engine.world import BuiltWorld
+from cab_core.attempt.spec import attempt_spec
 from cab_core.plugins import task_info
 from cab_core.sweep.supervisor import attempt_configs, run_batch
 from cab_core.tools.context import RobotContext

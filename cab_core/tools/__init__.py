@@ -29,7 +29,7 @@ from cab_core.tools.registry import ToolDef, ToolOutput
 __all__ = ["CATALOG", "TOOLS", "ToolDef", "ToolOutput", "build_registry", "schemas", "validate_args", "tool_names"]
 
 
-# -- the two tools the episode host serves itself (cab_core.attempt.serving.CallServer): no handler --
+# -- the two tools the episode host serves itself (cab_core.attempt.engine.serving.CallServer): no handler --
 class RunCodeArgs(Args):
     code: Annotated[str, Strict()] = Field(
         min_length=1, max_length=200_000,

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cab_core.errors import ToolArgumentError
+from cab_core.errors import ObservationUnavailable, SimulatorError, ToolArgumentError
 from cab_core.geometry import extrinsic_from_pose
 from cab_core.tools.models import CAMERAS
 from cab_core.tools.overlay import Canvas
@@ -65,7 +65,7 @@ class Observation:
 class ObservationStore:
     """Every image the agent was shown, by id. ``on_add`` lets the recorder persist each one."""
 
-    def __init__(self, on_add: Callable[[Observation], None] | None = None):
+    def __init__(self, on_add: Callable[[Observation], object] | None = None):
         self._obs: dict[str, Observation] = {}
         self._counter = itertools.count(1)
         self._on_add = on_add
@@ -170,8 +170,6 @@ class RobotContext:
 
     def capture(self, camera: str, annotation: dict | None = None) -> Observation:
         self._known_camera(camera)
-        from cab_core.errors import ObservationUnavailable, SimulatorError
-
         try:
             img = self.sim.render(camera)
         except SimulatorError as e:  # RendererUnavailable included: a read failure, not a crash

@@ -35,6 +35,7 @@ from cab_core.tools.models import (
 from cab_core.tools.registry import ToolOutput, tool
 
 if TYPE_CHECKING:  # pragma: no cover
+    from cab_core.contracts.planner import PlanResult
     from cab_core.tools.context import RobotContext
 
 MAX_STEP_M = 0.30
@@ -274,11 +275,83 @@ def _fail(stage: str, code: str, category: str, message: str) -> dict:
 # ---------------------------------------------------------------------------------------------
 # Cartesian legs (shared by move_delta, move_both_delta, probe_contact_along, capture_motion_pair)
 # ---------------------------------------------------------------------------------------------
+def _next_leg(ctx: RobotContext, a: str, st: dict[str, Any], goal: np.ndarray, quat: np.ndarray, tol: float,
+              allowed: int, leg_m: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, float]] | None:
+    """Arm ``a``'s next leg toward ``goal``: its joint trajectory and (TCP at the leg's start, commanded
+    step, distance to go), or None when the arm stops here: within ``tol`` of its goal, out of its
+    ``allowed`` legs, or without a nearby IK solution (the last two recorded in ``st``)."""
+    cur = ctx.tcp_pose(a)[:3]
+    rem = goal - cur
+    dist = float(np.linalg.norm(rem))
+    if dist <= tol:
+        return None
+    if st["legs"] >= allowed:
+        st.update(status="ABORTED", reason="leg_budget",
+                  failure=_fail("execution", "leg_budget", "allowance",
+                                f"leg budget of {allowed} legs exhausted with {dist:.4f} m to go"))
+        return None
+    step_vec = rem if dist <= leg_m else rem / dist * leg_m
+    target = np.concatenate([cur + step_vec, quat])
+    ik = ctx.planner.ik(a, target, ctx.arm_qpos(a))
+    if not ik.ok:
+        st.update(status="FAILED", reason="planner",
+                  failure=_fail("planning", "goal_pose_unreachable", "planner",
+                                f"no IK solution for the next leg target {np.round(target[:3], 4).tolist()}"),
+                  planner={"code": "goal_pose_unreachable", "meaning": "no IK solution", "message": ik.message[:200]})
+        return None
+    assert ik.qpos is not None  # the planner contract: an IK result that is ok carries its joint positions
+    q0 = ctx.arm_qpos(a)
+    jump = float(np.max(np.abs(ik.qpos - q0)))
+    if jump > LEG_MAX_JOINT_JUMP:
+        # the nearest IK solution is a different arm configuration: a 3 cm leg would swing
+        # the arm through the workspace, so refuse before moving
+        st.update(status="FAILED", reason="planner",
+                  failure=_fail("planning", "ik_discontinuity", "planner",
+                                f"the next {float(np.linalg.norm(step_vec)):.3f} m leg needs a {jump:.2f} rad joint "
+                                "change (another arm configuration); not executed"),
+                  planner={"code": "ik_discontinuity", "meaning": "no nearby IK solution for the next leg",
+                           "max_joint_change_rad": round(jump, 3)})
+        return None
+    tr = _interp(q0, ik.qpos, ctx.sim.timestep, extra_time=float(np.linalg.norm(step_vec)) / TCP_SPEED)
+    return tr, (cur.copy(), step_vec, dist)
+
+
+def _leg_went_well(ctx: RobotContext, a: str, st: dict[str, Any], goal: np.ndarray,
+                   leg: tuple[np.ndarray, np.ndarray, float]) -> bool:
+    """Whether arm ``a`` goes on after the leg it just executed (TCP at its start, commanded step,
+    distance to go before it); when it deviated from its line or stalled, ``st`` records why and False."""
+    cur0, step_vec, dist0 = leg
+    st["legs"] += 1
+    now = ctx.tcp_pose(a)[:3]
+    moved = now - cur0
+    cmd = float(np.linalg.norm(step_vec))
+    along = float(np.dot(moved, step_vec / max(cmd, 1e-9)))
+    lateral = float(np.linalg.norm(moved - along * step_vec / max(cmd, 1e-9)))
+    dist1 = float(np.linalg.norm(goal - now))
+    if (np.linalg.norm(moved) > max(0.09, 4 * cmd) or lateral > max(0.06, 3 * cmd)
+            or dist1 - dist0 > max(0.05, 2 * cmd)):
+        st.update(status="ABORTED", reason="trajectory_deviation",
+                  failure=_fail("execution", "trajectory_deviation", "deviation",
+                                f"leg deviated: moved {np.linalg.norm(moved):.4f} m, lateral {lateral:.4f} m"))
+        return False
+    if along < STALL_PROGRESS_M:
+        st["no_progress"] += 1
+    else:
+        st["no_progress"] = 0
+    if st["no_progress"] >= 2:
+        contact = arm_contacts(ctx, a)
+        st.update(status="ABORTED", reason="stalled",
+                  failure=_fail("execution", "stalled", "stall", "progress below 0.001 m on 2 consecutive legs"),
+                  blocked_in_contact=contact["in_contact"], contact_parts=contact["contact_parts"],
+                  pose_at_contact=_r(ctx.tcp_pose(a)))
+        return False
+    return True
+
+
 def _legs(ctx: RobotContext, deltas: dict[str, np.ndarray], *, stop_on_contact_change: str | None = None,
           leg_m: float = LEG_M) -> dict:
     """Move each arm's TCP by its delta in legs of at most ``leg_m``, re-aimed from the measured
     TCP, holding the call-start orientation. Returns per-arm outcome and aggregate evidence."""
-    dt = ctx.sim.timestep
     start = {a: ctx.tcp_pose(a) for a in deltas}
     goal = {a: start[a][:3] + d for a, d in deltas.items()}
     quat = {a: start[a][3:] for a in deltas}
@@ -295,73 +368,16 @@ def _legs(ctx: RobotContext, deltas: dict[str, np.ndarray], *, stop_on_contact_c
         trajs = {}
         leg_info = {}
         for a in sorted(active):
-            cur = ctx.tcp_pose(a)[:3]
-            rem = goal[a] - cur
-            dist = float(np.linalg.norm(rem))
-            if dist <= tol[a]:
+            leg = _next_leg(ctx, a, state[a], goal[a], quat[a], tol[a], legs_allowed[a], leg_m)
+            if leg is None:
                 active.discard(a)
                 continue
-            if state[a]["legs"] >= legs_allowed[a]:
-                state[a].update(status="ABORTED", reason="leg_budget",
-                                failure=_fail("execution", "leg_budget", "allowance",
-                                              f"leg budget of {legs_allowed[a]} legs exhausted with {dist:.4f} m to go"))
-                active.discard(a)
-                continue
-            step_vec = rem if dist <= leg_m else rem / dist * leg_m
-            target = np.concatenate([cur + step_vec, quat[a]])
-            ik = ctx.planner.ik(a, target, ctx.arm_qpos(a))
-            if not ik.ok:
-                state[a].update(status="FAILED", reason="planner",
-                                failure=_fail("planning", "goal_pose_unreachable", "planner",
-                                              f"no IK solution for the next leg target {np.round(target[:3], 4).tolist()}"),
-                                planner={"code": "goal_pose_unreachable", "meaning": "no IK solution", "message": ik.message[:200]})
-                active.discard(a)
-                continue
-            q0 = ctx.arm_qpos(a)
-            jump = float(np.max(np.abs(ik.qpos - q0)))
-            if jump > LEG_MAX_JOINT_JUMP:
-                # the nearest IK solution is a different arm configuration: a 3 cm leg would swing
-                # the arm through the workspace, so refuse before moving
-                state[a].update(status="FAILED", reason="planner",
-                                failure=_fail("planning", "ik_discontinuity", "planner",
-                                              f"the next {float(np.linalg.norm(step_vec)):.3f} m leg needs a {jump:.2f} rad joint "
-                                              "change (another arm configuration); not executed"),
-                                planner={"code": "ik_discontinuity", "meaning": "no nearby IK solution for the next leg",
-                                         "max_joint_change_rad": round(jump, 3)})
-                active.discard(a)
-                continue
-            tr = _interp(q0, ik.qpos, dt, extra_time=float(np.linalg.norm(step_vec)) / TCP_SPEED)
-            trajs[a] = tr
-            leg_info[a] = (cur.copy(), step_vec, dist)
+            trajs[a], leg_info[a] = leg
         if not trajs:
             break
         steps += _execute(ctx, trajs)
-        for a, (cur0, step_vec, dist0) in leg_info.items():
-            state[a]["legs"] += 1
-            now = ctx.tcp_pose(a)[:3]
-            moved = now - cur0
-            cmd = float(np.linalg.norm(step_vec))
-            along = float(np.dot(moved, step_vec / max(cmd, 1e-9)))
-            lateral = float(np.linalg.norm(moved - along * step_vec / max(cmd, 1e-9)))
-            dist1 = float(np.linalg.norm(goal[a] - now))
-            if (np.linalg.norm(moved) > max(0.09, 4 * cmd) or lateral > max(0.06, 3 * cmd)
-                    or dist1 - dist0 > max(0.05, 2 * cmd)):
-                state[a].update(status="ABORTED", reason="trajectory_deviation",
-                                failure=_fail("execution", "trajectory_deviation", "deviation",
-                                              f"leg deviated: moved {np.linalg.norm(moved):.4f} m, lateral {lateral:.4f} m"))
-                active.discard(a)
-                continue
-            if along < STALL_PROGRESS_M:
-                state[a]["no_progress"] += 1
-            else:
-                state[a]["no_progress"] = 0
-            if state[a]["no_progress"] >= 2:
-                contact = arm_contacts(ctx, a)
-                state[a].update(status="ABORTED", reason="stalled",
-                                failure=_fail("execution", "stalled", "stall",
-                                              "progress below 0.001 m on 2 consecutive legs"),
-                                blocked_in_contact=contact["in_contact"], contact_parts=contact["contact_parts"],
-                                pose_at_contact=_r(ctx.tcp_pose(a)))
+        for a, info in leg_info.items():
+            if not _leg_went_well(ctx, a, state[a], goal[a], info):
                 active.discard(a)
                 continue
             if stop_on_contact_change == a:
@@ -490,6 +506,12 @@ def _target_pose(ctx: RobotContext, arm: str, xyz, quat) -> np.ndarray:
     return np.concatenate([xyz, q])
 
 
+def _planned(plan: PlanResult) -> np.ndarray:
+    """The joint trajectory of a plan that succeeded (the planner contract: such a plan carries its positions)."""
+    assert plan.positions is not None, f"a plan with status {plan.status!r} carries no positions"
+    return plan.positions
+
+
 def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, commanded: dict, before: dict,
                  corrections: int = REACH_MAX_CORRECTIONS) -> ToolOutput:
     arms = sorted(targets)
@@ -503,7 +525,7 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
     plans = {a: ctx.planner.plan_to_pose(a, ctx.arm_qpos(a), targets[a]) for a in arms}
     ok = [a for a in arms if plans[a].ok]
     bad = [a for a in arms if not plans[a].ok]
-    steps = _execute(ctx, {a: plans[a].positions for a in ok}) if ok else 0
+    steps = _execute(ctx, {a: _planned(plans[a]) for a in ok}) if ok else 0
     n_corr = 0
     for _ in range(corrections):
         resid = {a: float(np.linalg.norm(ctx.tcp_pose(a)[:3] - targets[a][:3])) for a in ok}
@@ -515,7 +537,7 @@ def _plan_and_go(ctx: RobotContext, targets: dict[str, np.ndarray], aid: str, co
         for a in need:
             p = ctx.planner.plan_to_pose(a, ctx.arm_qpos(a), targets[a])
             if p.ok:
-                corr[a] = p.positions
+                corr[a] = _planned(p)
         if not corr:
             break
         steps += _execute(ctx, corr)

@@ -12,6 +12,8 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from cab_core.geometry import Vector
+
 # Distinct, named colours for numbered marks and candidates (name reported to the agent).
 PALETTE: tuple[tuple[str, tuple[int, int, int]], ...] = (
     ("red", (230, 25, 75)), ("green", (60, 180, 75)), ("blue", (0, 130, 200)), ("orange", (245, 130, 48)),
@@ -30,7 +32,7 @@ def font(size: int = 12) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
         return ImageFont.load_default()
 
 
-def in_frame(px: Sequence[float] | None, size_hw: Sequence[int]) -> bool:
+def in_frame(px: Vector | None, size_hw: Sequence[int]) -> bool:
     """Whether a pixel lies inside an image of size [H, W]."""
     if px is None:
         return False

@@ -18,7 +18,7 @@ The tool's name is the function's; its argument model is the annotation of its `
 its description (the text the agent reads) is the function's docstring with every run of whitespace
 folded to one space, so the docstring may wrap freely but cannot carry a paragraph break.
 ``run_code`` and ``done`` are served by the episode host itself
-(:class:`~cab_core.attempt.serving.CallServer`): they are plain :class:`ToolDef` values without a
+(:class:`~cab_core.attempt.engine.serving.CallServer`): they are plain :class:`ToolDef` values without a
 handler. :mod:`cab_core.tools` lists every declaration in catalog order and builds the registry.
 
 A handler has the signature ``handler(ctx: RobotContext, args: <ArgsModel>) -> ToolOutput``.

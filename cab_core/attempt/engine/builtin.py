@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from cab_core.attempt.engine.human import HumanAgent
 from cab_core.contracts.hookspecs import hookimpl
-from cab_core.errors import AttemptEnded, ConfigError
+from cab_core.contracts.task import NotRecoverable
+from cab_core.errors import AttemptEnded, ConfigError, closest
+from cab_core.plugins import create
 
 if TYPE_CHECKING:  # pragma: no cover
-    from cab_core.contracts.harness import AttemptSession
+    from cab_core.contracts.harness import AttemptSession, ModelFreeAgent
 
 
 class DirectHarness:
@@ -20,19 +22,20 @@ class DirectHarness:
 
     def __init__(self, cfg: dict):
         self.cfg = cfg
-        self._agent = None
+        self._agent: ModelFreeAgent | None = None
 
     def preflight(self, model_cfg: dict) -> None:
         """Create the agent before any simulator starts: a bad agent config (a scripted agent's
         missing or malformed script) is a ConfigError in one line, not an attempt ended by an error."""
-        from cab_core.plugins import create
-
-        self._agent = create("agents", model_cfg.get("agent", model_cfg.get("name")), model_cfg)
+        name = model_cfg.get("agent", model_cfg.get("name"))
+        # cast: create() refuses a name it does not know, None (no agent named) included, listing the agents
+        self._agent = create("agents", cast(str, name), model_cfg)
 
     def run(self, episode: AttemptSession, model_cfg: dict) -> None:
         if self._agent is None:
             self.preflight(model_cfg)
         agent, self._agent = self._agent, None
+        assert agent is not None  # preflight created it
         try:
             agent.run(episode)
         except AttemptEnded:
@@ -62,8 +65,6 @@ class OracleAgent:
             if r.ended and tool != "done":
                 raise AttemptEnded(f"attempt ended during {tool}: {episode.termination}")
             return r.payload
-
-        from cab_core.contracts.task import NotRecoverable
 
         call("capture_head")  # look before acting, as any agent would (and the record holds the view)
         try:
@@ -100,8 +101,6 @@ class ScriptedAgent:
                 raise ConfigError(f"script item {i} must be an object with a 'tool' key (valid keys: {valid})")
             unknown = [k for k in it if k not in self.ITEM_KEYS]
             if unknown:
-                from cab_core.errors import closest
-
                 near = closest(unknown[0], self.ITEM_KEYS)
                 hint = f"did you mean {' or '.join(near)}? " if near else ""
                 raise ConfigError(f"script item {i} has unknown key {unknown[0]!r}; {hint}valid keys: {valid}")

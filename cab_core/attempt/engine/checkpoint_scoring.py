@@ -8,11 +8,17 @@ evaluates them.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from cab_core.contracts.checkpoints import SpatialRule
+from cab_core.contracts.simulator import Contact, Simulator
+from cab_core.contracts.verifier import WorldView
+from cab_core.plugins import all_tasks, create
 
 
 @dataclass
@@ -60,15 +66,10 @@ class SnapshotState:
         return np.asarray(self.snap["arms"][self._tcp[link]]["tcp_pose"], float)
 
     def get_contacts(self):
-        from cab_core.contracts.simulator import Contact
-
         return [Contact(a, b, float(i)) for a, b, i in self.snap.get("contacts", [])]
 
 
 def load_snapshots(attempt_dir) -> list[dict]:
-    import json
-    from pathlib import Path
-
     p = Path(attempt_dir) / "privileged" / "snapshots.jsonl"
     return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
 
@@ -78,8 +79,6 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
     order). A subgoal already true at the start is not credited until it has been false once
     (baseline). ``latched``: the attempt's latch event, which satisfies a latch task's event
     subgoal (``info['latch_subgoals']`` lists their indices, when a task declares them)."""
-    from cab_core.contracts.verifier import WorldView
-
     n_sub = len(task.info.subgoals)
     rules: list[SpatialRule] = list(task.spatial_checkpoints(info)) if hasattr(task, "spatial_checkpoints") else []
     sub_first: list[dict | None] = [None] * n_sub
@@ -90,7 +89,9 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
     for k, snap in enumerate(snapshots):
         state = SnapshotState(snap, emb)
         grips = {a: snap["arms"][a]["gripper_cmd"] for a in snap["arms"]}
-        w = WorldView(state, emb, grips, info)
+        # cast: a SnapshotState answers, from a record, the reads a WorldView makes of a Simulator
+        # (object and link poses, joint positions, contacts); it implements none of its other methods
+        w = WorldView(cast(Simulator, state), emb, grips, info)
         where = {"snapshot": k, "label": snap.get("label"), "calls": snap.get("calls"),
                  "physics_step": snap.get("physics_step")}
         if hasattr(task, "subgoals") and n_sub:
@@ -123,6 +124,7 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
                     need = r.lift_above_cm(w) if callable(r.lift_above_cm) else r.lift_above_cm
                     ok = (tcp[2] - base) * 100.0 > need
                 else:
+                    assert r.reference is not None and r.test is not None  # a region rule has both
                     ref = np.asarray(r.reference(w), float)
                     ok = bool(r.test((tcp - ref) * 100.0))
                 if ok:
@@ -144,11 +146,6 @@ def evaluate(task, emb, info: dict, snapshots: list[dict], latched: bool = False
 
 def evaluate_attempt(attempt_dir, task=None, emb=None) -> CheckpointReport:
     """Checkpoints of a recorded attempt, from its directory alone (plus the installed task)."""
-    import json
-    from pathlib import Path
-
-    from cab_core.plugins import all_tasks, create
-
     d = Path(attempt_dir)
     result = json.loads((d / "result.json").read_text())
     scene = json.loads((d / "privileged" / "scene_info.json").read_text())

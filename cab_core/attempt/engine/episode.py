@@ -24,11 +24,12 @@ from cab_core.attempt.engine.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.engine.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
 from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkPoint, compare_prefix, link_parent
 from cab_core.attempt.records.result_format import RECORD_VERSION, AttemptRecord, MalformedRecord
-from cab_core.attempt.records.writer import Recorder
+from cab_core.attempt.records.writer import Recorder, VideoWriter
 from cab_core.contracts.task import SceneInstance, Task
 from cab_core.contracts.verifier import WorldView
 from cab_core.errors import AttemptEnded
 from cab_core.kits.jsonfiles import read_jsonl
+from cab_core.plugins import select_record_observers
 from cab_core.tools import build_registry
 from cab_core.tools.context import ObservationStore, RobotContext
 
@@ -53,8 +54,6 @@ class Episode:
         self.emb = embodiment
         self.out = Path(spec.output_dir)
         if observers is None:
-            from cab_core.plugins import select_record_observers
-
             observers = select_record_observers(spec.record)
         self.recorder = Recorder(self.out, observers)
         self.ended = False
@@ -75,7 +74,7 @@ class Episode:
     def open(cls, spec: AttemptSpec, observers=None) -> Episode:
         """The attempt ``spec`` describes, its task, simulator, planner and embodiment created
         through the plugin registry (the simulator is closed again if building fails)."""
-        return with_parts(spec, lambda *parts: cls(spec, *parts, observers))
+        return with_parts(spec, lambda task, sim, planner, emb: cls(spec, task, sim, planner, emb, observers))
 
     # -- set-up -------------------------------------------------------------------------------
     def _setup(self) -> None:
@@ -83,7 +82,10 @@ class Episode:
         t0 = time.monotonic()
         rec = spec.record or {}
         self._video_every = int(rec.get("video_every_steps", 25)) if rec.get("video", True) else 0
-        video_size = tuple(rec.get("video_size", [320, 240])) if self._video_every else None
+        video_size: tuple[int, int] | None = None
+        if self._video_every:
+            width, height = rec.get("video_size", [320, 240])
+            video_size = (width, height)
         self.built = BuiltWorld(spec, self.task, self.sim, self.planner, self.emb, video_size)
         self.instance: SceneInstance = self.built.instance
         self.perturbation = self.built.perturbation
@@ -104,14 +106,14 @@ class Episode:
         self._video_render_seconds: float | None = None
         self._video_error: str | None = None
         self._records_complete = False  # finish_video() has run
-        if self._video_every:
-            self.recorder.open_video(1.0 / (self.sim.timestep * self._video_every), video_size)
+        if video_size is not None:  # as self._video_every
+            video = self.recorder.open_video(1.0 / (self.sim.timestep * self._video_every), video_size)
             first = self.sim.render_sample()
             if first is not None:  # the video is rendered from state samples once the attempt is over
                 self._video_samples = [first]
                 self.clock.callbacks.append(self._video_sample)
             else:  # a simulator that cannot render from samples: frames rendered in the loop
-                self.recorder.video.add(self.sim.render(RECORD_CAMERA))
+                video.add(self.sim.render(RECORD_CAMERA))
                 self.clock.callbacks.append(self._video_frame)
         self.registry = build_registry()
         self.server = CallServer(spec, self.registry, self.ctx, self.ledger, self.clock, self.recorder, self.image,
@@ -255,7 +257,7 @@ class Episode:
         checkpoints = attempt_checkpoints(self.built, self.out, verdict)
         self.server.close()
         if self.recorder.video is not None and not self._video_samples:
-            self._close_video()  # frames rendered in the loop: the video is complete now
+            self._close_video(self.recorder.video)  # frames rendered in the loop: the video is complete now
         s = self.spec
         fields = dict(
             record_version=RECORD_VERSION,
@@ -291,9 +293,9 @@ class Episode:
         self.recorder.write_result(self.result)
         return self.result
 
-    def _close_video(self, error: str | None = None) -> None:
+    def _close_video(self, video: VideoWriter, error: str | None = None) -> None:
         try:
-            self.recorder.video.close()
+            video.close()
         except Exception as e:  # the encoder failed: no video is listed, the record is kept
             log.warning("the video could not be written: %r", e)
             error = error or f"encoding failed: {e!r}"
@@ -308,12 +310,12 @@ class Episode:
         if self._records_complete:
             return result
         self._records_complete = True
-        error = "interrupted"
+        error: str | None = "interrupted"
         try:
             error = self._render_video()
         finally:
             if self.recorder.video is not None and not self.recorder.video.closed:
-                self._close_video(error)
+                self._close_video(self.recorder.video, error)
             block = self._video_block(self._video_error)
             if block is not None and block["render_seconds"] is None:
                 del block["render_seconds"]  # as the record writes it (Video.omit_if_none)

@@ -7,7 +7,9 @@ from importlib import metadata
 from typing import TYPE_CHECKING
 
 from cab_core import __version__, numerics
+from cab_core.attempt.engine.checkpoint_scoring import evaluate, load_snapshots
 from cab_core.contracts.verifier import Evaluation, Verifier, WorldView, deciding_margin
+from cab_core.plugins import distribution_versions
 
 if TYPE_CHECKING:  # pragma: no cover
     from pathlib import Path
@@ -40,6 +42,7 @@ class VerdictTracker:
         if self.v.scoring != "latch" or step % self.v.poll_every:
             return
         if self.latched:
+            assert self.latched_at_step is not None  # set with latched
             if step - self.latched_at_step <= self.window_steps:
                 self._widen(step)
             return
@@ -103,8 +106,6 @@ def attempt_checkpoints(world: BuiltWorld, out: Path, verdict: dict) -> dict | N
     declares none)."""
     if not hasattr(world.task, "subgoals"):
         return None
-    from cab_core.attempt.engine.checkpoint_scoring import evaluate, load_snapshots
-
     try:
         latched = bool((verdict.get("latch") or {}).get("latched"))
         return evaluate(world.task, world.emb, world.instance.info, load_snapshots(out), latched).as_dict()
@@ -115,8 +116,6 @@ def attempt_checkpoints(world: BuiltWorld, out: Path, verdict: dict) -> dict | N
 def versions(sim, planner) -> dict:
     """What ran this attempt: cab, Python, the platform, the simulator's and planner's own report,
     the installed distributions, the pinned numerics."""
-    from cab_core.plugins import distribution_versions
-
     pk = distribution_versions()  # the core's own and the installed plugins' distributions
     for d in ("numpy", "pydantic", "hydra-core", "pluggy"):
         try:

@@ -12,8 +12,9 @@ from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.engine.faults import is_infrastructure_fault, tool_error_payload
 from cab_core.contracts.harness import ToolResponse
 from cab_core.errors import AttemptEnded, BudgetExhausted, ObservationUnavailable, ToolArgumentError
+from cab_core.sandbox import DispatchResult, Sandbox, SandboxConfig
 from cab_core.sandbox.truncate import strict_payload
-from cab_core.tools import validate_args
+from cab_core.tools import DoneArgs, RunCodeArgs, validate_args
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.attempt.records.writer import Recorder
@@ -54,12 +55,14 @@ class CallServer:
         self.calls = 0  # charged direct calls
         self.tool_errors = 0  # exceptions raised while serving the agent's calls (cab_core.attempt.engine.faults)
         self.claim: dict = {"success_claim": None, "report": None}
-        self.sandbox = None
+        self.sandbox: Sandbox | None = None  # started at the first run_code
 
     def call(self, name: str, args: dict | None, termination: Callable[[], dict | None]) -> ToolResponse:
         """One direct tool call by the agent (charged, except ``done``)."""
         if self._ended():
-            raise AttemptEnded(f"the attempt has ended ({termination()['reason']})")
+            ended_by = termination()
+            assert ended_by is not None  # an attempt that has ended holds its termination
+            raise AttemptEnded(f"the attempt has ended ({ended_by['reason']})")
         args = {} if args is None else (dict(args) if isinstance(args, dict) else args)  # a non-object is refused below
         t0 = time.monotonic()
         steps0 = self.clock.steps
@@ -69,7 +72,7 @@ class CallServer:
             self.ledger.check_before_call()
         except BudgetExhausted as e:
             self._end(e.reason, str(e))
-            payload = {"error": "budget exhausted", "reason": e.reason, "message": str(e), "attempt_ended": True}
+            payload: dict[str, Any] = {"error": "budget exhausted", "reason": e.reason, "message": str(e), "attempt_ended": True}
             self.recorder.event("call_refused", tool=name, arguments=args, result=payload)
             return ToolResponse(name, payload, [], ended=True)
         self.ledger.charge_call()
@@ -121,6 +124,7 @@ class CallServer:
                 raise ToolArgumentError(f"unknown tool {name!r}")
             model = validate_args(name, args)
             if name == "run_code":  # served here; done never reaches _serve (see call)
+                assert isinstance(model, RunCodeArgs)  # the registry's run_code takes RunCodeArgs
                 return self._run_code(model.code)
             out = tool.handler(self.ctx, model)
             return dict(out.payload), list(out.obs_ids), out.status
@@ -135,8 +139,9 @@ class CallServer:
     def _done(self, args: Any, t0: float) -> ToolResponse:
         try:
             model = validate_args("done", args)
+            assert isinstance(model, DoneArgs)  # the registry's done takes DoneArgs
         except ToolArgumentError as e:
-            payload = {"error": str(e), "code": "invalid_tool_arguments"}
+            payload: dict[str, Any] = {"error": str(e), "code": "invalid_tool_arguments"}
             self.recorder.event("call", tool="done", arguments=args, result=payload, charged=False)
             return ToolResponse("done", payload, [])
         self.claim = {"success_claim": model.success_claim, "report": model.report}
@@ -149,8 +154,6 @@ class CallServer:
     # -- run_code -----------------------------------------------------------------------------
     def _ensure_sandbox(self):
         if self.sandbox is None:
-            from cab_core.sandbox import Sandbox, SandboxConfig
-
             cfg = SandboxConfig(**{k: v for k, v in (self.spec.sandbox or {}).items()})
             cfg.max_internal_calls = self.spec.run_code_max_internal_calls
             names = [n for n, t in self.registry.items() if t.handler is not None]  # the robot tools
@@ -158,8 +161,6 @@ class CallServer:
         return self.sandbox
 
     def _dispatch_internal(self, name: str, kwargs: dict):
-        from cab_core.sandbox import DispatchResult
-
         steps0 = self.clock.steps
         reason = self.ledger.exhausted_reason()
         if reason in ("sim_budget", "wall_budget"):

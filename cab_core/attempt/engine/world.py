@@ -11,6 +11,8 @@ import numpy as np
 from cab_core.attempt.variation.perturb import Perturbation, perturb_scene
 from cab_core.attempt.variation.randomize import Randomization, randomize_instance
 from cab_core.contracts.scene import CameraSpec
+from cab_core.errors import ConfigError
+from cab_core.plugins import all_tasks, create
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.attempt.spec import AttemptSpec
@@ -94,14 +96,11 @@ class BuiltWorld:
     @classmethod
     def open(cls, spec: AttemptSpec, video_size: tuple[int, int] | None = None) -> BuiltWorld:
         """The world of ``spec``, its parts created through the plugin registry."""
-        return with_parts(spec, lambda *parts: cls(spec, *parts, video_size))
+        return with_parts(spec, lambda task, sim, planner, emb: cls(spec, task, sim, planner, emb, video_size))
 
 
 def create_parts(spec: AttemptSpec) -> tuple:
     """``(task, simulator, planner, embodiment)`` of ``spec``, created through the plugin registry."""
-    from cab_core.errors import ConfigError
-    from cab_core.plugins import all_tasks, create
-
     tasks = all_tasks()
     if spec.task not in tasks:
         raise ConfigError(f"unknown task {spec.task!r}; choices: {', '.join(sorted(tasks)) or '(none installed)'}")

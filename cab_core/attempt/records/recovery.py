@@ -4,6 +4,7 @@ supervisor reads it for its batches of forks, the recoverability report for its 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from cab_core.kits.jsonfiles import read_json_object, read_jsonl
 
@@ -23,7 +24,7 @@ def recovery(attempt_dir: Path) -> dict:
     term = result.get("termination") or {}
     said = [e for e in read_jsonl(d / "events.jsonl") if e.get("kind") == "oracle_not_recoverable"]
     if (result.get("verdict") or {}).get("success"):
-        out = {"outcome": "recovered", "kind": None, "reason": None}
+        out: dict[str, Any] = {"outcome": "recovered", "kind": None, "reason": None}
         if said:
             out["oracle_said"] = {"kind": said[-1].get("reason_kind"), "reason": said[-1].get("reason")}
         return out

@@ -24,6 +24,7 @@ import numpy as np
 
 from cab_core.attempt.records.observers import Observers
 from cab_core.attempt.records.result_format import RECORD_VERSION, dumps, write_json_atomic  # noqa: F401  (re-exported)
+from cab_core.errors import ConfigError
 
 
 class VideoWriter:
@@ -60,14 +61,12 @@ class VideoWriter:
 
 
 class Recorder:
-    """Writes one attempt's record. ``observers`` (:class:`cab_core.attempt.records.observers.ObserverSpec`) are
+    """Writes one attempt's record. ``observers`` (:class:`cab_core.plugins.ObserverSpec`) are
     created once the folder exists and follow the record as it is written (:mod:`cab_core.attempt.records.observers`)."""
 
     def __init__(self, root: Path, observers: Iterable[Any] = ()):
         self.root = Path(root)
         if (self.root / "events.jsonl").exists() or (self.root / "result.json").exists():
-            from cab_core.errors import ConfigError
-
             raise ConfigError(f"{self.root} already holds an attempt's records; choose another output directory")
         self.root.mkdir(parents=True, exist_ok=True)
         (self.root / "observations").mkdir(exist_ok=True)
@@ -120,8 +119,10 @@ class Recorder:
         (self.root / rel).write_text(code, encoding="utf-8", errors="backslashreplace")  # lone surrogates kept visible
         return rel
 
-    def open_video(self, fps: float, size_wh: tuple[int, int]) -> None:
+    def open_video(self, fps: float, size_wh: tuple[int, int]) -> VideoWriter:
+        """The attempt's video writer (``video.mp4``), opened; also ``self.video``."""
         self.video = VideoWriter(self.root / "video.mp4", fps, size_wh)
+        return self.video
 
     # -- end ----------------------------------------------------------------------------------
     def write_result(self, result: dict) -> None:

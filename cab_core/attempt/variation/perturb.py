@@ -51,14 +51,14 @@ class Perturbation:
             return None
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ConfigError(f"perturb.seed must be a non-negative integer or null, got {seed!r}")
-        out = {"seed": seed}
+        out: dict[str, float] = {}
         limits = {"position_m": 0.05, "angle_deg": 10.0, "physics_fraction": 0.5}
         for k, hi in limits.items():
             v = c.get(k, getattr(cls, k))
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= hi or not math.isfinite(v):
                 raise ConfigError(f"perturb.{k} must be a number in [0, {hi:g}], got {v!r}")
             out[k] = float(v)
-        return cls(**out)
+        return cls(seed=seed, **out)
 
     def as_record(self) -> dict:
         return {k: getattr(self, k) for k in KEYS}

@@ -42,9 +42,20 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.contracts.scene import Body, Box, CameraSpec, Cylinder, Lighting, Material, SceneSpec, Shape, Sphere
+from cab_core.contracts.scene import (
+    Body,
+    Box,
+    CameraSpec,
+    Cylinder,
+    Lighting,
+    Material,
+    SceneSpec,
+    Shape,
+    Sphere,
+    cache_dir,
+)
 from cab_core.errors import ConfigError
-from cab_core.geometry import quat_mul
+from cab_core.geometry import quat_mul, quat_to_mat
 
 PARTS = ("lighting", "textures", "camera", "distractors")
 #: words of an instruction that name a colour: the objects then keep theirs
@@ -123,9 +134,13 @@ def _turn(rng: np.random.Generator, max_deg: float) -> np.ndarray:
 
 
 def _rotate(v, q: np.ndarray) -> np.ndarray:
-    from cab_core.geometry import quat_to_mat
-
     return quat_to_mat(q) @ np.asarray(v, float)
+
+
+def _triple(values) -> tuple[float, float, float]:
+    """Three numbers (a direction, a colour) as the tuple of floats the lighting holds."""
+    x, y, z = values
+    return float(x), float(y), float(z)
 
 
 def _r(v) -> list[float]:
@@ -136,15 +151,15 @@ def _r(v) -> list[float]:
 def randomize_lighting(lighting: Lighting, rng: np.random.Generator, p: dict) -> tuple[Lighting, dict]:
     def colour(c) -> tuple[float, float, float]:
         k = _uni(rng, p["intensity"])
-        return tuple(float(max(0.0, x * k * (1 + rng.uniform(-p["tint"], p["tint"])))) for x in c)
+        return _triple(max(0.0, x * k * (1 + rng.uniform(-p["tint"], p["tint"]))) for x in c)
 
     directional = []
     for d, c in lighting.directional:
         nd = _rotate(d, _turn(rng, p["direction_deg"]))
-        directional.append((tuple(float(x) for x in nd), colour(c)))
+        directional.append((_triple(nd), colour(c)))
     points = tuple((pos, colour(c)) for pos, c in lighting.points)
     amb = _uni(rng, p["ambient"])
-    out = Lighting(ambient=tuple(float(x * amb) for x in lighting.ambient), directional=tuple(directional),
+    out = Lighting(ambient=_triple(x * amb for x in lighting.ambient), directional=tuple(directional),
                    points=points)
     return out, {"ambient": _r(out.ambient), "directional": [[_r(d), _r(c)] for d, c in out.directional],
                  "points": [_r(c) for _, c in out.points]}
@@ -160,8 +175,6 @@ def pattern_texture(kind: str, rgb, seed: int, size: int = 128) -> str:
     pixels are written sRGB-encoded, as an image file's are read (a simulator shows a texture's
     bytes as it shows a plain colour's sRGB value), so the light stripes show ``rgb`` itself.
     Returns the file's path."""
-    from cab_core.contracts.scene import cache_dir
-
     folder = Path(cache_dir()) / "textures"
     folder.mkdir(parents=True, exist_ok=True)
     key = hashlib.sha256(f"{kind}:{_r(rgb)}:{seed}:{size}:srgb".encode()).hexdigest()[:16]
@@ -281,8 +294,9 @@ def distractor_bodies(slots: list, rng: np.random.Generator, p: dict) -> tuple[l
         kind = ("box", "cylinder", "sphere")[int(rng.integers(3))]
         rgb = colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.3, 0.9), rng.uniform(0.3, 0.95))
         mat = Material(color=(*rgb, 1.0), static_friction=0.8, dynamic_friction=0.8)
-        geom = {"box": Box((size, size, size)), "cylinder": Cylinder(size, size),
-                "sphere": Sphere(size)}[kind]
+        shapes: dict[str, Box | Cylinder | Sphere] = {"box": Box((size, size, size)),
+                                                      "cylinder": Cylinder(size, size), "sphere": Sphere(size)}
+        geom = shapes[kind]
         yaw = rng.uniform(-math.pi, math.pi)
         pose = (x, y, z + size + 0.0005, math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
         name = f"distractor_{i}"
