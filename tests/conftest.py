@@ -14,6 +14,15 @@ def task_builds(tmp_path_factory):
     return Builds(cache_dir(tmp_path_factory))
 
 
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """The session's shared sweep of real attempts (attempt_records.shared_sweep: built once, by the
+    first test module that asks for it); a module that needs a sweep of its own defines this fixture."""
+    from attempt_records import shared_sweep
+
+    return shared_sweep(tmp_path_factory)
+
+
 @pytest.fixture
 def process_plugins():
     """``process_plugins(module, name)`` registers ``module`` in the process's plugin manager
@@ -30,17 +39,3 @@ def process_plugins():
     yield register
     for name in reversed(names):
         pm.unregister(name=name)
-
-
-@pytest.fixture(scope="module")
-def aloha_spec(tmp_path_factory):
-    """The aloha_agilex embodiment (default parameters), its generated files in a cache of this
-    module's own."""
-    from cab_embodiment_aloha import embodiment
-
-    mp = pytest.MonkeyPatch()
-    mp.setenv("CAB_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
-    try:
-        yield embodiment.factory({})
-    finally:
-        mp.undo()

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from attempt_records import events, results, run_one, shared_sweep
+from attempt_records import events, results, run_one
 
 from cab_core.apps import export as ex
 from cab_core.plugins import registry, select_record_observers
@@ -164,11 +164,6 @@ def test_the_core_does_not_import_the_exporter_plugin():
 
 
 # -- parquet ---------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
-    return shared_sweep(tmp_path_factory)
-
-
 @pytest.fixture(scope="module")
 def tables(sweep, tmp_path_factory):
     pd = pytest.importorskip("pandas")

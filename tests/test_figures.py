@@ -8,7 +8,6 @@ import sys
 import xml.etree.ElementTree as ET
 
 import pytest
-from attempt_records import shared_sweep
 from PIL import Image
 
 from cab_core.analysis import figures as fg
@@ -19,11 +18,6 @@ from cab_core.apps.report_cli import main as report_main
 
 NS = "{http://www.w3.org/2000/svg}"
 NAMES = ["success", "outcomes", "claims", "coverage", "coverage_curve", "success_wall"]  # no cost in these records
-
-
-@pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
-    return shared_sweep(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

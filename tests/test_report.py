@@ -9,7 +9,7 @@ from collections import defaultdict
 from statistics import median
 
 import pytest
-from attempt_records import PLAN, TASKS, attempt_dir, events, results, shared_sweep
+from attempt_records import PLAN, TASKS, attempt_dir, events, results
 
 from cab_core.analysis import report as rep
 from cab_core.analysis.measures import wilson
@@ -19,11 +19,6 @@ from cab_core.sweep.attempt_state import annotate_result, set_aside, write_infra
 pytestmark = pytest.mark.sim
 
 CONFIG = "{} (direct, sapien)"
-
-
-@pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
-    return shared_sweep(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
