@@ -18,6 +18,7 @@ from __future__ import annotations
 import atexit
 import fcntl
 import hashlib
+import itertools
 import json
 import os
 import socket
@@ -28,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from cab_core.attempt.records.result_format import write_json_atomic
+from cab_core.attempt.spec import attempt_spec
 from cab_core.errors import ConfigError
 from cab_core.sweep.attempt_state import (
     GIVEN_UP,
@@ -149,7 +151,6 @@ def _is_volatile(override: str) -> bool:
 def expand_jobs(cfg: Any) -> list[list[str]]:
     """The jobs a multirun config expands to (as Hydra's basic sweeper does), each a sorted list of
     overrides without the volatile ones. Globs over config groups are resolved by Hydra's loader."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
@@ -158,9 +159,17 @@ def expand_jobs(cfg: Any) -> list[list[str]]:
     parser = OverridesParser.create(config_loader=GlobalHydra.instance().config_loader())
     parsed = parser.parse_overrides(args)
     swept = {o.get_key_element() for o in parsed if o.is_sweep_override()}  # the rest is in the config
-    batches = BasicSweeper.split_arguments(parsed, None)
+    # each key's values (a sweep's several, any other its one; the last override of a key wins, so the
+    # command line's over the sweeper's params), then every combination of them: Hydra's basic sweeper
+    values: dict[str, list[str]] = {}
+    for o in parsed:
+        key = o.get_key_element()
+        if o.is_sweep_override() and not o.is_discrete_sweep():
+            raise ConfigError(f"{key}: a sweep over an interval cannot be listed as jobs; give its values")
+        values[key] = ([f"{key}={v}" for v in o.sweep_string_iterator()] if o.is_sweep_override()
+                       else [f"{key}={o.get_value_element_as_str()}"])
     return sorted(sorted(o for o in job if o.split("=", 1)[0] in swept and not _is_volatile(o))
-                  for batch in batches for job in batch)
+                  for job in itertools.product(*values.values()))
 
 
 def _stable_config(cfg: Any) -> dict:
@@ -373,8 +382,6 @@ def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = 
     """One job of a sweep: skip a complete attempt, set a partial one aside, run it supervised.
     Returns the result (None when skipped) and the progress line, which also says what could not be
     written (a full disk: the job ends with its line, the sweep with its resume line)."""
-    from cab_core.attempt.spec import attempt_spec
-
     spec = attempt_spec(cfg, attempt_dir)  # a bad config fails here, before any process starts
     identity = {"task": spec.task, "seed": spec.seed, "attempt": spec.attempt, "sim": spec.sim, "model": spec.model}
     here, root = Path(attempt_dir).resolve(), Path(sweep_dir).resolve()
