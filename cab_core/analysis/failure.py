@@ -26,7 +26,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cab_core.attempt.engine.checkpoint_scoring import SnapshotState
+from cab_core.contracts.verifier import WorldView
 from cab_core.kits.jsonfiles import read_json_object as read_json
+from cab_core.plugins import all_tasks, create
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.analysis.attempts import Attempt
@@ -83,9 +86,6 @@ def transport_lost(snaps: list[dict], grip: Grip) -> bool:
 
 def final_subgoals(task, emb, info: dict, snaps: list[dict]) -> list[bool]:
     """The task's subgoal predicates on the recorded final snapshot."""
-    from cab_core.attempt.engine.checkpoint_scoring import SnapshotState
-    from cab_core.contracts.verifier import WorldView
-
     last = snaps[-1]
     w = WorldView(SnapshotState(last, emb), emb, {a: last["arms"][a]["gripper_cmd"] for a in last["arms"]}, info)
     return [bool(v) for v in list(task.subgoals(w))[:len(task.info.subgoals)]]
@@ -141,8 +141,6 @@ class Classifier:
         self._embs: dict[str, object] = {}
 
     def __call__(self, attempt: Attempt) -> tuple[str | None, str]:
-        from cab_core.plugins import all_tasks, create
-
         if attempt.success:
             return None, ""
         if self._tasks is None:

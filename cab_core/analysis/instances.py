@@ -6,6 +6,7 @@ the installed tasks (a task no longer installed: its seeds count as "other")."""
 from __future__ import annotations
 
 from cab_core.analysis.measures import wilson
+from cab_core.plugins import all_tasks
 
 KINDS = ("catalog", "heldout", "other")
 KIND_LABELS = {"catalog": "Catalog instance", "heldout": "Held-out instances", "other": "Other seeds"}
@@ -13,8 +14,6 @@ KIND_LABELS = {"catalog": "Catalog instance", "heldout": "Held-out instances", "
 
 def seed_kinds(tasks: set[str]) -> dict[str, dict[int, str]]:
     """For each installed task of ``tasks``: seed -> "catalog" or "heldout"."""
-    from cab_core.plugins import all_tasks
-
     installed = all_tasks()
     out: dict[str, dict[int, str]] = {}
     for t in tasks:

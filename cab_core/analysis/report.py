@@ -46,6 +46,8 @@ from cab_core.analysis.measures import (
     ConfigSummary,
     matrix,
 )
+from cab_core.analysis.pages import Markup, render
+from cab_core.analysis.viewer import write_view
 from cab_core.contracts.verifier import BORDERLINE_FRACTION
 from cab_core.errors import CabError, RecordError
 
@@ -306,7 +308,7 @@ def markdown(r: dict, figs: list[tuple[str, str]] | None = None) -> str:
     tabs = [f"## {title}\n\n{md_table(header, rows)}" for title, header, rows in tables(r)]
     parts = ["# cab report", *tabs[:1], "\n\n".join(notes(r))]  # the summary table first, as on the page
     if figs:
-        from cab_core.analysis.figures import PNG_DPI
+        from cab_core.analysis.figures import PNG_DPI  # matplotlib: imported only when a report is drawn
 
         parts.append("## Figures\n\n" + f"PDF, SVG and PNG ({PNG_DPI} dpi) of each figure in `{FIGURES_FOLDER}/`.\n\n"
                      + "\n\n".join(f"![{t}]({FIGURES_FOLDER}/{n}.svg)\n\n{t}: [PDF]({FIGURES_FOLDER}/{n}.pdf) · "
@@ -370,7 +372,6 @@ def html(r: dict, view_links: dict[str, str], figs: list | None = None) -> str:
     """The report page (``templates/report.html.j2``): the notes, the figures as inline SVG (``figs``,
     default :func:`figures`), the tables, every attempt linked to its page (``view_links``)."""
     from cab_core.analysis import figures as fg
-    from cab_core.analysis.pages import Markup, render
 
     tabs = []
     for title, header, rows in tables(r):
@@ -397,8 +398,6 @@ def write(root: Path, out: Path | None = None, views: bool = True, recover: dict
     ``folder``, default ``<out>/recoverability``). ``extra``: what :func:`build` adds (``compare``,
     ``plan``, ``bootstrap``). ``figure_files``: also write each figure as PDF, SVG and PNG into
     ``<out>/figures/`` (listed in report.md); the page has them inline either way."""
-    from cab_core.analysis.viewer import write_view
-
     root = Path(root)
     out = Path(out) if out is not None else root
     r = build(root, **extra)

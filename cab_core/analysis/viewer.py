@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from cab_core.analysis import pages
 from cab_core.analysis.attempts import Attempt, attempt_dirs, read_jsonl
 from cab_core.attempt.fork import FORKS_FILE
 from cab_core.errors import CabError, RecordError
@@ -264,9 +265,7 @@ def _events(d: Path) -> tuple[list[dict], str | None]:
 
 def _page(**ctx) -> str:
     """The page: ``templates/attempt.html.j2`` with ``ctx``."""
-    from cab_core.analysis.pages import render
-
-    return render("attempt.html.j2", **ctx)
+    return pages.render("attempt.html.j2", **ctx)
 
 
 def render(a: Attempt, page_of: str = "view.html") -> str:

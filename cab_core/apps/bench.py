@@ -17,6 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
+from cab_core.apps.bench_startup import print_startup, startup
+from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.spec import AttemptSpec
+from cab_core.config import default_selection
+from cab_core.plugins import task_info
+
 NON_IMAGE = [
     ("get_embodiment", {}),
     ("get_camera_info", {"camera": "head_camera"}),
@@ -37,33 +43,40 @@ def _pct(xs: list[float], p: float) -> float:
     return float(np.percentile(np.asarray(xs), p)) if xs else float("nan")
 
 
-def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
-    from cab_core.attempt.engine.episode import Episode
-    from cab_core.attempt.spec import AttemptSpec
-    from cab_core.config import default_selection
-    from cab_core.plugins import task_info
-
+def _open_episodes(task: str, sim_name: str, out_dir: Path) -> tuple[Episode, list[float]]:
+    """Three attempts opened one after the other (the first two closed): the third, still open, and the
+    wall time of each opening."""
     info = task_info(task)
     d = default_selection(("embodiment", "planner"))
-    emb_name, planner_name = d["embodiment"], d["planner"]
-
-    def make(i: int) -> Episode:
-        spec = AttemptSpec(task=task, seed=info.seed, attempt=i + 1, sim=sim_name, embodiment=emb_name,
-                           planner=planner_name, harness="direct", model="bench", output_dir=out_dir / f"attempt-{i + 1}",
-                           budget_tool_calls=100000, budget_sim_seconds=1e6, budget_wall_seconds=1e6,
-                           sim_cfg={"name": sim_name})
-        return Episode.open(spec)
-
     resets = []
     for i in range(3):
+        spec = AttemptSpec(task=task, seed=info.seed, attempt=i + 1, sim=sim_name, embodiment=d["embodiment"],
+                           planner=d["planner"], harness="direct", model="bench", output_dir=out_dir / f"attempt-{i + 1}",
+                           budget_tool_calls=100000, budget_sim_seconds=1e6, budget_wall_seconds=1e6,
+                           sim_cfg={"name": sim_name})
         t0 = time.perf_counter()
-        ep = make(i)
+        ep = Episode.open(spec)
         resets.append(time.perf_counter() - t0)
         if i < 2:
             ep.close()
-    figures: dict[str, dict] = {}
-    head = ep.call("capture_head").payload
-    obs = head["obs_id"]
+    return ep, resets
+
+
+def _timed_calls(ep: Episode, name: str, args: dict | None, n: int) -> dict:
+    """p50 and p95 wall time (ms) of ``n`` calls of tool ``name``; a call answered with an error raises."""
+    xs = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        r = ep.call(name, args)
+        xs.append(time.perf_counter() - t0)
+        if "error" in r.payload:
+            raise RuntimeError(f"{name}: {r.payload['error']}")
+    return {"p50_ms": 1e3 * _pct(xs, 50), "p95_ms": 1e3 * _pct(xs, 95), "n": n}
+
+
+def _tool_figures(ep: Episode, n: int) -> dict[str, dict]:
+    """The non-image tools' figures (those that need an observation given the head camera's), then capture_head's."""
+    obs = ep.call("capture_head").payload["obs_id"]
     dyn = {
         "project": {"obs_id": obs, "xyz": [0.0, 0.0, 0.75]},
         "ray": {"obs_id": obs, "px": [320, 300]},
@@ -72,23 +85,13 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
         "scale_from_object_size": {"obs_id": obs, "bbox": [300, 280, 340, 320], "extent_axis": "width",
                                    "known_extent_m": 0.05},
     }
-    for name, args in NON_IMAGE:
-        a = dyn.get(name, args)
-        xs = []
-        for _ in range(n):
-            t0 = time.perf_counter()
-            r = ep.call(name, a)
-            xs.append(time.perf_counter() - t0)
-            if "error" in r.payload:
-                raise RuntimeError(f"{name}: {r.payload['error']}")
-        figures[name] = {"p50_ms": 1e3 * _pct(xs, 50), "p95_ms": 1e3 * _pct(xs, 95), "n": n}
-    xs = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        ep.call("capture_head")
-        xs.append(time.perf_counter() - t0)
-    figures["capture_head"] = {"p50_ms": 1e3 * _pct(xs, 50), "p95_ms": 1e3 * _pct(xs, 95), "n": n}
-    # motion: back and forth, 10 cm legs
+    figures = {name: _timed_calls(ep, name, dyn.get(name, args), n) for name, args in NON_IMAGE}
+    figures["capture_head"] = _timed_calls(ep, "capture_head", None, n)
+    return figures
+
+
+def _motion_figures(ep: Episode) -> dict:
+    """Six 8 cm moves of the left arm, back and forth: wall time per simulated second and real-time factor."""
     wall = 0.0
     sim_s = 0.0
     for k in range(6):
@@ -97,11 +100,15 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
         r = ep.call("move_delta", {"arm": "left", "dx": 0.0, "dy": d, "dz": 0.0})
         wall += time.perf_counter() - t0
         sim_s += r.payload["execution"]["physics_steps"] * ep.sim.timestep
-    motion = {"wall_s_per_sim_s": wall / max(sim_s, 1e-9), "realtime_factor": sim_s / max(wall, 1e-9), "sim_s": sim_s}
-    # raw simulator figures on the same scene
+    return {"wall_s_per_sim_s": wall / max(sim_s, 1e-9), "realtime_factor": sim_s / max(wall, 1e-9), "sim_s": sim_s}
+
+
+def _raw_figures(ep: Episode, n: int) -> tuple[dict, float]:
+    """The simulator's own figures on the same scene, without the API: physics with the arms moving (targets
+    streamed straight to the simulator, 1000 steps) and the head camera's render; and the wall seconds of
+    one raw physics step."""
     sim = ep.sim
     dt = sim.timestep
-    # raw physics with the arms moving: targets streamed straight to the simulator, no API
     base = sim.get_drive_targets().copy()
     t0 = time.perf_counter()
     for i in range(1000):
@@ -115,11 +122,20 @@ def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
         rs.append(time.perf_counter() - t0)
     raw = {"step_rate_hz": 1.0 / raw_step, "realtime_factor_physics_only": (1.0 / raw_step) * dt,
            "render_head_p50_ms": 1e3 * _pct(rs, 50)}
+    return raw, raw_step
+
+
+def run(task: str, sim_name: str, n: int, out_dir: Path) -> dict:
+    ep, resets = _open_episodes(task, sim_name, out_dir)
+    dt = ep.sim.timestep
+    figures = _tool_figures(ep, n)
+    motion = _motion_figures(ep)
+    raw, raw_step = _raw_figures(ep, n)
     versions = ep.versions()
     video = ep.finish_video().get("video") or {}  # the attempt's video: rendered now, from the motion's samples
     ep.close()
     if video.get("render_seconds") is not None:
-        motion["video_after_attempt_s_per_sim_s"] = video["render_seconds"] / max(sim_s, 1e-9)
+        motion["video_after_attempt_s_per_sim_s"] = video["render_seconds"] / max(motion["sim_s"], 1e-9)
     non_image_p50 = [v["p50_ms"] for k, v in figures.items() if k not in ("capture_head", "check_tcp_pose_reachability")]
     return {
         "task": task, "sim": sim_name, "n": n, "tools": figures,
@@ -149,15 +165,11 @@ def main() -> None:
                          "process, warm cache, warm worker (cab_core.apps.bench_startup)")
     a = ap.parse_args()
     if a.sim is None or a.task is None:
-        from cab_core.config import default_selection
-
         chosen = default_selection(("sim", "task"))
         a.sim, a.task = a.sim or chosen["sim"], a.task or chosen["task"]
     out = Path(a.out) if a.out else Path("outputs") / "bench" / f"{time.strftime('%Y-%m-%d_%H-%M-%S')}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     if a.startup:
-        from cab_core.apps.bench_startup import print_startup, startup
-
         task = a.task
         res = startup([s.strip() for s in a.sim.split(",") if s.strip()], task)
         print_startup(res, task)

@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig, attempt_configs, close_workers
+
 
 def _fresh_process(config: dict, out: Path, cache: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "MESA_SHADER_CACHE_DIR"}
@@ -38,8 +40,6 @@ def _fresh_process(config: dict, out: Path, cache: Path) -> dict:
 
 
 def _warm_worker(config: dict, root: Path, cache: Path, n: int) -> dict:
-    from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig, close_workers
-
     identity = {"task": config["task"]["name"], "seed": config["seed"], "attempt": 1, "sim": config["sim"]["name"],
                 "model": config["model"]["name"]}
     old = os.environ.get("CAB_CACHE_DIR")
@@ -60,8 +60,6 @@ def _warm_worker(config: dict, root: Path, cache: Path, n: int) -> dict:
 
 def startup(sims: list[str], task: str, n: int = 3) -> dict:
     """``{sim: {"cold_process": ..., "warm_cache": ..., "warm_worker": ...}}``."""
-    from cab_core.sweep.supervisor import attempt_configs
-
     out: dict[str, dict] = {}
     with tempfile.TemporaryDirectory(prefix="cab-bench-startup-") as td:
         root = Path(td)

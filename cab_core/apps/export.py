@@ -19,7 +19,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from cab_core.analysis.attempts import scan
+from cab_core.analysis.measures import AttemptMeasures
 from cab_core.errors import CabError, ConfigError, MissingDependency
+from cab_core.plugins import registry
 
 PARQUET = "parquet"
 ATTEMPTS_FILE = "attempts.parquet"
@@ -145,8 +148,6 @@ def _key(rel: str, d: Path) -> str:
 def attempt_row(a, key: str) -> dict:
     """One row of attempts.parquet (:data:`ATTEMPT_COLUMNS`) from a finished attempt
     (:class:`cab_core.analysis.attempts.Attempt`)."""
-    from cab_core.analysis.measures import AttemptMeasures
-
     r, m = a.result, AttemptMeasures.of(a)
     verdict, budget, timing = r.get("verdict") or {}, r.get("budget") or {}, r.get("timing") or {}
     counts, claim, term = r.get("counts") or {}, r.get("claim") or {}, r.get("termination") or {}
@@ -247,8 +248,6 @@ def _write_parquet(rows: list[dict], columns, path: Path) -> None:
 def export_parquet(root: Path, out: Path | None = None) -> dict:
     """``attempts.parquet`` and ``calls.parquet`` of every finished attempt below ``root`` (written
     to ``out``, default ``root``). Returns what was written and what was left out."""
-    from cab_core.analysis.attempts import scan
-
     _require_pyarrow()
     s = scan(root)
     out = Path(out) if out is not None else Path(root)
@@ -266,8 +265,6 @@ def export_parquet(root: Path, out: Path | None = None) -> dict:
 
 def exporters() -> dict[str, Callable]:
     """The installed exporter plugins (hook ``cab_record_exporters``), by format."""
-    from cab_core.plugins import registry
-
     return registry("record_exporters")
 
 
@@ -283,8 +280,6 @@ def export_each(export: Callable, root: Path, out: Path | None = None, echo=prin
     """``export(attempt_dir, out_dir)`` for every finished attempt below ``root``: ``out_dir`` is the
     attempt's folder, or under ``out`` its path relative to ``root``. An attempt it fails on is one
     line and the others go on (``failed``)."""
-    from cab_core.analysis.attempts import scan
-
     s = scan(root)
     written, failed = [], []
     for a in s.attempts:

@@ -8,13 +8,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from cab_core.attempt.variation.randomize import Randomization, randomize_instance
+from cab_core.config import composed, default_selection
+from cab_core.plugins import all_tasks, create
+
 
 def _randomization(option: str | None):
     if option is None:
         return None
-    from cab_core.attempt.variation.randomize import Randomization
-    from cab_core.config import composed
-
     return Randomization.from_cfg(composed([f"randomize={option}"]).get("randomize"))
 
 
@@ -24,9 +25,6 @@ def render_all(out: Path, tasks: list[str] | None = None, sim_name: str | None =
     ``randomize``: also each scene under that randomisation option (``<task>-<option>.png``)."""
     import numpy as np
     from PIL import Image
-
-    from cab_core.config import default_selection
-    from cab_core.plugins import all_tasks, create
 
     installed = all_tasks()
     names = tasks or list(installed)
@@ -44,8 +42,6 @@ def render_all(out: Path, tasks: list[str] | None = None, sim_name: str | None =
             inst = task.build(s, emb)
             built = emb
             if r is not None:
-                from cab_core.attempt.variation.randomize import randomize_instance
-
                 built, _ = randomize_instance(inst.scene, emb, r, s, name, task.info.instruction,
                                               task.distractor_slots(inst) if "distractors" in r.parts else [])
             sim = create("simulators", sim_name, {"name": sim_name})

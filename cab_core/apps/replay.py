@@ -24,7 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from cab_core.analysis.attempts import Attempt
+from cab_core.analysis.failure import Classifier
+from cab_core.analysis.measures import claim_category
+from cab_core.attempt.engine.checkpoint_scoring import evaluate_attempt
+from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.spec import AttemptSpec
 from cab_core.errors import AttemptEnded, CabError, RecordError
+from cab_core.plugins import task_names
 
 TOLERANCE_M = 0.005
 CALL_KINDS = ("call", "internal_call", "call_refused", "host_fault", "tool_fault")  # tool_fault: older records
@@ -78,8 +84,6 @@ def recorded_calls(events: list[dict]) -> list[tuple[str, dict]]:
 
 
 def _spec(attempt: Attempt, out: Path):
-    from cab_core.attempt.spec import AttemptSpec
-
     config = attempt.start_event().get("config")
     if not isinstance(config, dict):
         raise RecordError(f"{attempt.dir}: the records lack the resolved configuration (attempt_start.config); "
@@ -97,9 +101,6 @@ def _spec(attempt: Attempt, out: Path):
 
 def execute(attempt: Attempt, out: Path) -> ReplayAgent:
     """Run the replay episode into ``out``; returns the agent (for calls left unplayed)."""
-    from cab_core.attempt.engine.episode import Episode
-    from cab_core.plugins import task_names
-
     spec = _spec(attempt, out)
     if spec.task not in task_names():
         raise RecordError(f"task {spec.task!r} is not installed")
@@ -203,10 +204,6 @@ def replay(attempt_dir: Path, out: Path | None = None, tol: float = TOLERANCE_M)
 def regrade(attempt_dir: Path) -> dict:
     """Checkpoints, claim correctness and failure stage recomputed from the records alone, each
     beside the recorded value. No simulator runs."""
-    from cab_core.analysis.failure import Classifier
-    from cab_core.analysis.measures import claim_category
-    from cab_core.attempt.engine.checkpoint_scoring import evaluate_attempt
-
     a = Attempt.load(Path(attempt_dir))
     ck = evaluate_attempt(a.dir).as_dict()
     recorded = a.result.get("checkpoints") or {}

@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from cab_core.config import composed, default_selection
 from cab_core.sweep.manifest import completed_results
 
 
@@ -24,8 +25,6 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
               threads: str = "1", sim: str | None = None, mode: str = "warm") -> dict:
     """One timed sweep; returns its figures."""
     if sim is None:
-        from cab_core.config import default_selection
-
         sim = default_selection(("sim",))["sim"]
     sweep_dir = out / f"round-{rnd}" / f"{model}-{mode}-workers-{workers}"
     cab = os.path.join(os.path.dirname(sys.executable), "cab")
@@ -35,8 +34,6 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
            f"sweep.threads_per_attempt={threads}"]
     if mode == "cold":
         cmd.append("sweep.warm_workers=false")
-        from cab_core.config import composed
-
         if "brdf_cache" in composed([f"sim={sim}"]).sim:  # a simulator that caches its BRDF table: off
             cmd.append("sim.brdf_cache=false")
     load0 = os.getloadavg()[0]
@@ -73,8 +70,6 @@ def main() -> None:
     ap.add_argument("--json", help="also write the figures to this JSON file")
     a = ap.parse_args()
     if a.sim is None or a.task is None:
-        from cab_core.config import default_selection
-
         chosen = default_selection(("sim", "task"))
         a.sim, a.task = a.sim or chosen["sim"], a.task or chosen["task"]
     out = Path(a.out)

@@ -24,6 +24,7 @@ from urllib.parse import quote
 
 from omegaconf import OmegaConf
 
+from cab_core.config import scene_seed
 from cab_core.errors import ConfigError
 
 # Keys the layout names by folders of their own; a sweep over any other key adds the swept folder.
@@ -107,8 +108,6 @@ def attempt_folders(cfg: Any, jobs: list[list[str]], path_keys: list[str]) -> li
     resolves it: task, model and simulator by the ``name`` their config gives them (one
     composition per swept option), the seed the attempt runs (``seed: null``: the task's catalog
     seed), the attempt number, and the swept folder."""
-    from cab_core.config import scene_seed
-
     base = {g: cfg[g].name for g in ("task", "model", "sim")}
     names: dict[tuple[str, str], str] = {}
     fixed = _fixed_overrides(cfg)

@@ -33,7 +33,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cab_core.errors import ConfigError
+from cab_core.attempt.fork import ForkPoint
+from cab_core.attempt.records.recovery import recovery
+from cab_core.config import default_selection, normalise_overrides
+from cab_core.errors import ConfigError, RecordError
+from cab_core.plugins import task_info
 from cab_core.sweep.attempt_state import (
     INFRA_LOG,
     INFRA_TERMINATIONS,
@@ -386,8 +390,6 @@ def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None)
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
-    from cab_core.config import normalise_overrides
-
     out = []
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         for task, seed, agent, _, sim, *perturb in jobs:
@@ -407,8 +409,6 @@ def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None)
 def run_one(config: dict, out: str, settings) -> dict:
     """One attempt, supervised (crashes, hangs and runaway memory are retried as infrastructure
     failures); returns a compact summary."""
-    from cab_core.plugins import task_info
-
     task, seed, agent, sim = config["task"]["name"], config["seed"], config["model"]["name"], config["sim"]["name"]
     perturb = (config.get("perturb") or {}).get("seed")
     info = task_info(task)
@@ -428,8 +428,6 @@ def run_one(config: dict, out: str, settings) -> dict:
                 "error": f"infrastructure failure: {r['termination'].get('detail')}"}
     ck = r.get("checkpoints") or {}
     if "fork_at" in row:
-        from cab_core.attempt.records.recovery import recovery
-
         row.update(recovery(Path(out)))
     return {
         **row, "dir": out,
@@ -458,11 +456,7 @@ def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | 
     randomisation option of every attempt (``cab_core.attempt.variation.randomize``). ``perturb``: each attempt
     ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.attempt.variation.perturb``). ``seeds``: one
     list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
-    from cab_core.plugins import task_info
-
     if sims is None:
-        from cab_core.config import default_selection
-
         sims = (default_selection(("sim",))["sim"],)
 
     if not isinstance(seeds, dict):
@@ -509,9 +503,6 @@ def fork_configs(points: list[tuple[str, int]], agent: str | None = "oracle", vi
     model with its settings), not by a model config of that name composed afresh."""
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
-
-    from cab_core.attempt.fork import ForkPoint
-    from cab_core.errors import RecordError
 
     out = []
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):

@@ -26,6 +26,7 @@ import os
 import sys
 from pathlib import Path
 
+from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
 from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_FAULT, EXIT_RENDERER, die_with_parent
 
 
@@ -33,7 +34,6 @@ def run(job: dict) -> int:
     """Run one job's attempt; the status above (exceptions other than configuration and renderer
     problems propagate)."""
     from cab_core.attempt.runner import attempt_spec, run_attempt
-    from cab_core.errors import ConfigError, MissingDependency, PluginError, RendererUnavailable
 
     try:
         run_attempt(attempt_spec(job["config"], Path(job["output_dir"])))
