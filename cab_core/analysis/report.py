@@ -371,7 +371,7 @@ def margin_text(m: dict) -> str:
 def html(r: dict, view_links: dict[str, str], figs: list | None = None) -> str:
     """The report page (``templates/report.html.j2``): the notes, the figures as inline SVG (``figs``,
     default :func:`figures`), the tables, every attempt linked to its page (``view_links``)."""
-    from cab_core.analysis import figures as fg
+    from cab_core.analysis import figures as fg  # matplotlib: imported only when figures are drawn
 
     tabs = []
     for title, header, rows in tables(r):
@@ -415,7 +415,7 @@ def write(root: Path, out: Path | None = None, views: bool = True, recover: dict
         for rel in [m["rel"] for m in r["attempt_rows"]] + r["in_flight"]:
             page = write_view(root / rel)
             links[rel] = os.path.relpath(page, out).replace(os.sep, "/")
-    from cab_core.analysis import figures as fg
+    from cab_core.analysis import figures as fg  # matplotlib: imported only when figures are drawn
 
     figs = figures(r)
     if figure_files:

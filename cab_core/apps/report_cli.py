@@ -12,7 +12,8 @@ from cab_core.analysis.report import FIGURES_FOLDER, md_table, tables, uncertain
 from cab_core.errors import CabError
 
 
-def main(argv: list[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
+    """cab-report's options."""
     ap = argparse.ArgumentParser(
         prog="cab-report", description="The paper's measures for every attempt below a directory.",
         epilog="Exit status: 0 report written; 1 written, but no finished attempt to measure (only unfinished "
@@ -58,27 +59,62 @@ def main(argv: list[str] | None = None) -> None:
                          "is never counted as part of the sweep)")
     ap.add_argument("--recoverability-jobs", type=int, default=os.cpu_count() or 1, metavar="J",
                     help="forks run at a time, each in its own process (default: the cores)")
-    a = ap.parse_args(argv)
+    return ap
+
+
+def _plan(ap: argparse.ArgumentParser, a: argparse.Namespace) -> tuple[dict | None, dict | None]:
+    """The study plan asked for (``--plan-*``) and that plan computed for 25 tasks (its table when no
+    directory is given), both None without ``--plan-difference``. Bad combinations of options end in
+    ``ap.error``."""
     if a.recoverability_model_repeats < 0 or a.recoverability_jobs < 1:
         ap.error("--recoverability-model-repeats must be >= 0 and --recoverability-jobs >= 1")
     if not a.recoverability and (a.recoverability_model_repeats or a.recoverability_dir):
         ap.error("--recoverability-model-repeats and --recoverability-dir need --recoverability")
-    plan = None
     if a.plan_discordant is not None and a.plan_difference is None:
         ap.error("--plan-discordant goes with --plan-difference D")
-    if a.plan_difference is not None:
-        plan = {"difference": a.plan_difference, "baseline": a.plan_baseline, "alpha": a.alpha, "power": a.power,
-                "discordant": a.plan_discordant}
-        if a.plan_tasks is not None:
-            plan["tasks"] = a.plan_tasks
-        try:
-            alone = stats.plan(**{"tasks": 25, **plan})
-        except ValueError as e:
-            ap.error(str(e))
-        if a.dir is None:
-            title, header, rows = uncertainty_tables({"configs": [], "plan": alone})[-1]
-            print(f"{title}\n\n{md_table(header, rows)}")
-            return
+    if a.plan_difference is None:
+        return None, None
+    plan = {"difference": a.plan_difference, "baseline": a.plan_baseline, "alpha": a.alpha, "power": a.power,
+            "discordant": a.plan_discordant}
+    if a.plan_tasks is not None:
+        plan["tasks"] = a.plan_tasks
+    try:
+        alone = stats.plan(**{"tasks": 25, **plan})
+    except ValueError as e:
+        ap.error(str(e))
+    return plan, alone
+
+
+def _print_summary(a: argparse.Namespace, r: dict) -> None:
+    """What cab-report prints after writing report ``r``: the summary table, the comparison and the plan
+    when asked for, the recoverability table when run; then on stderr what was skipped, what was
+    written, and (exit status 1) that no finished attempt was measured."""
+    title, header, rows = tables(r)[0]
+    print(md_table(header, rows))
+    for title, header, rows in uncertainty_tables(r)[1:]:  # the comparison and the plan, when asked for
+        print(f"\n{title}\n\n{md_table(header, rows)}")
+    if r.get("recoverability"):
+        title, header, rows = recoverability.tables(r["recoverability"])[0]
+        print(f"\n{title}\n\n{md_table(header, rows)}")
+    for p in r["problems"]:
+        print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)
+    if r["in_flight"]:
+        print(f"cab-report: {len(r['in_flight'])} unfinished attempt(s) not counted", file=sys.stderr)
+    files = "" if a.no_figure_files else f" and {FIGURES_FOLDER}/ (PDF, SVG, PNG of each figure)"
+    print(f"cab-report: wrote report.md, report.html, report.json{files} to {a.out or a.dir}", file=sys.stderr)
+    if not r["attempts"]:  # only unfinished, unreadable or excluded attempts: the tables are empty
+        print(f"cab-report: no finished attempt to measure under {a.dir}", file=sys.stderr)
+        sys.exit(1)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = _parser()
+    a = ap.parse_args(argv)
+    plan, alone = _plan(ap, a)
+    if a.dir is None and alone is not None:
+        title, header, rows = uncertainty_tables({"configs": [], "plan": alone})[-1]
+        print(f"{title}\n\n{md_table(header, rows)}")
+        return
     if a.dir is None:
         ap.error("a directory is needed (only --plan-difference runs without one)")
     if not Path(a.dir).exists():
@@ -96,19 +132,4 @@ def main(argv: list[str] | None = None) -> None:
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
         sys.exit(2)
-    title, header, rows = tables(r)[0]
-    print(md_table(header, rows))
-    for title, header, rows in uncertainty_tables(r)[1:]:  # the comparison and the plan, when asked for
-        print(f"\n{title}\n\n{md_table(header, rows)}")
-    if r.get("recoverability"):
-        title, header, rows = recoverability.tables(r["recoverability"])[0]
-        print(f"\n{title}\n\n{md_table(header, rows)}")
-    for p in r["problems"]:
-        print(f"cab-report: skipped {p['dir']}: {p['problem']}", file=sys.stderr)
-    if r["in_flight"]:
-        print(f"cab-report: {len(r['in_flight'])} unfinished attempt(s) not counted", file=sys.stderr)
-    files = "" if a.no_figure_files else f" and {FIGURES_FOLDER}/ (PDF, SVG, PNG of each figure)"
-    print(f"cab-report: wrote report.md, report.html, report.json{files} to {a.out or a.dir}", file=sys.stderr)
-    if not r["attempts"]:  # only unfinished, unreadable or excluded attempts: the tables are empty
-        print(f"cab-report: no finished attempt to measure under {a.dir}", file=sys.stderr)
-        sys.exit(1)
+    _print_summary(a, r)
