@@ -40,15 +40,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cab_core.errors import AttemptEnded, ConfigError
-from cab_core.kits.harness import stdio
+from cab_core.kits.harness import prompts, stdio
 from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
-from cab_core.kits.harness.prompts import (
-    continuation_note,
-    first_user_message,
-    result_images,
-    run_code_limits,
-    system_prompt,
-)
 from cab_core.plugins import task_info
 from cab_core.tools.motion import HARNESS_PARAMETERS
 
@@ -199,9 +192,9 @@ class McpHarness:
         s = self.settings
         self.preflight(spec.model_cfg)
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
-        self.task_prompt = instructions_text(system_prompt(budget, HARNESS_PARAMETERS, run_code=run_code_limits(spec)),
-                                             first_user_message(task_info(spec.task).instruction)
-                                             + continuation_note(getattr(spec, "fork", None)))
+        system = prompts.system_prompt(budget, HARNESS_PARAMETERS, run_code=prompts.run_code_limits(spec))
+        self.task_prompt = instructions_text(system, prompts.first_user_message(task_info(spec.task).instruction)
+                                             + prompts.continuation_note(getattr(spec, "fork", None)))
         self.tools = tool_list()
         self.bridge = CallBridge()
         server = build_server(self.tools, self.bridge, self.task_prompt, _version())
@@ -356,7 +349,7 @@ class McpHarness:
             job.future.set_result(tool_result({"error": f"internal error: {e!r}", "attempt_ended": episode.ended}))
             raise
         payload = dict(r.payload)
-        images, withheld = result_images(episode, r.obs_ids, self.settings.max_images_per_result)
+        images, withheld = prompts.result_images(episode, r.obs_ids, self.settings.max_images_per_result)
         if withheld:
             payload.setdefault("images_not_attached", withheld)
         return tool_result(payload, images)

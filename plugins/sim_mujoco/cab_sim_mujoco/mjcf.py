@@ -35,20 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cab_core.contracts import scene as sc
 from cab_core.contracts.embodiment import EmbodimentSpec
-from cab_core.contracts.scene import (
-    ArticulatedObject,
-    Body,
-    Box,
-    CameraSpec,
-    Capsule,
-    Cylinder,
-    Material,
-    Mesh,
-    SceneSpec,
-    Shape,
-    Sphere,
-)
 from cab_core.contracts.simsupport import camera_mount, check_camera_spec, check_object_names, pose_or_bad
 from cab_core.contracts.simulator import ROBOT
 from cab_core.contracts.texturing import texture_image, textured, uv_mesh
@@ -84,7 +72,7 @@ def _pose_or_bad(pose, what: str) -> tuple[float, ...]:
 
 @dataclass
 class Camera:
-    spec: CameraSpec
+    spec: sc.CameraSpec
     body: str | None  # MJCF body of a mounted camera (None: fixed in the world)
     local: tuple[float, ...]  # OpenCV-frame pose: world pose, or pose in the mount body
 
@@ -115,7 +103,7 @@ class Plan:
 
 
 @dataclass(frozen=True)
-class _ZCylinder(Cylinder):
+class _ZCylinder(sc.Cylinder):
     """A URDF cylinder: its axis is already MuJoCo's z, so it is written without the quarter turn."""
 
 
@@ -197,7 +185,7 @@ class MjcfWriter:
         self.plan = Plan(xml="")
 
     # geometry ------------------------------------------------------------------------------------
-    def _mesh_asset(self, g: Mesh, what: str) -> str:
+    def _mesh_asset(self, g: sc.Mesh, what: str) -> str:
         if not os.path.isfile(g.path):
             raise BadCommand(f"{what}: mesh file not found: {g.path}")
         key = (os.path.abspath(g.path), tuple(float(s) for s in g.scale))
@@ -211,23 +199,23 @@ class MjcfWriter:
         """A geom of cab geometry ``g`` at ``pose`` (body frame), without role attributes."""
         quat = np.asarray(pose[3:7], float)
         attrs: dict[str, str] = {}
-        if isinstance(g, Box):
+        if isinstance(g, sc.Box):
             attrs.update(type="box", size=_fmt(g.half_size))
-        elif isinstance(g, Sphere):
+        elif isinstance(g, sc.Sphere):
             attrs.update(type="sphere", size=_fmt([g.radius]))
         elif isinstance(g, _ZCylinder):
             attrs.update(type="cylinder", size=_fmt([g.radius, g.half_length]))
-        elif isinstance(g, (Capsule, Cylinder)):
-            attrs.update(type="capsule" if isinstance(g, Capsule) else "cylinder",
+        elif isinstance(g, (sc.Capsule, sc.Cylinder)):
+            attrs.update(type="capsule" if isinstance(g, sc.Capsule) else "cylinder",
                          size=_fmt([g.radius, g.half_length]))
             quat = quat_mul(quat, _X_FROM_Z)
-        elif isinstance(g, Mesh):
+        elif isinstance(g, sc.Mesh):
             attrs.update(type="mesh", mesh=self._mesh_asset(g, what))
         else:
             raise BadCommand(f"{what}: unsupported geometry {type(g).__name__}")
         return ET.SubElement(parent, "geom", pos=_fmt(pose[:3]), quat=_fmt(quat), **attrs)
 
-    def _collision(self, el: ET.Element, m: Material, density: float | None = None) -> None:
+    def _collision(self, el: ET.Element, m: sc.Material, density: float | None = None) -> None:
         p = self.phys
         el.set("group", str(COLLISION_GROUP))
         el.set("friction", _fmt([m.dynamic_friction, p.torsional_friction, p.rolling_friction]))
@@ -248,12 +236,12 @@ class MjcfWriter:
         el.set("density", "0")
         el.set("rgba", _fmt(srgb(rgba)))
 
-    def _shapes(self, parent, shapes: list[Shape], density: float | None, what: str) -> None:
+    def _shapes(self, parent, shapes: list[sc.Shape], density: float | None, what: str) -> None:
         for shape in shapes:
             pose = _pose_or_bad(shape.pose, f"{what}: shape pose")
             g = shape.geometry
             if shape.collision:
-                if isinstance(g, Mesh) and not g.convex:
+                if isinstance(g, sc.Mesh) and not g.convex:
                     raise BadCommand(f"{what}: MuJoCo collides a mesh as its convex hull; a non-convex "
                                      f"collision mesh must be split into convex pieces (convex=True)")
                 self._collision(self._geom(parent, g, pose, what), shape.material, density)
@@ -262,7 +250,7 @@ class MjcfWriter:
             # the image is checked on meshes too, which keep their colour
             image = None if shape.material.texture is None else texture_image(shape.material.texture, what)
             if textured(shape):
-                el = self._geom(parent, Mesh(uv_mesh(g)), pose, what)
+                el = self._geom(parent, sc.Mesh(uv_mesh(g)), pose, what)
                 self._visual(el, shape.material.color)
                 del el.attrib["rgba"]  # a geom's own rgba would override its material's colour
                 el.set("material", self._textured_material(image, float(shape.material.color[3])))
@@ -283,7 +271,7 @@ class MjcfWriter:
         return name
 
     # world ---------------------------------------------------------------------------------------
-    def _options(self, scene: SceneSpec, timestep: float, cameras: list[CameraSpec]) -> None:
+    def _options(self, scene: sc.SceneSpec, timestep: float, cameras: list[sc.CameraSpec]) -> None:
         p = self.phys
         ET.SubElement(self.root, "compiler", angle="radian", inertiafromgeom="auto",
                       inertiagrouprange=f"{COLLISION_GROUP} {COLLISION_GROUP}", balanceinertia="true",
@@ -306,7 +294,7 @@ class MjcfWriter:
         # znear/zfar are fractions of the extent: extent 1 makes them metres
         ET.SubElement(self.root, "statistic", extent="1", center="0 0 0.8")
 
-    def _lights(self, world, scene: SceneSpec) -> None:
+    def _lights(self, world, scene: sc.SceneSpec) -> None:
         for direction, colour in scene.lighting.directional:
             ET.SubElement(world, "light", directional="true", dir=_fmt(direction), pos="0 0 3",
                           diffuse=_fmt(colour), specular="0.1 0.1 0.1", castshadow="false")
@@ -314,7 +302,7 @@ class MjcfWriter:
             ET.SubElement(world, "light", pos=_fmt(position), dir="0 0 -1", diffuse=_fmt(colour),
                           specular="0.1 0.1 0.1", castshadow="false")
 
-    def _body(self, world, body: Body) -> None:
+    def _body(self, world, body: sc.Body) -> None:
         what = f"body {body.name!r}"
         if body.kind not in ("static", "dynamic", "kinematic"):
             raise BadCommand(f"{what}: unknown kind {body.kind!r}")
@@ -335,7 +323,7 @@ class MjcfWriter:
         self.plan.bodies[body.name] = body.kind
 
     # URDF objects ----------------------------------------------------------------------------------
-    def _urdf(self, parent, prefix: str, path: str, pose, root_mode: str, material: Material,
+    def _urdf(self, parent, prefix: str, path: str, pose, root_mode: str, material: sc.Material,
               joint_damping: float | None = None, joint_friction: float | None = None,
               gravcomp: bool = False) -> Articulation:
         links, joints, root, colours = _parse_urdf(path)
@@ -379,7 +367,7 @@ class MjcfWriter:
             raise ValueError(root_mode)
         return art
 
-    def _link_contents(self, el, link, colours, material: Material, what: str, folder: str) -> None:
+    def _link_contents(self, el, link, colours, material: sc.Material, what: str, folder: str) -> None:
         inertial = link.find("inertial")
         if inertial is not None:
             o = _origin(inertial)
@@ -418,18 +406,18 @@ class MjcfWriter:
             raise BadCommand(f"{what}: a visual or collision element without geometry")
         g = geo[0]
         if g.tag == "box":
-            return Box(tuple(float(v) / 2 for v in g.get("size").split()))
+            return sc.Box(tuple(float(v) / 2 for v in g.get("size").split()))
         if g.tag == "sphere":
-            return Sphere(float(g.get("radius")))
+            return sc.Sphere(float(g.get("radius")))
         if g.tag == "cylinder":  # URDF cylinders lie along z: turn cab's x-axis cylinder back
             return _ZCylinder(float(g.get("radius")), float(g.get("length")) / 2)
         if g.tag == "mesh":
             scale = tuple(float(v) for v in g.get("scale", "1 1 1").split())
-            return Mesh(os.path.join(folder, g.get("filename")), scale=scale)  # relative to the URDF
+            return sc.Mesh(os.path.join(folder, g.get("filename")), scale=scale)  # relative to the URDF
         raise BadCommand(f"{what}: unsupported URDF geometry <{g.tag}>")
 
     # robot ------------------------------------------------------------------------------------------
-    def _robot(self, world, emb: EmbodimentSpec, material: Material) -> None:
+    def _robot(self, world, emb: EmbodimentSpec, material: sc.Material) -> None:
         base = _pose_or_bad(emb.base_pose, "embodiment base pose")
         art = self._urdf(world, ROBOT, emb.urdf, base, "world", material, gravcomp=True)
         self.plan.robot = art
@@ -457,7 +445,7 @@ class MjcfWriter:
                 if (oa is not None or ob is not None) and (oa == ob or oa is None or ob is None):
                     self._excludes.append((art.links[a], art.links[b]))
 
-    def _camera(self, world, spec: CameraSpec, bodies: dict[str, ET.Element]) -> None:
+    def _camera(self, world, spec: sc.CameraSpec, bodies: dict[str, ET.Element]) -> None:
         check_camera_spec(spec, self.plan.cameras)
         local = _pose_or_bad(spec.pose, f"camera {spec.name!r}: pose")
         body = camera_mount(spec, self.plan.robot.links if self.plan.robot else {})
@@ -466,7 +454,7 @@ class MjcfWriter:
                       quat=_fmt(quat_mul(local[3:], _MJ_CAM_FROM_CV)), fovy=repr(float(spec.fovy_deg)))
         self.plan.cameras[spec.name] = Camera(spec, body, local)
 
-    def write(self, scene: SceneSpec, emb: EmbodimentSpec, timestep: float) -> Plan:
+    def write(self, scene: sc.SceneSpec, emb: EmbodimentSpec, timestep: float) -> Plan:
         check_object_names(scene)
         cameras = list(scene.cameras) + list(emb.cameras)
         self._options(scene, timestep, cameras)
@@ -493,7 +481,7 @@ class MjcfWriter:
         self.plan.xml = ET.tostring(self.root, encoding="unicode")
         return self.plan
 
-    def _articulated_object(self, world, obj: ArticulatedObject, default: Material) -> None:
+    def _articulated_object(self, world, obj: sc.ArticulatedObject, default: sc.Material) -> None:
         pose = _pose_or_bad(obj.pose, f"articulated object {obj.name!r}: pose")
         art = self._urdf(world, obj.name, obj.urdf, pose, "mocap" if obj.fix_root else "free", default,
                          joint_damping=obj.joint_damping if obj.joint_damping > 0 else None,

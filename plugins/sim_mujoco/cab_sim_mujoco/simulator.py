@@ -34,24 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cab_core.contracts import simsupport as ss
 from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.contracts.scene import SceneSpec
-from cab_core.contracts.simsupport import (
-    CameraAccessors,
-    LastStepContacts,
-    PairContacts,
-    live_or_error,
-    object_link_or_bad,
-    pack_state,
-    pose_or_bad,
-    robot_link_or_bad,
-    simulator_options,
-    start_joint_values,
-    step_count_or_bad,
-    timestep_option,
-    unpack_state,
-    vector_or_bad,
-)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
 from cab_core.geometry import pose_mul, quat_to_mat
@@ -117,15 +102,15 @@ class _Renderer:
             self.context.free()
 
 
-class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
+class MujocoSimulator(ss.CameraAccessors, ss.LastStepContacts, Simulator):
     """MuJoCo (CPU physics; OpenGL rendering through EGL or OSMesa). Not thread-safe: one owner."""
 
     name = BACKEND
 
     def __init__(self, cfg: dict | None = None):
-        cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
+        cfg = ss.simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._render_enabled = bool(cfg.get("render", True))
-        self._timestep_override = timestep_option(cfg, BACKEND)
+        self._timestep_override = ss.timestep_option(cfg, BACKEND)
         physics = cfg.get("physics") or {}
         if not hasattr(physics, "items"):
             raise ConfigError(f"mujoco physics must be a mapping of parameter overrides, got {physics!r}")
@@ -222,7 +207,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
             t.jq = np.array([m.jnt_qposadr[j] for j in ids], dtype=np.int64)
             t.jd = np.array([m.jnt_dofadr[j] for j in ids], dtype=np.int64)
             if initial[name] is not None:
-                d.qpos[t.jq] = vector_or_bad(initial[name], len(t.jq), f"initial qpos of {name!r}")
+                d.qpos[t.jq] = ss.vector_or_bad(initial[name], len(t.jq), f"initial qpos of {name!r}")
             self._things[name] = t
         self._object_order = scene.names()
 
@@ -238,7 +223,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._rq, self._rd = self._rq_all[:n], self._rd_all[:n]
         self._kp = m.actuator_gainprm[:, 0].copy()
         self._kd = -m.actuator_biasprm[:, 2].copy()
-        home = start_joint_values(emb)
+        home = ss.start_joint_values(emb)
         start = np.array([home.get(nm, q) for nm, q in zip(self._joint_names, d.qpos[self._rq])])
         d.qpos[self._rq] = start
         for extra in plan.actuators[n:]:
@@ -263,7 +248,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         self._model = self._data = self._render_data = None
 
     def _live(self):
-        return live_or_error(self._model, self._closed)
+        return ss.live_or_error(self._model, self._closed)
 
     @property
     def timestep(self) -> float:
@@ -271,7 +256,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         return self._timestep
 
     def step(self, n: int = 1) -> None:
-        n = step_count_or_bad(n)
+        n = ss.step_count_or_bad(n)
         self._live()
         if n == 0:
             return
@@ -308,7 +293,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         self._live()
-        q = vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        q = ss.vector_or_bad(qpos, len(self._joint_names), "robot qpos")
         self._data.qpos[self._rq] = q
         self._data.qvel[self._rd_all] = 0.0
         self._apply_targets(q)
@@ -316,8 +301,8 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        t = vector_or_bad(targets, len(self._joint_names), "drive targets")
-        v = None if velocities is None else vector_or_bad(velocities, len(self._joint_names),
+        t = ss.vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else ss.vector_or_bad(velocities, len(self._joint_names),
                                                             "drive velocity targets")
         self._apply_targets(t, v)
 
@@ -340,7 +325,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_link_pose(self, link: str) -> np.ndarray:
         self._live()
-        return self._body_pose(robot_link_or_bad(self._robot_links, link))
+        return self._body_pose(ss.robot_link_or_bad(self._robot_links, link))
 
     # -- objects ------------------------------------------------------------------------------
     def object_names(self) -> list[str]:
@@ -365,7 +350,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         """Teleport a body (or an articulated object's root) and zero its velocity (and, for an
         articulated object, its joints' velocities)."""
         t = self._thing(name)
-        p = np.asarray(pose_or_bad(pose))
+        p = np.asarray(ss.pose_or_bad(pose))
         d = self._data
         if t.qadr >= 0:
             d.qpos[t.qadr:t.qadr + 7] = p
@@ -399,7 +384,7 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         t = self._thing(name)
         if t.jq is None:
             raise BadCommand(f"{name!r} is a rigid body; it has no joints")
-        q = vector_or_bad(qpos, len(t.jq), f"qpos of {name!r}")
+        q = ss.vector_or_bad(qpos, len(t.jq), f"qpos of {name!r}")
         self._data.qpos[t.jq] = q
         self._data.qvel[t.jd] = 0.0
         self._touched()
@@ -411,14 +396,14 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         t = self._thing(name)
-        return self._body_pose(object_link_or_bad(t.links or {}, name, link))
+        return self._body_pose(ss.object_link_or_bad(t.links or {}, name, link))
 
     # -- contacts -----------------------------------------------------------------------------
     def _compute_contacts(self) -> list[Contact]:
         """Impulse = sum over the pair's contact points of |force| x timestep (N*s), force = normal
         plus friction; point = mean position of the points that carried force."""
         m, d = self._model, self._data
-        acc = PairContacts()
+        acc = ss.PairContacts()
         if d.ncon == 0:
             return []
         geom_body = m.geom_bodyid
@@ -498,12 +483,12 @@ class MujocoSimulator(CameraAccessors, LastStepContacts, Simulator):
         mujoco.mj_getState(m, self._data, state, _STATE_SPEC)
         d = dict(state=state, targets=self._targets.copy(), vtargets=self._vtargets.copy(),
                  steps=np.array(self._steps, np.int64))
-        return pack_state(BACKEND, self._layout(), d, self.get_contacts())
+        return ss.pack_state(BACKEND, self._layout(), d, self.get_contacts())
 
     def restore_state(self, state: SimState) -> None:
         """Restore a snapshot of this world (or of another build of the same scene and robot)."""
         m = self._live()
-        d, contacts = unpack_state(state, BACKEND, self._layout())
+        d, contacts = ss.unpack_state(state, BACKEND, self._layout())
         if d["state"].shape != (mujoco.mj_stateSize(m, _STATE_SPEC),):
             raise BadCommand("the state was saved from a different scene or robot")
         mujoco.mj_setState(m, self._data, d["state"], _STATE_SPEC)

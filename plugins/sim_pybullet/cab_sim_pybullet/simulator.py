@@ -62,27 +62,9 @@ with c_output_silenced():  # its build-time banner
     import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
+from cab_core.contracts import simsupport as ss
 from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.contracts.scene import Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Sphere
-from cab_core.contracts.simsupport import (
-    CameraAccessors,
-    LastStepContacts,
-    PairContacts,
-    camera_mount,
-    check_camera_spec,
-    check_object_names,
-    live_or_error,
-    object_link_or_bad,
-    pack_state,
-    pose_or_bad,
-    robot_link_or_bad,
-    simulator_options,
-    start_joint_values,
-    step_count_or_bad,
-    timestep_option,
-    unpack_state,
-    vector_or_bad,
-)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 from cab_core.contracts.texturing import texture_image, textured, uv_mesh
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
@@ -163,7 +145,7 @@ def _split_capsules(shapes: list) -> list:
         if not isinstance(g, Capsule) or textured(s):
             out.append(s)
             continue
-        pose = pose_or_bad(s.pose)
+        pose = ss.pose_or_bad(s.pose)
         out.append(replace(s, geometry=Cylinder(g.radius, g.half_length)))
         for end in (-g.half_length, g.half_length):
             out.append(replace(s, geometry=Sphere(g.radius), pose=tuple(pose_mul(pose, (end, 0, 0, 1, 0, 0, 0)))))
@@ -192,18 +174,18 @@ class _Camera:
     projection: list[float]
 
 
-class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
+class PybulletSimulator(ss.CameraAccessors, ss.LastStepContacts, Simulator):
     """PyBullet 3 (Bullet multibodies, TinyRenderer or EGL). Not thread-safe: one owner thread."""
 
     name = BACKEND
 
     def __init__(self, cfg: dict | None = None):
-        cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
+        cfg = ss.simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._cfg = dict(cfg)  # for the render twin (render_samples)
         self._twin: PybulletSimulator | None = None
         self._render_enabled = bool(cfg.get("render", True))
         self._renderer = _renderer.choose(str(cfg.get("renderer", "auto"))) if self._render_enabled else None
-        self._timestep_override = timestep_option(cfg, BACKEND)
+        self._timestep_override = ss.timestep_option(cfg, BACKEND)
         physics = dict(cfg.get("physics") or {})
         bad = sorted(k for k in physics if k not in PHYSICS_DEFAULTS)
         if bad:
@@ -240,7 +222,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             raise SimulatorError("build() is called once per simulator")
         self._timestep = self._timestep_override or float(scene.timestep)
         self._scene_spec, self._emb = scene, embodiment
-        check_object_names(scene)
+        ss.check_object_names(scene)
         with c_output_silenced():  # "argv[0]=" from the C side
             self._c = BulletClient(connection_mode=pybullet.DIRECT)
         try:
@@ -309,7 +291,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             out["rgbaColors"] = []
         for s in shapes:
             g = s.geometry
-            pose = pose_or_bad(s.pose)
+            pose = ss.pose_or_bad(s.pose)
             kind, half, radius, length, fname, scale, flags = pybullet.GEOM_BOX, [0.0] * 3, 0.0, 0.0, "", [1.0] * 3, 0
             if not collision and textured(s):  # a mesh with texture coordinates, in the shape frame
                 kind, fname = pybullet.GEOM_MESH, uv_mesh(g)
@@ -353,7 +335,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             for sh in shapes:
                 try:
                     parts.append(massprops.transformed(massprops.shape_props(sh.geometry, float(body.density)),
-                                                       pose_or_bad(sh.pose)))
+                                                       ss.pose_or_bad(sh.pose)))
                 except ValueError as e:
                     raise BadCommand(f"body {body.name!r}: {e}") from None
             props.append(massprops.combine(parts) if parts else None)
@@ -408,7 +390,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             masses.append(p.mass)
             frames.append(np.concatenate([p.com, mat_to_quat(axes)]))
             moments.append(m)
-        pose = pose_or_bad(body.pose)
+        pose = ss.pose_or_bad(body.pose)
         links = n - 1
         uid = c.createMultiBody(
             masses[0], cols[0], viss[0], list(pose[:3]), _xyzw(pose[3:]),
@@ -490,7 +472,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         if not os.path.isfile(urdf):
             raise BadCommand(f"URDF not found: {urdf}")
         c = self._c
-        p = pose_or_bad(pose)
+        p = ss.pose_or_bad(pose)
         try:
             uid = c.loadURDF(urdf, list(p[:3]), _xyzw(p[3:]), useFixedBase=bool(fix_root),
                              flags=flags | pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_MAINTAIN_LINK_ORDER)
@@ -529,7 +511,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             if obj.joint_damping > 0:
                 c.changeDynamics(mb.uid, j, jointDamping=float(obj.joint_damping))
         if obj.qpos is not None:
-            q = vector_or_bad(obj.qpos, len(mb.joints), f"initial qpos of {obj.name!r}")
+            q = ss.vector_or_bad(obj.qpos, len(mb.joints), f"initial qpos of {obj.name!r}")
             for j, v in zip(mb.joints, q.tolist()):
                 c.resetJointState(mb.uid, j, v, 0.0)
         for link, index in mb.links.items():
@@ -560,7 +542,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             effort = float(c.getJointInfo(mb.uid, j)[10])
             self._force.append(self._physics["gripper_force_n"] if n in gripper
                                else (effort if effort > 0 else self._physics["arm_force_nm"]))
-        home = start_joint_values(emb)
+        home = ss.start_joint_values(emb)
         start = np.array([home[n] for n in order])
         for j, v in zip(self._drive_idx, start.tolist()):
             c.resetJointState(mb.uid, j, v, 0.0)
@@ -602,11 +584,11 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
     def _build_cameras(self, specs: list[CameraSpec]) -> None:
         self._cameras: dict[str, _Camera] = {}
         for spec in specs:
-            check_camera_spec(spec, self._cameras)
-            mount = camera_mount(spec, self._robot.links)
+            ss.check_camera_spec(spec, self._cameras)
+            mount = ss.camera_mount(spec, self._robot.links)
             K = intrinsics(int(spec.width), int(spec.height), float(spec.fovy_deg))
             proj = _renderer.projection_matrix(K, int(spec.width), int(spec.height), float(spec.near), float(spec.far))
-            self._cameras[spec.name] = _Camera(spec, mount, np.asarray(pose_or_bad(spec.pose)), proj)
+            self._cameras[spec.name] = _Camera(spec, mount, np.asarray(ss.pose_or_bad(spec.pose)), proj)
 
     def close(self) -> None:
         """Disconnect the physics client (and the render twin's). Idempotent."""
@@ -623,7 +605,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
             log.debug("disconnect failed during close", exc_info=True)
 
     def _live(self) -> BulletClient:
-        return live_or_error(self._c, self._closed)
+        return ss.live_or_error(self._c, self._closed)
 
     @property
     def timestep(self) -> float:
@@ -631,7 +613,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         return self._timestep
 
     def step(self, n: int = 1) -> None:
-        n = step_count_or_bad(n)
+        n = ss.step_count_or_bad(n)
         c = self._live()
         if n == 0:
             return
@@ -668,15 +650,15 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         c = self._live()
-        q = vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        q = ss.vector_or_bad(qpos, len(self._joint_names), "robot qpos")
         for j, v in zip(self._drive_idx, q.tolist()):
             c.resetJointState(self._robot.uid, j, v, 0.0)
         self._apply_targets(q)
 
     def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        t = vector_or_bad(targets, len(self._joint_names), "drive targets")
-        v = None if velocities is None else vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
+        t = ss.vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else ss.vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
         self._apply_targets(t, v)
 
     def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
@@ -694,7 +676,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_link_pose(self, link: str) -> np.ndarray:
         self._live()
-        return self._link_pose(self._robot, robot_link_or_bad(self._robot.links, link))
+        return self._link_pose(self._robot, ss.robot_link_or_bad(self._robot.links, link))
 
     # -- objects ------------------------------------------------------------------------------
     def object_names(self) -> list[str]:
@@ -714,7 +696,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
     def set_object_pose(self, name: str, pose) -> None:
         """Teleport a body (or an articulated object's root) and zero its velocity."""
         mb = self._object(name)
-        p = pose_mul(pose_or_bad(pose), mb.com_local)
+        p = pose_mul(ss.pose_or_bad(pose), mb.com_local)
         c = self._c
         c.resetBasePositionAndOrientation(mb.uid, p[:3].tolist(), _xyzw(p[3:]))
         c.resetBaseVelocity(mb.uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
@@ -737,7 +719,7 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
         mb = self._object(name)
         if mb.kind != "articulation":
             raise BadCommand(f"{name!r} is a rigid body; it has no joints")
-        q = vector_or_bad(qpos, len(mb.joints), f"qpos of {name!r}")
+        q = ss.vector_or_bad(qpos, len(mb.joints), f"qpos of {name!r}")
         for j, v in zip(mb.joints, q.tolist()):
             self._c.resetJointState(mb.uid, j, v, 0.0)
 
@@ -748,14 +730,14 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         mb = self._object(name)
-        return self._link_pose(mb, object_link_or_bad(mb.links, name, link))
+        return self._link_pose(mb, ss.object_link_or_bad(mb.links, name, link))
 
     # -- contacts -----------------------------------------------------------------------------
     def _compute_contacts(self) -> list[Contact]:
         """Impulse = sum over the pair's points of |normal + friction force| * timestep (N*s);
         point = mean position of the points that carried force."""
         names = self._names
-        acc = PairContacts()
+        acc = ss.PairContacts()
         dt = self._timestep
         for pt in self._c.getContactPoints():
             f = math.sqrt(pt[9] * pt[9] + pt[10] * pt[10] + pt[12] * pt[12])
@@ -853,12 +835,12 @@ class PybulletSimulator(CameraAccessors, LastStepContacts, Simulator):
                  vtargets=self._vtargets.copy(), steps=np.array(self._steps, np.int64))
         contacts = self.get_contacts()
         self._rebuild_with(d, contacts)
-        return pack_state(BACKEND, self._layout(), d, contacts)
+        return ss.pack_state(BACKEND, self._layout(), d, contacts)
 
     def restore_state(self, state: SimState) -> None:
         """Restore a snapshot of this world (or of another build of the same scene and robot)."""
         self._live()
-        d, contacts = unpack_state(state, BACKEND, self._layout())
+        d, contacts = ss.unpack_state(state, BACKEND, self._layout())
         self._rebuild_with(d, contacts)
 
     def _rebuild_with(self, d: dict, contacts: list[Contact]) -> None:

@@ -83,27 +83,9 @@ import numpy as np
 import sapien
 from sapien.wrapper.urdf_loader import URDFLoader
 
+from cab_core.contracts import simsupport as ss
 from cab_core.contracts.embodiment import EmbodimentSpec
 from cab_core.contracts.scene import Box, CameraSpec, Capsule, Cylinder, Material, Mesh, SceneSpec, Sphere, cache_dir
-from cab_core.contracts.simsupport import (
-    CameraAccessors,
-    LastStepContacts,
-    PairContacts,
-    camera_mount,
-    check_camera_spec,
-    check_object_names,
-    live_or_error,
-    object_link_or_bad,
-    pack_state,
-    pose_or_bad,
-    robot_link_or_bad,
-    simulator_options,
-    start_joint_values,
-    step_count_or_bad,
-    timestep_option,
-    unpack_state,
-    vector_or_bad,
-)
 from cab_core.contracts.simulator import ROBOT, Contact, SimState, Simulator
 from cab_core.contracts.texturing import texture_image, textured, uv_mesh
 from cab_core.errors import BadCommand, ConfigError, RendererUnavailable, SimulatorError
@@ -184,15 +166,15 @@ class _Camera:
     local: sapien.Pose  # cv pose: world pose (fixed) or pose in the mount link (mounted)
 
 
-class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
+class SapienSimulator(ss.CameraAccessors, ss.LastStepContacts, Simulator):
     """SAPIEN 3.0 (CPU PhysX, Vulkan renderer). Not thread-safe: one owner thread."""
 
     name = BACKEND
 
     def __init__(self, cfg: dict | None = None):
-        cfg = simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
+        cfg = ss.simulator_options(cfg, _KNOWN_OPTIONS, BACKEND)
         self._render_enabled = bool(cfg.get("render", True))
-        self._timestep_override = timestep_option(cfg, BACKEND)
+        self._timestep_override = ss.timestep_option(cfg, BACKEND)
         self._shader = str(cfg.get("shader", "default"))
         self._shader_path = _shader_dir(self._shader)
         self._shadows = bool(cfg.get("shadows", False))
@@ -304,7 +286,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
                 s.add_point_light(list(position), list(color), shadow=self._shadows,
                                   shadow_map_size=self._shadow_map_size)
 
-        check_object_names(scene)
+        ss.check_object_names(scene)
         for body in scene.bodies:
             self._build_body(body)
         for obj in scene.articulations:
@@ -359,7 +341,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         n_collision = 0
         for shape in body.shapes:
             g = shape.geometry
-            pose = _sp(pose_or_bad(shape.pose))
+            pose = _sp(ss.pose_or_bad(shape.pose))
             if isinstance(g, Mesh) and not os.path.isfile(g.path):
                 raise BadCommand(f"body {body.name!r}: mesh file not found: {g.path}")
             if shape.visual and shape.material.texture is not None:  # checked on physics-only builds too
@@ -403,7 +385,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
                     b.add_cylinder_visual(pose, radius=g.radius, half_length=g.half_length, material=rm)
                 elif isinstance(g, Mesh):
                     b.add_visual_from_file(g.path, pose, scale=tuple(g.scale), material=rm)
-        b.set_initial_pose(_sp(pose_or_bad(body.pose)))
+        b.set_initial_pose(_sp(ss.pose_or_bad(body.pose)))
         entity = b.build(name=body.name)
         cls = (sapien.physx.PhysxRigidStaticComponent if body.kind == "static"
                else sapien.physx.PhysxRigidDynamicComponent)
@@ -440,7 +422,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
             builder = loader.load_file_as_articulation_builder(urdf, srdf if srdf and os.path.isfile(srdf) else None)
         except Exception as e:  # the URDF parser raises plain Exceptions
             raise BadCommand(f"cannot load URDF {urdf}: {e}") from e
-        builder.set_initial_pose(_sp(pose_or_bad(pose)))
+        builder.set_initial_pose(_sp(ss.pose_or_bad(pose)))
         return builder.build()
 
     def _filter_self_collisions(self, emb: EmbodimentSpec) -> None:
@@ -473,7 +455,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
             if obj.joint_damping > 0:
                 j.set_drive_property(0.0, float(obj.joint_damping))
         if obj.qpos is not None:
-            q = vector_or_bad(obj.qpos, art.dof, f"initial qpos of {obj.name!r}")
+            q = ss.vector_or_bad(obj.qpos, art.dof, f"initial qpos of {obj.name!r}")
             art.set_qpos(q.astype(np.float32))
         links = {}
         for link in art.get_links():
@@ -510,7 +492,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         q = art.get_qpos().astype(np.float64)
         start = q[self._qidx].copy()
         pos = {n: i for i, n in enumerate(order)}
-        for n, v in start_joint_values(emb).items():
+        for n, v in ss.start_joint_values(emb).items():
             start[pos[n]] = v
         q[self._qidx] = start
         art.set_qpos(q.astype(np.float32))
@@ -528,9 +510,9 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
     def _build_cameras(self, specs: list[CameraSpec]) -> None:
         self._cameras: dict[str, _Camera] = {}
         for spec in specs:
-            check_camera_spec(spec, self._cameras)
-            local = _sp(pose_or_bad(spec.pose))
-            link = camera_mount(spec, self._robot_links)
+            ss.check_camera_spec(spec, self._cameras)
+            local = _sp(ss.pose_or_bad(spec.pose))
+            link = ss.camera_mount(spec, self._robot_links)
             comp = None
             if self._rs is not None:
                 comp = sapien.render.RenderCameraComponent(int(spec.width), int(spec.height), self._shader_path)
@@ -567,7 +549,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         del scene
 
     def _live(self):
-        return live_or_error(self._scene, self._closed)
+        return ss.live_or_error(self._scene, self._closed)
 
     @property
     def timestep(self) -> float:
@@ -575,7 +557,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         return self._timestep
 
     def step(self, n: int = 1) -> None:
-        n = step_count_or_bad(n)
+        n = ss.step_count_or_bad(n)
         self._live()
         if n == 0:
             return
@@ -602,7 +584,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         self._live()
-        q = vector_or_bad(qpos, len(self._joint_names), "robot qpos")
+        q = ss.vector_or_bad(qpos, len(self._joint_names), "robot qpos")
         full = self._robot.get_qpos()
         full[self._qidx] = q
         self._robot.set_qpos(full)
@@ -612,8 +594,8 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def set_drive_targets(self, targets: np.ndarray, velocities: np.ndarray | None = None) -> None:
         self._live()
-        t = vector_or_bad(targets, len(self._joint_names), "drive targets")
-        v = None if velocities is None else vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
+        t = ss.vector_or_bad(targets, len(self._joint_names), "drive targets")
+        v = None if velocities is None else ss.vector_or_bad(velocities, len(self._joint_names), "drive velocity targets")
         self._apply_targets(t, v)
 
     def _apply_targets(self, t: np.ndarray, v: np.ndarray | None = None) -> None:
@@ -630,7 +612,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_link_pose(self, link: str) -> np.ndarray:
         self._live()
-        return _np(robot_link_or_bad(self._robot_links, link).entity_pose)
+        return _np(ss.robot_link_or_bad(self._robot_links, link).entity_pose)
 
     # -- objects ------------------------------------------------------------------------------
     def object_names(self) -> list[str]:
@@ -655,7 +637,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
     def set_object_pose(self, name: str, pose) -> None:
         """Teleport a body (or an articulated object's root) and zero its velocity."""
         body, art = self._object(name)
-        p = _sp(pose_or_bad(pose))
+        p = _sp(ss.pose_or_bad(pose))
         if body is not None:
             body.entity.set_pose(p)
             if body.kind == "dynamic":
@@ -686,7 +668,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         body, art = self._object(name)
         if art is None:
             raise BadCommand(f"{name!r} is a rigid body; it has no joints")
-        q = vector_or_bad(qpos, art.dof, f"qpos of {name!r}")
+        q = ss.vector_or_bad(qpos, art.dof, f"qpos of {name!r}")
         art.set_qpos(q.astype(np.float32))
         art.set_qvel(np.zeros(art.dof, dtype=np.float32))
         self._touched()
@@ -697,7 +679,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
 
     def get_object_link_pose(self, name: str, link: str) -> np.ndarray:
         self._object(name)
-        return _np(object_link_or_bad(self._art_links.get(name, {}), name, link).entity_pose)
+        return _np(ss.object_link_or_bad(self._art_links.get(name, {}), name, link).entity_pose)
 
     def _touched(self) -> None:
         """State changed without a step: images must be re-rendered; contacts keep the last step's."""
@@ -709,7 +691,7 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         that carried impulse."""
         # plain floats and math.sqrt: about 2.5x faster than numpy on PhysX's small per-point arrays
         names = self._names_by_ptr
-        acc = PairContacts()
+        acc = ss.PairContacts()
         sqrt = math.sqrt
         for c in self._px.get_contacts():
             impulse, sx, sy, sz, k = 0.0, 0.0, 0.0, 0.0, 0
@@ -821,12 +803,12 @@ class SapienSimulator(CameraAccessors, LastStepContacts, Simulator):
         # step" replays "save, step" bit for bit. The price: a snapshot perturbs the run it is taken
         # from by float32 rounding (about 1e-9 to 1e-6 m), identically on every run that takes it.
         self._apply_state(d, contacts)
-        return pack_state(BACKEND, self._layout(), d, contacts)
+        return ss.pack_state(BACKEND, self._layout(), d, contacts)
 
     def restore_state(self, state: SimState) -> None:
         """Restore a snapshot of this world (or of another build of the same scene and robot)."""
         self._live()
-        d, contacts = unpack_state(state, BACKEND, self._layout())
+        d, contacts = ss.unpack_state(state, BACKEND, self._layout())
         self._apply_state(d, contacts)
 
     def _apply_state(self, d: dict, contacts: list[Contact]) -> None:
