@@ -22,7 +22,7 @@ import pytest
 from cab_core.contracts.scene import SceneSpec
 from cab_core.contracts.simulator import Simulator
 from cab_core.errors import ConfigError, RendererUnavailable, SimulatorError
-from cab_core.plugins import registry
+from cab_core.plugins import build_plugin_manager, registry
 from cab_core.testing import sim_conformance as sc
 
 
@@ -94,8 +94,6 @@ def rendering_versions(name: str) -> dict:
 
 def registered_through_entry_point(b: Backend) -> None:
     """The plugin's entry point registers a factory under the backend's name that builds its class."""
-    from cab_core.plugins import build_plugin_manager
-
     factory = registry("simulators", build_plugin_manager(autoload=True))[b.name]
     assert isinstance(factory({"render": False, "name": b.name}), b.simulator_class())
 

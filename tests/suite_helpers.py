@@ -25,8 +25,9 @@ import numpy as np
 import pytest
 
 from cab_core.contracts.checkpoints import SpatialRule
+from cab_core.contracts.verifier import WorldView
 from cab_core.geometry import mat_to_quat, pose_mul
-from cab_core.plugins import all_tasks
+from cab_core.plugins import all_tasks, create
 from cab_core.testing.task_conformance import margins_agree
 from cab_suite_codeaction.assets_articulated import lid_rotation
 
@@ -232,8 +233,6 @@ def check_urdf_hinge(urdf, links, joint, limits, origin, axis=None):
 # --- with the SAPIEN backend ------------------------------------------------------------------------
 def sapien_backend(sim_config=None):
     """The SAPIEN simulator and the aloha_agilex embodiment, or skip the test."""
-    from cab_core.plugins import create
-
     try:
         sim = create("simulators", "sapien", {"render": False} if sim_config is None else sim_config)
         emb = create("embodiments", "aloha_agilex", {})
@@ -254,8 +253,6 @@ def assert_settles(sim, inst, steps, tol=1e-3):
 
 
 def world_view(sim, emb, inst, grips=None):
-    from cab_core.contracts.verifier import WorldView
-
     return WorldView(sim, emb, {a: 1.0 for a in emb.arms} if grips is None else grips, inst.info)
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from cab_core import plugins
 from cab_core.contracts.task import TaskInfo
 from cab_core.errors import ConfigError
 from cab_suite_codeaction import catalog
@@ -85,15 +86,11 @@ def test_load_catalog_returns_a_copy():
 
 
 def test_core_lookups_come_from_the_installed_suite():
-    from cab_core import plugins
-
     assert sorted(plugins.task_names()) == sorted(catalog.task_names())
     assert all(plugins.task_info(n) == catalog.task_info(n) for n in catalog.task_names())
 
 
 def test_core_lookup_of_an_unknown_task_is_one_line_with_the_choices():
-    from cab_core import plugins
-
     with pytest.raises(ConfigError) as e:
         plugins.task_info("block_on_pad")
     assert str(e.value) == f"unknown task 'block_on_pad'; choices: {', '.join(sorted(catalog.task_names()))}"

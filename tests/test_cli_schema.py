@@ -8,7 +8,7 @@ from omegaconf import OmegaConf
 
 import cab_core.conf
 from cab_core.apps.cmdline import check_command_line
-from cab_core.conf.schema import OWN_KEYS, SCHEMA_NAME, CabConfig, checked_view
+from cab_core.conf.schema import OWN_KEYS, SCHEMA_NAME, CabConfig, check_basics, checked_view
 from cab_core.errors import ConfigError
 
 
@@ -84,8 +84,6 @@ def test_a_yaml_value_of_another_type_is_refused_when_the_attempt_is_specified()
     ("harness", {"name": ["a"]}, "harness.name must be the name of the harness (a string), got ['a']"),
 ])
 def test_the_model_and_harness_basics_are_typed(group, option, line):
-    from cab_core.conf.schema import check_basics
-
     with pytest.raises(ConfigError) as e:
         check_basics({group: option})
     assert str(e.value) == line
@@ -93,8 +91,6 @@ def test_the_model_and_harness_basics_are_typed(group, option, line):
 
 def test_the_model_and_harness_groups_stay_open():
     """An option's own keys (a provider's, a vendor's) are not the schema's business."""
-    from cab_core.conf.schema import check_basics
-
     check_basics({"model": {"name": "x", "harness": "reference", "model_id": "m", "vendor": {"env": {}, "extra_args": []},
                             "pricing": {"input_per_mtok": 1.0}},
                   "harness": {"name": "mcp", "transport": "http", "port": 0}})

@@ -6,6 +6,7 @@ from hydra.errors import MissingConfigException
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.runner import attempt_spec
 from cab_core.errors import ConfigError
+from cab_suite_codeaction.catalog import load_catalog
 
 
 def _compose(overrides):
@@ -66,7 +67,5 @@ def test_bad_seed_is_a_typed_error(tmp_path):
 
 
 def test_every_catalog_task_has_a_task_option():
-    from cab_suite_codeaction.catalog import load_catalog
-
     for t in load_catalog()["tasks"]:
         assert _compose([f"task={t['name']}"]).task.name == t["name"]

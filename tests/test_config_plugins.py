@@ -15,7 +15,10 @@ import cab_core
 from cab_core import plugins
 from cab_core.apps.cli import normalise_overrides
 from cab_core.attempt.runner import attempt_spec
-from cab_core.errors import ConfigError
+from cab_core.config import default_selection, extend_search_path, is_cab_search_path
+from cab_core.contracts.task import Task, TaskInfo
+from cab_core.errors import ConfigError, PluginError
+from cab_suite_codeaction import catalog
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_MODELS = {"astra_codex", "opus5", "opus5_claude_code", "gemini36flash", "gpt56", "qwen38max", "grok46",
@@ -69,8 +72,6 @@ def test_a_task_yaml_a_plugin_ships_is_the_option_without_a_schema_warning(conf_
 
 
 def test_a_bad_config_dirs_result_is_a_plugin_error():
-    from cab_core.errors import PluginError
-
     class Bad:
         @cab_core.hookimpl
         def cab_config_dirs(self):
@@ -128,8 +129,6 @@ def test_experiment_smoke_is_a_small_sweep_on_the_default_simulator():
 
 
 def test_experiment_paper_is_nine_configurations_by_25_tasks_by_3_attempts():
-    from cab_suite_codeaction import catalog
-
     cfg = _compose(["+experiment=paper"], hydra=True)
     sweep = _sweep(cfg)
     assert set(sweep) == {"model", "task", "attempt"}
@@ -172,8 +171,6 @@ def test_the_cores_primary_config_alone_needs_each_plugin_group_chosen(tmp_path,
 def test_other_hydra_apps_search_paths_are_left_alone():
     from hydra._internal.config_search_path_impl import ConfigSearchPathImpl
 
-    from cab_core.config import extend_search_path, is_cab_search_path
-
     sp = ConfigSearchPathImpl()
     sp.append("hydra", "pkg://hydra.conf")
     sp.append("main", "pkg://someone_else.conf")
@@ -184,8 +181,6 @@ def test_other_hydra_apps_search_paths_are_left_alone():
 
 
 def test_default_selection_is_the_composed_defaults():
-    from cab_core.config import default_selection
-
     assert default_selection() == {"sim": "sapien", "embodiment": "aloha_agilex", "planner": "mplib"}
     assert default_selection(("task",)) == {"task": "beat_block_hammer"}
 
@@ -193,8 +188,6 @@ def test_default_selection_is_the_composed_defaults():
 @pytest.fixture
 def new_suite():
     """A task suite registered in-process with one task no file names: ``block_on_pad``."""
-    from cab_core.contracts.task import Task, TaskInfo
-
     class BlockOnPad(Task):
         info = TaskInfo(name="block_on_pad", instruction="Put the block on the pad.", seed=4, scoring="final",
                         budget_tool_calls=12, budget_sim_s=65.0)

@@ -122,7 +122,7 @@ def test_a_failing_check_fails(project, registered):
     """A simulator that lies about its timestep fails the timestep check, with and without pictures;
     the real one beside it passes."""
     pytest.importorskip("mujoco")
-    from cab_sim_mujoco.simulator import MujocoSimulator
+    from cab_sim_mujoco.simulator import MujocoSimulator  # after the skip: MuJoCo may not be installed
 
     class Liar(MujocoSimulator):
         @property
@@ -206,7 +206,7 @@ def test_check_pair_refuses_over_budget_errors_and_subgoals_at_start(tmp_path):
 def test_determinism_check_fails_a_restore_that_restores_nothing(tmp_path, monkeypatch):
     """The check passes on MuJoCo's world of click_bell, and fails once restore_state is a no-op."""
     pytest.importorskip("mujoco")
-    from cab_sim_mujoco.simulator import MujocoSimulator
+    from cab_sim_mujoco.simulator import MujocoSimulator  # after the skip: MuJoCo may not be installed
 
     tc.check_determinism_and_restore("click_bell", "mujoco", tmp_path / "real")
     monkeypatch.setattr(MujocoSimulator, "restore_state", lambda self, state: None)

@@ -9,8 +9,13 @@ from pathlib import Path
 import pytest
 
 import cab_core
+from cab_core.apps.cli import wants_stdio_protocol
+from cab_core.attempt.runner import attempt_spec
 from cab_core.errors import ConfigError
+from cab_core.kits.harness import prompts as agent_io
 from cab_core.plugins import all_tasks, build_plugin_manager, registry
+from cab_harness_mcp import harness as mcp
+from cab_harness_reference import loop
 
 CORE = Path(cab_core.__file__).parent
 
@@ -71,10 +76,6 @@ def test_harness_mcp_needs_no_other_harness():
 
 
 def test_both_harnesses_use_the_cores_prompt_and_image_rule():
-    from cab_core.kits.harness import prompts as agent_io
-    from cab_harness_mcp import harness as mcp
-    from cab_harness_reference import loop
-
     for name in ("system_prompt", "first_user_message", "result_images", "run_code_limits"):
         assert getattr(loop, name) is getattr(agent_io, name)
     for name in ("system_prompt", "first_user_message", "result_images", "run_code_limits"):
@@ -82,8 +83,6 @@ def test_both_harnesses_use_the_cores_prompt_and_image_rule():
 
 
 def test_a_model_config_without_a_harness_is_refused(tmp_path):
-    from cab_core.attempt.runner import attempt_spec
-
     cfg = {"task": {"name": "click_bell"}, "sim": {"name": "mujoco"}, "embodiment": {"name": "aloha_agilex"},
            "planner": {"name": "mplib"}, "harness": {"name": "auto"}, "model": {"name": "mine"}}
     with pytest.raises(ConfigError, match=r"^model 'mine' names no harness \(model.harness\); give one with harness="):
@@ -96,8 +95,6 @@ def test_a_harness_that_speaks_on_stdio_gets_stdout_by_its_own_declaration():
     """The core reserves stdout for a protocol when the selected harness says it speaks on stdio
     (not by the harness's name): here the MCP harness does, the direct one does not, and another
     transport given on the command line wins."""
-    from cab_core.apps.cli import wants_stdio_protocol
-
     assert getattr(registry("harnesses")["mcp"], "speaks_on_stdio", False) is True
     assert wants_stdio_protocol(["task=click_bell", "harness=mcp"])
     assert wants_stdio_protocol(["+harness=mcp", "harness.transport=stdio"])

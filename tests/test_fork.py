@@ -14,6 +14,7 @@ from hydra import compose, initialize_config_module
 from cab_core.analysis.viewer import forks_of
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.cmdline import check_command_line
+from cab_core.apps.replay import replay
 from cab_core.attempt.fork import FORK_TOLERANCE_M, ForkDiverged, ForkPoint, charged_calls
 from cab_core.attempt.records.recovery import recovery
 from cab_core.attempt.runner import attempt_spec, run_attempt
@@ -89,7 +90,6 @@ def test_a_fork_of_a_fork_keeps_its_lineage_and_replays(parent, tmp_path):
     assert r["fork"]["parent"] == "../child" and r["fork"]["at"] == 2
     assert r["fork"]["lineage"] == [{"parent": os.path.relpath(parent, tmp_path / "child"), "at": 2}]
     assert r["verdict"]["success"] is True and r["fork"]["exact"] is True
-    from cab_core.apps.replay import replay
 
     v = replay(tmp_path / "grandchild")
     assert v.valid, v.mismatches

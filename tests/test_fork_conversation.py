@@ -12,7 +12,11 @@ from pathlib import Path
 import pytest
 from test_harness_reference import CANCELLED, CAPS, FakeEpisode, ScriptedProvider  # first: it finds the plugin
 
+from cab_core.attempt.engine.episode import Episode
 from cab_core.attempt.fork import ForkPoint
+from cab_core.attempt.runner import run_attempt
+from cab_core.attempt.spec import attempt_spec, forked
+from cab_core.config import composed
 from cab_core.kits.harness.conversation import transcript
 from cab_harness_reference.loop import MALFORMED_KEY, NUDGE, ReferenceHarness
 from cab_harness_reference.types import Capabilities, Image, Text, ToolCall, ToolResult
@@ -170,17 +174,12 @@ def test_transcript_of_a_model_free_parent_and_of_leftover_calls():
 
 # -- real attempts ---------------------------------------------------------------------------------
 def spec_for(out: Path, *overrides: str, fork: dict | None = None):
-    from cab_core.attempt.spec import attempt_spec, forked
-    from cab_core.config import composed
-
     spec = attempt_spec(composed(["sim=mujoco", "task=click_bell", "record.video=false", *overrides]), out)
     return forked(spec, fork) if fork else spec
 
 
 def play(spec, script):
     """The attempt ``spec``, played by the reference harness answered by ``script``."""
-    from cab_core.attempt.engine.episode import Episode
-
     prov = ScriptedProvider(script)
     with Episode.open(spec) as ep:
         ReferenceHarness({}, provider=prov).run(ep, spec.model_cfg)
@@ -234,8 +233,6 @@ def test_fork_of_a_model_attempt_rebuilds_its_conversation(tmp_path):
 
 @pytest.mark.sim
 def test_fork_of_an_oracle_attempt_gives_one_turn_per_call(tmp_path):
-    from cab_core.attempt.runner import run_attempt
-
     assert run_attempt(spec_for(tmp_path / "parent", "model=oracle"))["termination"]["reason"] == "done"
     calls = recorded_calls(tmp_path / "parent")[:3]
     _, child_prov = play(spec_for(tmp_path / "child", "model=sonnet5",

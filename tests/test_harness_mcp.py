@@ -19,7 +19,10 @@ import pytest
 pytest.importorskip("mcp")
 pytest.importorskip("sapien")
 
+from cab_core.apps.cli import normalise_overrides
+from cab_core.kits.harness.agent_info import ClientInfo
 from cab_core.tools import build_registry  # noqa: E402
+from cab_harness_mcp.harness import attempt_model_name, configured_name
 from cab_harness_mcp.script_client import calls_from_events, connect, run_script  # noqa: E402
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
@@ -123,8 +126,6 @@ def compose_model(*overrides: str) -> dict:
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
-    from cab_core.apps.cli import normalise_overrides
-
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         cfg = compose(config_name="config", overrides=normalise_overrides([f"task={TASK}", *overrides]))
     return {"model": OmegaConf.to_container(cfg.model), "harness": cfg.harness.name}
@@ -133,9 +134,6 @@ def compose_model(*overrides: str) -> dict:
 def test_model_config_of_a_served_attempt():
     """harness=mcp selects the mcp_client placeholder (not the oracle, which plays no part);
     model.name names the configuration; the vendor launchers keep their own names."""
-    from cab_core.kits.harness.agent_info import ClientInfo
-    from cab_harness_mcp.harness import attempt_model_name, configured_name
-
     assert compose_model("+harness=mcp") == {"model": {"name": "mcp_client", "harness": "mcp"}, "harness": "mcp"}
     assert compose_model("+harness=mcp", "model.name=my-agent")["model"] == {"name": "my-agent", "harness": "mcp"}
     assert compose_model()["model"]["name"] == "oracle"  # other attempts are unchanged

@@ -8,7 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from cab_core.apps.cli import normalise_overrides
+from cab_core.attempt.engine.builtin import DirectHarness, IdleAgent, OracleAgent
 from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.runner import attempt_spec
 from cab_core.contracts.harness import (
     AttemptSession,
     CallLimit,
@@ -18,6 +21,7 @@ from cab_core.contracts.harness import (
     ModelFreeAgent,
     SessionLedger,
 )
+from cab_harness_mcp.plugin import create_mcp
 
 
 def members(proto) -> dict[str, object]:
@@ -66,8 +70,6 @@ def test_the_episode_class_has_the_session_methods_with_their_signatures():
 
 
 def test_cabs_harnesses_and_agents_follow_the_protocol():
-    from cab_core.attempt.engine.builtin import DirectHarness, IdleAgent, OracleAgent
-
     assert isinstance(DirectHarness({}), Harness)
     assert isinstance(IdleAgent({}), ModelFreeAgent) and isinstance(OracleAgent({}), ModelFreeAgent)
     assert len(parameters(DirectHarness.run)) == len(parameters(Harness.run))  # (self, session, model_cfg)
@@ -78,7 +80,6 @@ def test_cabs_harnesses_and_agents_follow_the_protocol():
     assert isinstance(h, Harness)
     for name in members(HarnessHooks):
         assert parameters(getattr(type(h), name)) == parameters(getattr(HarnessHooks, name)), name
-    from cab_harness_mcp.plugin import create_mcp
 
     assert getattr(create_mcp, "speaks_on_stdio", False) is True
 
@@ -86,9 +87,6 @@ def test_cabs_harnesses_and_agents_follow_the_protocol():
 @pytest.mark.sim
 def test_a_real_episode_is_an_attempt_session(tmp_path):
     from hydra import compose, initialize_config_module
-
-    from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.runner import attempt_spec
 
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
         cfg = compose(config_name="config", overrides=normalise_overrides(

@@ -14,6 +14,12 @@ try:
 except ImportError:  # the plugin is not installed: use the source tree
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins" / "harness_reference"))
 
+from cab_core.errors import ConfigError
+from cab_core.kits.harness.pricing import cost, rates
+from cab_core.kits.harness.prompts import first_user_message, system_prompt
+from cab_core.tools.motion import HARNESS_PARAMETERS
+from cab_harness_reference import plugin
+from cab_harness_reference.context import compact_record
 from cab_harness_reference.retry import RetryPolicy, call_with_retries
 from cab_harness_reference.types import ProviderError
 
@@ -75,9 +81,6 @@ def test_retry_bounded_with_growing_caps():
 
 
 def test_prompt_states_facts_and_both_budgets():
-    from cab_core.kits.harness.prompts import first_user_message, system_prompt
-    from cab_core.tools.motion import HARNESS_PARAMETERS
-
     budget = {"tool_calls_remaining": 42, "tool_calls_limit": 42, "sim_seconds_remaining": 60.0, "sim_seconds_limit": 60.0}
     s = system_prompt(budget, HARNESS_PARAMETERS)
     assert "no depth sensor" in s and "achieved" in s and "Tool calls: 42" in s and "Simulated time: 60.0 s" in s
@@ -385,15 +388,11 @@ def test_loop_context_length_error_forces_one_compaction():
 
 
 def test_plugin_registers_lazily():
-    from cab_harness_reference import plugin
-
     assert set(plugin.cab_model_providers()) == {"anthropic", "openai", "google", "openai_compatible"}
     assert "reference" in plugin.cab_harnesses() and "reference" in plugin.cab_context_policies()
 
 
 def test_compact_record_of_run_code_drops_source_keeps_outcome():
-    from cab_harness_reference.context import compact_record
-
     call = ToolCall("c1", "run_code", {"code": "x = 1\n" * 50})
     res = ToolResult("c1", "run_code", json.dumps({"ok": False, "error": "move_delta returned ABORTED", "status": "ABORTED",
                                                    "abort_reason": "stalled", "value": None, "stdout": "hi",
@@ -422,9 +421,6 @@ def test_loop_wall_budget_checked_per_turn():
 
 
 def test_pricing_rates_and_validation():
-    from cab_core.errors import ConfigError
-    from cab_core.kits.harness.pricing import cost, rates
-
     assert cost(Usage(1000, 10), None) == {"usd": None}
     r = rates({"input_per_mtok": 2.0, "output_per_mtok": 8.0})
     assert r["cache_read_per_mtok"] == 2.0 and r["cache_write_per_mtok"] == 2.0

@@ -41,7 +41,7 @@ def third_party(process_plugins):
 
 def test_a_model_harness_creates_providers_and_policies_by_name(third_party):
     pytest.importorskip("cab_harness_reference")
-    from cab_harness_reference.loop import ReferenceHarness
+    from cab_harness_reference.loop import ReferenceHarness  # after the skip: the plugin may not be installed
 
     h = ReferenceHarness({})
     model_cfg = {"name": "m", "provider": "my_api", "context": {"policy": "my_policy", "keep": 3}}

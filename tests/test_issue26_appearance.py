@@ -15,6 +15,8 @@ import pytest
 from cab_core.contracts.scene import Body, Box, CameraSpec, Material, SceneSpec, Shape
 from cab_core.errors import ConfigError
 from cab_core.geometry import extrinsic_from_pose, intrinsics, look_at_cv, project_points
+from cab_core.kits.assets import hinged_urdf, urdf_part
+from cab_core.plugins import all_tasks, registry
 from cab_core.testing import appearance_conformance as ac
 from cab_core.testing import sim_conformance as sc
 
@@ -23,8 +25,6 @@ BLACK = Material(color=(0.01, 0.01, 0.01, 1.0))
 
 
 def _sim(name: str):
-    from cab_core.plugins import registry
-
     return registry("simulators")[name]({"name": name, "render": True})
 
 
@@ -65,7 +65,7 @@ def test_the_check_catches_pybullet_drawing_collision_shapes(monkeypatch):
     """With PyBullet's old behaviour restored (a link without visual shapes gets none: -1), the
     check reports lift_pot's black handle material as far too bright and its red body's hue off
     (the white band). As it is now, it passes (test_lift_pot_shows_its_declared_colours)."""
-    from cab_sim_pybullet.simulator import PybulletSimulator
+    from cab_sim_pybullet.simulator import PybulletSimulator  # here: the test is skipped without PyBullet
 
     factory = lambda: _sim("pybullet")  # noqa: E731
     monkeypatch.setattr(PybulletSimulator, "_no_visual", lambda self: -1)
@@ -120,8 +120,6 @@ def test_judge_states_what_is_wrong():
 
 
 def test_task_selection(monkeypatch):
-    from cab_core.plugins import all_tasks
-
     installed = list(all_tasks())
     monkeypatch.delenv(ac.ENV_TASKS, raising=False)
     chosen = ac.selected_tasks()
@@ -150,8 +148,6 @@ def test_the_check_runs_with_the_simulator_conformance_suite():
 def test_a_urdf_material_name_carries_one_colour():
     """Simulators keep either the first or the last colour given under one URDF material name (the
     microwave's buttons and knob once differed per simulator): the suite refuses two colours per name."""
-    from cab_core.kits.assets import hinged_urdf, urdf_part
-
     def build(knob_material):
         parts = [urdf_part("box", (0.1, 0.1, 0.1), (0, 0, 0), rgba=(0.8, 0.8, 0.82, 1), material="button"),
                  urdf_part("box", (0.1, 0.1, 0.1), (0, 0, 0.2), rgba=(0.55, 0.55, 0.58, 1), material=knob_material)]

@@ -72,6 +72,8 @@ def test_sapien_depenetration_bound_when_asked():
                                      ("max_depenetration_velocity", "fast"), ("max_depenetration_velocity", True),
                                      ("pcm", "yes"), ("pcm", 1)])
 def test_sapien_contact_options_are_checked(key, bad):
+    # here, not at the top: importing the SAPIEN backend takes seconds, which every other test of this
+    # module (collected with it) would pay
     from cab_sim_sapien.simulator import SapienSimulator
 
     with pytest.raises(ConfigError, match=key):

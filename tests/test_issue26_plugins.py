@@ -16,10 +16,15 @@ from pathlib import Path
 
 import pytest
 
-from cab_core import hookimpl
+from cab_core import hookimpl, plugins
 from cab_core.contracts.task import TaskInfo
 from cab_core.errors import ConfigError, PluginError
-from cab_core.plugins import all_tasks, build_plugin_manager, describe
+from cab_core.plugins import all_tasks, build_plugin_manager, describe, load_suites
+from cab_core.testing.task_conformance import PairResult, check_pair, failing_predicates
+from cab_suite_codeaction import catalog
+from cab_suite_codeaction.common import CodeActionTask
+from cab_suite_codeaction.tasks import TASK_MODULES  # the suite's order (its modules are named after its tasks)
+from cab_suite_codeaction.tasks.click_bell import TASK
 
 pytest_plugins = ["pytester"]
 
@@ -48,8 +53,6 @@ def _env(site: Path | None = None, **extra) -> dict:
 # -- a CodeActionTask subclass without metadata --------------------------------------------------
 
 def _lift_cube_class(**attrs):
-    from cab_suite_codeaction.common import CodeActionTask
-
     return type("LiftCube", (CodeActionTask,), {"__module__": "my_cab_plugin.lift_cube", **attrs})
 
 
@@ -85,9 +88,6 @@ def test_a_codeaction_task_declares_its_metadata_on_the_class():
 
 
 def test_the_suites_own_tasks_still_take_the_catalogs():
-    from cab_suite_codeaction import catalog
-    from cab_suite_codeaction.tasks.click_bell import TASK
-
     assert TASK().info == catalog.task_info("click_bell")
     with pytest.raises(ConfigError):  # the catalog's own lookup of an unknown name is unchanged
         catalog.task_info("lift_cube")
@@ -106,8 +106,6 @@ SHARED = ("task 'shared' is defined by two suites, 'suite_a' (plugin plug_a) and
 
 
 def test_a_name_two_suites_define_is_disabled_alone_and_names_both():
-    from cab_core.plugins import load_suites
-
     pm = _two_suites()
     assert all_tasks(pm) == {"t1": "A1", "t2": "B2"}
     got = load_suites(pm)
@@ -168,8 +166,6 @@ def _margin(measured, threshold, slack, scale, unit):
 
 
 def _pair(tmp_path, verdict: dict):
-    from cab_core.testing.task_conformance import PairResult
-
     d = tmp_path / "oracle"
     d.mkdir()
     (d / "result.json").write_text(json.dumps({"verdict": verdict}))
@@ -180,8 +176,6 @@ def _pair(tmp_path, verdict: dict):
 
 
 def test_a_failed_oracle_names_the_failing_predicate_with_its_margin(tmp_path):
-    from cab_core.testing.task_conformance import check_pair
-
     verdict = {"success": False, "scoring": "final", "predicates": {"on_pad": False, "gripper_open": True},
                "final_requirements": {}, "guard": {"block_on_table": True}, "latch": None,
                "margins": {"on_pad": _margin(0.052, 0.04, -0.012, 0.04, "m"),
@@ -195,8 +189,6 @@ def test_a_failed_oracle_names_the_failing_predicate_with_its_margin(tmp_path):
 
 
 def test_a_latch_that_never_latched_and_a_predicate_without_threshold(tmp_path):
-    from cab_core.testing.task_conformance import failing_predicates
-
     verdict = {"success": False, "scoring": "latch", "predicates": {"pressed": False, "touching": False},
                "final_requirements": {"released": False}, "guard": {}, "latch": {"latched": False},
                "margins": {"pressed": _margin(0.004, 0.01, -0.006, 0.01, "m"),
@@ -224,8 +216,6 @@ def _never(cfg):
 
 
 def _collected(pytester, monkeypatch, *args) -> list[str]:
-    from cab_core import plugins
-
     monkeypatch.setattr(plugins, "plugin_manager", lambda: build_plugin_manager(extra=[_FakeWorld()], autoload=False))
     rec = pytester.inline_run("-p", "no:cacheprovider", "--collect-only", *args)
     assert rec.ret in (0, pytest.ExitCode.NO_TESTS_COLLECTED), rec.ret
@@ -251,8 +241,6 @@ def test_all_and_the_bare_option_without_tasks_still_collect_every_group(pyteste
 # -- cab-plugins lists each suite's tasks ----------------------------------------------------------
 
 def test_cab_plugins_lists_each_suites_tasks():
-    from cab_suite_codeaction.tasks import TASK_MODULES  # the suite's order (its modules are named after its tasks)
-
     r = subprocess.run([str(BIN / "cab-plugins"), "--json"], capture_output=True, text=True, env=_env(), timeout=300)
     assert r.returncode == 0, r.stderr
     row = {x["plugin"]: x for x in json.loads(r.stdout)}["suite_codeaction"]

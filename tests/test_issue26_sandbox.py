@@ -23,8 +23,10 @@ import numpy as np
 import pytest
 import test_sandbox_policy
 
-from cab_core.attempt.records.result_format import dumps, write_json_atomic
-from cab_core.sandbox import Sandbox, SandboxConfig, guest
+from cab_core.attempt.engine import serving
+from cab_core.attempt.records.result_format import AttemptRecord, dumps, write_json_atomic
+from cab_core.sandbox import DispatchResult, Sandbox, SandboxConfig, guest
+from cab_core.sandbox.truncate import strict_payload
 
 CAB = os.path.join(os.path.dirname(sys.executable), "cab")
 ADDRESS = re.compile(r"0x[0-9a-fA-F]{6,}")
@@ -235,9 +237,6 @@ def test_the_record_writer_writes_strict_json_and_says_where(tmp_path):
 
 def test_a_tool_result_the_agent_sees_is_strict_json():
     """serving.py passes every tool result through ``strict_payload`` before the agent sees it."""
-    from cab_core.attempt.engine import serving
-    from cab_core.sandbox.truncate import strict_payload
-
     assert serving.strict_payload is strict_payload
     clean = {"pose": np.array([0.1, 0.2]), "ok": True}
     assert strict_payload(clean) is clean  # finite: untouched, the same object
@@ -248,8 +247,6 @@ def test_a_tool_result_the_agent_sees_is_strict_json():
 
 
 def test_a_tool_payloads_nan_reaches_the_agent_as_null():
-    from cab_core.sandbox import DispatchResult
-
     def dispatch(name, kwargs):
         return DispatchResult({"status": "OK", "error": float("nan")})
 
@@ -296,7 +293,6 @@ def test_a_scripted_attempt_gets_refusals_and_strict_json_records(tmp_path):
     assert not any(s["namespace_reset"] for s in seen)
     assert not ADDRESS.search("\n".join(lines))
     # a record whose measurements went NaN (a body blown away) is still a valid, strict record
-    from cab_core.attempt.records.result_format import AttemptRecord
 
     result["verdict"]["values"] = {"distance": float("nan")}
     result["verdict"]["margins"] = {"p": {"slack": float("nan"), "scale": 0.01, "fraction": float("-inf"), "unit": "m"}}

@@ -23,7 +23,11 @@ import pytest
 from test_studio import Server, fetch
 
 from cab_core.analysis import figures as fg
-from cab_core.analysis import viewer
+from cab_core.analysis import report, viewer
+from cab_core.analysis.attempts import Attempt
+from cab_core.analysis.viewer import _margins
+from cab_core.apps.studio.app import Studio
+from cab_core.testing.task_conformance import _predicate_line
 
 BIN = os.path.dirname(sys.executable)
 TASK = "click_bell"
@@ -143,8 +147,6 @@ def test_a_studio_started_on_one_sweep_names_its_group(studio):
 
 
 def test_the_root_group_of_cab_studio_dot_has_the_folders_name(tree, monkeypatch):
-    from cab_core.apps.studio.app import Studio
-
     monkeypatch.chdir(tree)
     s = Studio(Path("."), tree.parent / "state-dot")
     assert (s.group_name("."), s.group_name("a/b")) == ("sweep-7", "a/b")
@@ -220,8 +222,6 @@ def _cells(page: str, th: str) -> list[list[str]]:
 
 @pytest.mark.sim
 def test_a_latched_subgoal_says_at_which_call(latched):
-    from cab_core.analysis.attempts import Attempt
-
     r = json.loads((latched / "result.json").read_text())
     v = r["verdict"]
     assert v["scoring"] == "latch" and v["latch"]["latched"] and v["margins_at"] == "latch"
@@ -243,8 +243,6 @@ def test_a_latched_subgoal_says_at_which_call(latched):
 
 @pytest.mark.sim
 def test_margins_measured_at_the_final_state_say_so(latched, tmp_path):
-    from cab_core.analysis.attempts import Attempt
-
     d = tmp_path / "final"
     shutil.copytree(latched, d, symlinks=True)
     r = json.loads((d / "result.json").read_text())
@@ -256,8 +254,6 @@ def test_margins_measured_at_the_final_state_say_so(latched, tmp_path):
 
 @pytest.mark.sim
 def test_the_report_opens_with_its_summary_table(latched, tmp_path):
-    from cab_core.analysis import report
-
     report.write(latched.parent, tmp_path, views=False)
     page = (tmp_path / "report.html").read_text()
     body = page[page.index("<body>"):]
@@ -320,9 +316,6 @@ def test_scatter_labels_do_not_overlap(points):
 def test_a_margin_written_as_null_is_shown_not_measured():
     """A measurement that was not a finite number is null in a strict-JSON record
     (``non_finite_as_null``); the attempt page and the conformance message say so instead of failing."""
-    from cab_core.analysis.viewer import _margins
-    from cab_core.testing.task_conformance import _predicate_line
-
     m = {"slack": None, "scale": 0.04, "fraction": None, "unit": "m", "measured": None, "threshold": 0.04}
     rows = _margins({"margins": {"on_pad": m}})["rows"]
     assert rows == [{"name": "on_pad", "cls": "bad", "slack": "not measured", "fraction": "",

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cab_core.attempt.engine.episode import VerdictTracker
 from cab_core.contracts.verifier import (
     BORDERLINE_FRACTION,
     Evaluation,
@@ -111,8 +112,6 @@ class Rising(Verifier):
 
 
 def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
-    from cab_core.attempt.engine.episode import VerdictTracker
-
     v = Rising()
     t = VerdictTracker(v, world=None, timestep=0.01)  # the window: 1 simulated second, 100 steps
     path = {1: 0.5, 2: 1.01, 3: 1.2, 50: 1.4, 60: 0.9, 99: 1.3, 150: 1.49}  # 1.49: after the window
@@ -129,8 +128,6 @@ def test_a_latched_event_is_judged_at_its_widest_within_a_second_of_latching():
 
 
 def test_an_event_that_never_latched_has_no_deciding_margin():
-    from cab_core.attempt.engine.episode import VerdictTracker
-
     v = Rising()
     t = VerdictTracker(v, world=None, timestep=0.01)
     for step in range(1, 50):

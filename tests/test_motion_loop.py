@@ -12,6 +12,12 @@ import numpy as np
 import pytest
 
 from cab_core import geometry
+from cab_core.apps.cli import normalise_overrides
+from cab_core.attempt.engine.episode import Episode, VerdictTracker
+from cab_core.attempt.records import writer as recording
+from cab_core.attempt.runner import attempt_spec, run_attempt
+from cab_core.attempt.spec import AttemptSpec
+from cab_core.plugins import all_tasks, create
 from cab_core.tools import motion
 from cab_core.tools.context import ObservationStore, RobotContext
 from cab_suite_codeaction.catalog import task_info
@@ -180,8 +186,6 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
     """One scripted attempt; ``video``: 'samples' (the default path), 'loop' (the simulator made to
     refuse samples) or 'off'. Returns the raw frames handed to the encoder, the end state and the
     result."""
-    from cab_core.attempt.records import writer as recording
-
     frames: list[np.ndarray] = []
     add = recording.VideoWriter.add
 
@@ -195,10 +199,6 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
 
 
 def _scripted(sim_name: str, out: Path, video: str, frames: list) -> dict:
-    from cab_core.attempt.engine.episode import Episode
-    from cab_core.attempt.spec import AttemptSpec
-    from cab_core.plugins import all_tasks, create
-
     task = "beat_block_hammer"
     spec = AttemptSpec(task=task, seed=task_info(task).seed, attempt=1, sim=sim_name, embodiment="aloha_agilex",
                        planner="mplib", harness="direct", model="scripted", output_dir=out,
@@ -265,10 +265,6 @@ def test_the_video_from_state_samples_is_the_video_rendered_in_the_loop(sim_name
 @pytest.mark.parametrize("task", ["beat_block_hammer", "click_bell", "press_stapler", "dump_bin_bigbin"])
 def test_latch_polling_answers_as_evaluate(task, tmp_path, monkeypatch):
     from hydra import compose, initialize_config_module
-
-    from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.engine.episode import VerdictTracker
-    from cab_core.attempt.runner import attempt_spec, run_attempt
 
     seen = {True: 0, False: 0}
     poll = VerdictTracker.poll

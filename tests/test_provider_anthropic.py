@@ -17,8 +17,14 @@ except ImportError:
 
 from fake_json_api import JsonServer
 
+from cab_core.apps.cli import normalise_overrides
+from cab_core.attempt.engine.episode import Episode
+from cab_core.attempt.runner import attempt_spec
 from cab_core.errors import ConfigError
+from cab_core.kits.harness.pricing import rates
+from cab_core.plugins import all_tasks, create
 from cab_harness_reference.anthropic_provider import AnthropicProvider, to_wire
+from cab_harness_reference.loop import ReferenceHarness
 from cab_harness_reference.types import Image, Message, ProviderError, Text, Thinking, ToolCall, ToolResult, ToolSpec
 
 
@@ -183,9 +189,6 @@ CONF = Path(__file__).resolve().parents[1] / "plugins" / "harness_reference" / "
 def test_paper_config_preflight_names_the_variable(name, env, monkeypatch):
     import yaml
 
-    from cab_core.kits.harness.pricing import rates
-    from cab_harness_reference.loop import ReferenceHarness
-
     cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
     assert cfg["harness"] == "reference" and cfg["provider"] == "anthropic" and cfg["max_output_tokens"] == 128000
     assert rates(cfg["pricing"])["output_per_mtok"] > 0
@@ -201,12 +204,6 @@ def test_paper_config_preflight_names_the_variable(name, env, monkeypatch):
 def test_full_attempt_with_sapien(server, monkeypatch, tmp_path):
     pytest.importorskip("sapien")
     from hydra import compose, initialize_config_module
-
-    from cab_core.apps.cli import normalise_overrides
-    from cab_core.attempt.engine.episode import Episode
-    from cab_core.attempt.runner import attempt_spec
-    from cab_core.plugins import all_tasks, create
-    from cab_harness_reference.loop import ReferenceHarness
 
     monkeypatch.setenv("ANTHROPIC_API_KEY", "sk-test")
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
@@ -250,8 +247,6 @@ def test_full_attempt_with_sapien(server, monkeypatch, tmp_path):
 @pytest.mark.parametrize("name", ["opus5", "sonnet5", "gpt56", "gemini36flash", "qwen38max", "grok46", "kimik3"])
 def test_every_paper_config_preflights_before_the_simulator(name, monkeypatch):
     import yaml
-
-    from cab_harness_reference.loop import ReferenceHarness
 
     cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
     assert cfg["name"] == name and cfg["harness"] == "reference" and cfg["max_output_tokens"] > 0

@@ -16,7 +16,7 @@ from cab_core.attempt.runner import attempt_spec, run_attempt
 from cab_core.attempt.variation.randomize import Randomization, names_a_colour, randomize_instance
 from cab_core.errors import ConfigError
 from cab_core.geometry import extrinsic_from_pose
-from cab_core.plugins import all_tasks
+from cab_core.plugins import all_tasks, create
 
 
 def cfg(option: str) -> dict:
@@ -33,8 +33,6 @@ def run(out: Path, *overrides: str) -> dict:
 
 
 def instance(task: str, seed: int = 0):
-    from cab_core.plugins import create
-
     emb = create("embodiments", "aloha_agilex", {"name": "aloha_agilex"})
     t = all_tasks()[task]
     return t, t.build(seed, emb), emb

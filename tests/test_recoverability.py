@@ -16,6 +16,7 @@ import pytest
 from browser import chromium
 
 from cab_core.analysis import recoverability as rc
+from cab_core.analysis import report as analysis_report  # report() below runs cab-report
 from cab_core.analysis.attempts import scan
 from cab_core.analysis.figures import inline_svg
 
@@ -357,9 +358,8 @@ def test_an_attempt_that_cannot_be_forked_is_counted_apart(sweep, tmp_path):
     for e in lines:
         e.pop("config", None)
     (d / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in lines))
-    from cab_core.analysis import report
 
-    r = report.write(tmp_path / "sweep", views=False, recover={"repeats": 0, "jobs": 1})
+    r = analysis_report.write(tmp_path / "sweep", views=False, recover={"repeats": 0, "jobs": 1})
     rec = r["recoverability"]
     assert rec["ran"] == 0 and rec["forks"] == 1
     f = rec["cases"][0]["oracle"]["failure_point"]

@@ -13,8 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from cab_core.errors import ConfigError, SandboxUnavailable
+from cab_core.errors import ConfigError, SandboxUnavailable, ToolArgumentError
 from cab_core.sandbox import DispatchResult, Sandbox, SandboxConfig
+from cab_core.sandbox import guest as runner
 from cab_core.sandbox.truncate import MARK, cap_result, json_size
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -121,8 +122,6 @@ def test_load_image(sb):
 
 
 def test_load_image_host_argument_error_reaches_the_program():
-    from cab_core.errors import ToolArgumentError
-
     def load(obs_id):
         raise ToolArgumentError(f"unknown obs_id {obs_id!r}")
 
@@ -391,8 +390,6 @@ def test_python_layer_rejects_and_next_run_works(sb, code, why):
 
 
 def test_python_layer_numpy_has_no_file_io_or_foreign_modules(sb):
-    from cab_core.sandbox import guest as runner
-
     safe = runner._filtered_module(np, {})
     for name in ("save", "load", "fromfile", "memmap", "genfromtxt", "ctypeslib", "lib", "testing", "core",
                  "math", "os", "sys"):

@@ -4,15 +4,26 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cab_core.contracts.scene import Body, Box, SceneSpec, Shape
+from cab_core.contracts.scene import Body, Box, CameraSpec, SceneSpec, Shape
 from cab_core.contracts.simsupport import (
+    PairContacts,
+    camera_mount,
+    check_camera_spec,
     check_object_names,
+    live_or_error,
+    object_link_or_bad,
+    pack_state,
     pose_or_bad,
+    robot_link_or_bad,
+    simulator_options,
     start_joint_values,
     step_count_or_bad,
+    timestep_option,
+    unpack_state,
     vector_or_bad,
 )
-from cab_core.errors import BadCommand
+from cab_core.contracts.simulator import Contact, SimState
+from cab_core.errors import BadCommand, ConfigError, SimulatorError
 from cab_core.testing import sim_conformance as sc
 
 
@@ -47,9 +58,6 @@ def test_malformed_values_are_bad_commands():
 
 
 def test_snapshot_pack_round_trip_and_refusals():
-    from cab_core.contracts.simsupport import pack_state, unpack_state
-    from cab_core.contracts.simulator import Contact, SimState
-
     arrays = {"qpos": np.array([0.1, -0.2]), "steps": np.array(7, np.int64)}
     contacts = [Contact("cube", "table", 0.004, (0.1, 0.2, 0.74)), Contact("ground", "robot/link1", 0.5)]
     state = pack_state("toy", "layout-1", arrays, contacts)
@@ -81,9 +89,6 @@ def test_step_counts():
 
 
 def test_pair_contacts_sum_per_sorted_pair_and_skip_unnamed_or_self():
-    from cab_core.contracts.simsupport import PairContacts
-    from cab_core.contracts.simulator import Contact
-
     acc = PairContacts()
     acc.add("table", "cube", 1.0, 0.2, 0.4, 1.0)
     acc.add("cube", "table", 3.0, 0.6, 0.0, 2.0, k=3)
@@ -96,9 +101,6 @@ def test_pair_contacts_sum_per_sorted_pair_and_skip_unnamed_or_self():
 
 
 def test_camera_spec_and_mount_refusals():
-    from cab_core.contracts.scene import CameraSpec
-    from cab_core.contracts.simsupport import camera_mount, check_camera_spec
-
     spec = CameraSpec("head", 64, 48, 60.0, mount_link="link1")
     check_camera_spec(spec, {})
     with pytest.raises(BadCommand, match="duplicate camera name 'head'"):
@@ -112,9 +114,6 @@ def test_camera_spec_and_mount_refusals():
 
 
 def test_options_and_timestep():
-    from cab_core.contracts.simsupport import simulator_options, timestep_option
-    from cab_core.errors import ConfigError
-
     assert simulator_options(None, {"render"}, "toy") == {}
     assert simulator_options({"render": False, "_private": 1}, {"render"}, "toy") == {"render": False, "_private": 1}
     with pytest.raises(ConfigError, match=r"unknown toy simulator option\(s\) \['rendr'\]; known: \['render'\]"):
@@ -126,9 +125,6 @@ def test_options_and_timestep():
 
 
 def test_live_or_error_says_closed_or_never_built():
-    from cab_core.contracts.simsupport import live_or_error
-    from cab_core.errors import SimulatorError
-
     handle = object()
     assert live_or_error(handle, False) is handle
     with pytest.raises(SimulatorError, match="closed"):
@@ -138,8 +134,6 @@ def test_live_or_error_says_closed_or_never_built():
 
 
 def test_link_lookups_accept_the_contact_form_and_refuse_unknown_links():
-    from cab_core.contracts.simsupport import object_link_or_bad, robot_link_or_bad
-
     links = {"base": -1, "tcp_link": 3}
     assert robot_link_or_bad(links, "base") == -1 and robot_link_or_bad(links, "robot/tcp_link") == 3
     for bad in ("robot/", "lidbox/tcp_link", None, 3):

@@ -26,8 +26,12 @@ import pytest
 from browser import chromium
 
 from cab_core.apps.studio import tree
-from cab_core.errors import AttemptEnded
+from cab_core.apps.studio.play import Plays
+from cab_core.errors import AttemptEnded, ConfigError
+from cab_core.kits.harness.prompts import first_user_message, system_prompt
+from cab_core.plugins import create, task_info
 from cab_core.tools import TOOLS
+from cab_core.tools.motion import HARNESS_PARAMETERS
 
 BIN = os.path.dirname(sys.executable)
 TASK = "click_bell"
@@ -82,9 +86,6 @@ def test_groups_and_progress_from_the_files(tmp_path):
 
 
 def test_the_human_agent_is_refused_outside_the_studio():
-    from cab_core.errors import ConfigError
-    from cab_core.plugins import create
-
     with pytest.raises(ConfigError, match="cab-studio"):
         create("agents", "human", {"name": "human", "agent": "human", "handle": "ada", "session": None})
 
@@ -121,8 +122,6 @@ def test_a_crashed_plays_process_ends_only_that_play(tmp_path):
     sent and not yet answered, and every later one, are answered that its process ended unexpectedly,
     and the play is failed; the studio's next play runs to done and writes its records; stopping the
     studio ends a play still running as interrupted."""
-    from cab_core.apps.studio.play import Plays
-
     plays = Plays(tmp_path)
     first = plays.start(TASK, "mujoco", None, "crash-test")
     try:
@@ -455,10 +454,6 @@ def played(site):
 
 @pytest.mark.sim
 def test_a_person_plays_click_bell_to_success(site, played):
-    from cab_core.kits.harness.prompts import first_user_message, system_prompt
-    from cab_core.plugins import task_info
-    from cab_core.tools.motion import HARNESS_PARAMETERS
-
     d = played["dir"]
     r = json.loads((d / "result.json").read_text())
     # what the page showed: the prompt every harness gives, the budgets, every tool

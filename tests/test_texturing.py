@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from cab_core.attempt.variation.randomize import pattern_texture
 from cab_core.contracts import texturing
 from cab_core.contracts.scene import Box, Capsule, Cylinder, Material, Mesh, Shape, Sphere
 from cab_core.errors import SimulatorError
@@ -98,8 +99,6 @@ def test_texture_image(tmp_path):
 
 def test_pattern_texture_is_srgb_encoded():
     """The light parts of a procedural texture are its colour as an image shows it (sRGB)."""
-    from cab_core.attempt.variation.randomize import pattern_texture
-
     rgb = (0.2, 0.5, 0.8)
     with Image.open(pattern_texture("checks", rgb, 7)) as im:
         px = np.asarray(im.convert("RGB"), float).reshape(-1, 3)

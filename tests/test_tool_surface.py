@@ -17,14 +17,14 @@ import json
 import sys
 from pathlib import Path
 
+from cab_core.tools import build_registry, schemas
+from cab_harness_mcp.server import tool_list
+
 STORED = Path(__file__).parent / "data" / "tool_schemas.json"
 
 
 def surface() -> dict:
     import mcp_types as types
-
-    from cab_core.tools import build_registry, schemas
-    from cab_harness_mcp.server import tool_list
 
     listed = types.ListToolsResult(tools=tool_list())
     return {"schemas": schemas(),

@@ -8,6 +8,7 @@ import pytest
 from attempt_records import RAISING_PROGRAM, TASKS, attempt_dir, events, shared_sweep
 
 from cab_core.analysis.attempts import Attempt
+from cab_core.analysis.report import write
 from cab_core.analysis.viewer import render, write_view
 from cab_core.apps.view import main
 from cab_core.errors import RecordError
@@ -71,8 +72,6 @@ def test_cli_and_bad_input(scripted, tmp_path, capsys):
 
 
 def test_unfinished_attempt_page_and_its_link_in_the_report(scripted, tmp_path):
-    from cab_core.analysis.report import write
-
     d = tmp_path / "sweep" / "a"
     shutil.copytree(scripted, d, ignore=shutil.ignore_patterns("view.html"))
     (d / "result.json").unlink()  # killed after its fourth event, mid-write of the fifth
