@@ -10,7 +10,7 @@ that is simpler, as the dict it was parsed from.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
 from functools import cached_property
 from pathlib import Path
 
@@ -56,11 +56,11 @@ class Attempt:
     dir: Path
     rel: str
     result: dict
-    record: AttemptRecord | None = None
+    checked: InitVar[AttemptRecord | None] = None  # ``result`` already validated, when the caller has it
+    record: AttemptRecord = field(init=False)
 
-    def __post_init__(self):
-        if self.record is None:
-            self.record = check_result(self.result)
+    def __post_init__(self, checked: AttemptRecord | None) -> None:
+        self.record = checked if checked is not None else check_result(self.result)
 
     @classmethod
     def load(cls, d: Path, root: Path | None = None) -> Attempt:

@@ -157,7 +157,8 @@ class AttemptMeasures:
         causes = Counter(c for c in (action_cause(x) for x in acts) if c)
         moved = sum(1 for e in act_events if action_cause(e["result"]) and (e.get("physics_steps") or 0) > 0)
         wait, usd = _provider(ev)
-        ck = r.get("checkpoints") if isinstance(r.get("checkpoints"), dict) else {}
+        ck = r.get("checkpoints")
+        ck = ck if isinstance(ck, dict) else {}
         ok_ck = bool(ck) and "error" not in ck
         spatial = ck.get("spatial", []) if ok_ck else []
         success = a.success

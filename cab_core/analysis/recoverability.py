@@ -278,7 +278,7 @@ def page_cases(rec: dict, view_links: dict[str, str] | None = None) -> dict:
 
     def fork_cell(f: dict | None) -> dict:
         linked = f is not None and with_pages and f["outcome"] in OUTCOMES
-        return {"text": _outcome(f), "href": f"{f['dir']}/view.html" if linked else None}
+        return {"text": _outcome(f), "href": f"{f['dir']}/view.html" if linked and f is not None else None}
 
     def models(fs: list[dict]) -> dict:
         if not fs:

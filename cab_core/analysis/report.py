@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 from cab_core.analysis import instances, recoverability, stats
 from cab_core.analysis.attempts import FORKS_FOLDER, Scan, read_json, scan
@@ -92,7 +93,7 @@ def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None 
     if sweep and isinstance(sweep["jobs"], int):  # planned attempts with no records at all yet
         seen = len(ms) + len(s.in_flight) + len(s.excluded) + len(s.problems)
         sweep["not_started"] = max(0, sweep["jobs"] - seen)
-    r = {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
+    r: dict[str, Any] = {"report_version": REPORT_VERSION, "attempts": len(ms), "in_flight": s.in_flight,
          "problems": [{"dir": d, "problem": p} for d, p in s.problems],
          "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep,
          "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
@@ -126,7 +127,7 @@ def comparison(r: dict, a: str, b: str, resamples: int = 10_000, confidence: flo
     both ran: attempt i of A with attempt i of B (exact McNemar), and the difference in success
     rate over instances with its bootstrap percentile interval."""
     a, b = config_named(r, a), config_named(r, b)
-    by = {a: {}, b: {}}
+    by: dict[str, dict] = {a: {}, b: {}}
     for m in r["attempt_rows"]:
         if m["config"] in by:
             by[m["config"]].setdefault((m["task"], m["seed"]), {})[m["attempt"]] = m["success"]

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 from statistics import NormalDist
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ def pass_hat_k(n: int, c: int, k: int) -> float:
     return math.comb(c, k) / math.comb(n, k)
 
 
-def pass_k_curve(per_task: dict[str, tuple[int, int]]) -> dict[str, list[float]]:
+def pass_k_curve(per_task: dict[str, tuple[int, int]]) -> dict[str, list[int] | list[float]]:
     """``{"k": [1..K], "pass_at_k": [...], "pass_hat_k": [...]}`` averaged over tasks with equal
     weight, from ``task -> (n attempts, c successes)``; K is the smallest n over the tasks (a task
     with fewer attempts has no estimate for larger k). Empty lists when there is no task."""
@@ -123,8 +124,8 @@ def paired_bootstrap(a: dict[Instance, list[bool]], b: dict[Instance, list[bool]
     ``seed``). ``{"instances", "difference", "ci", "confidence", "resamples", "seed"}``;
     ``difference`` and ``ci`` are None with no shared instance."""
     shared = sorted(inst for inst in set(a) & set(b) if a[inst] and b[inst])
-    out = {"instances": len(shared), "difference": None, "ci": None, "confidence": confidence,
-           "resamples": resamples, "seed": seed}
+    out: dict[str, Any] = {"instances": len(shared), "difference": None, "ci": None, "confidence": confidence,
+                           "resamples": resamples, "seed": seed}
     if not shared:
         return out
     d = np.array([np.mean(a[i]) - np.mean(b[i]) for i in shared], dtype=float)

@@ -118,7 +118,7 @@ def timeline(d: Path, events: list[dict], ck=None, latch_at: int | None = None) 
                 charged += 1
                 index = charged
             out.append(_call(d, ev, internal=(kind == "internal_call"), charged_index=index))
-            out += [{"kind": "mark", "label": m} for m in marks.get(index, [])]
+            out += [{"kind": "mark", "label": m} for m in (marks.get(index, []) if index is not None else [])]
         elif kind == "model_turn":
             out.append(_turn(ev))
         elif kind not in ("attempt_start",):

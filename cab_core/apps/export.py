@@ -151,13 +151,17 @@ def attempt_row(a, key: str) -> dict:
     r, m = a.result, AttemptMeasures.of(a)
     verdict, budget, timing = r.get("verdict") or {}, r.get("budget") or {}, r.get("timing") or {}
     counts, claim, term = r.get("counts") or {}, r.get("claim") or {}, r.get("termination") or {}
-    decided = verdict.get("margin") if isinstance(verdict.get("margin"), dict) else {}
-    pert = r.get("perturbation") if isinstance(r.get("perturbation"), dict) else {}
-    fork = r.get("fork") if isinstance(r.get("fork"), dict) else {}
-    ck = r.get("checkpoints") if isinstance(r.get("checkpoints"), dict) else {}
+    decided = verdict.get("margin")
+    decided = decided if isinstance(decided, dict) else {}
+    pert = r.get("perturbation")
+    pert = pert if isinstance(pert, dict) else {}
+    fork = r.get("fork")
+    fork = fork if isinstance(fork, dict) else {}
+    ck = r.get("checkpoints")
+    ck = ck if isinstance(ck, dict) else {}
     ok_ck = bool(ck) and not ck.get("error")
     subgoals, spatial = (ck.get("subgoals") or [], ck.get("spatial") or []) if ok_ck else ([], [])
-    usage = next((e for e in a.events if e.get("kind") == "model_usage_total"), {})
+    usage: dict = next((e for e in a.events if e.get("kind") == "model_usage_total"), {})
     return {
         "attempt_key": key, "config": a.config, "model": r.get("model"), "harness": r.get("harness"),
         "sim": r.get("sim"), "embodiment": r.get("embodiment"), "planner": r.get("planner"), "task": r.get("task"),

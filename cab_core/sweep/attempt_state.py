@@ -206,7 +206,13 @@ def infrastructure_failures(attempt_dir: Path, unlogged: list[dict] | tuple = ()
                 out.append(entry)
     out += [e for e in unlogged if e not in out]
     out += _derived_failures(attempt_dir, {e.get("records") for e in out})
-    return sorted(out, key=lambda e: e.get("at") if isinstance(e.get("at"), (int, float)) else float("inf"))
+    return sorted(out, key=_logged_at)
+
+
+def _logged_at(entry: dict) -> float:
+    """When a failure entry was logged (``at``), for sorting; an entry without a time sorts last."""
+    at = entry.get("at")
+    return at if isinstance(at, (int, float)) else float("inf")
 
 
 def unlisted_set_aside(attempt_dir: Path, result: dict) -> bool:

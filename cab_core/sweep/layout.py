@@ -80,8 +80,15 @@ def manifest_path_keys(sweep_dir: str | Path) -> list[str]:
 
 def _swept_resolver(sweep_dir: Any, overrides: Any) -> str:
     """Resolver ``cab.swept``: ``${cab.swept:${hydra.sweep.dir},${hydra.overrides.task}}``."""
+    return swept_component(_strings(overrides), manifest_path_keys(sweep_dir))
+
+
+def _strings(overrides: Any) -> list[str]:
+    """A list of overrides (a Hydra list node such as ``hydra.overrides.task``, or a plain sequence) as strings."""
     plain = OmegaConf.to_container(overrides) if OmegaConf.is_config(overrides) else list(overrides)
-    return swept_component([str(o) for o in plain], manifest_path_keys(sweep_dir))
+    if not isinstance(plain, list):
+        raise ConfigError(f"expected a list of overrides, got {plain!r}")
+    return [str(o) for o in plain]
 
 
 # Registered on import (cab_core.apps.cli imports this module): Hydra resolves each job's directory in the
@@ -130,7 +137,7 @@ def _fixed_overrides(cfg: Any) -> list[str]:
     """The sweep's overrides that are not sweeps (the same in every job)."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
-    given = [str(o) for o in OmegaConf.to_container(cfg.hydra.overrides.task)]
+    given = _strings(cfg.hydra.overrides.task)
     parsed = OverridesParser.create().parse_overrides(given)
     return [o for o, p in zip(given, parsed) if not p.is_sweep_override()]
 
@@ -140,7 +147,7 @@ def _option_name(cfg: Any, fixed: list[str], group: str, option: str) -> str:
     from hydra.core.global_hydra import GlobalHydra
     from hydra.types import RunMode
 
-    hydra_overrides = [str(o) for o in OmegaConf.to_container(cfg.hydra.overrides.hydra)]  # as Hydra's jobs
+    hydra_overrides = _strings(cfg.hydra.overrides.hydra)  # as Hydra's jobs
     composed = GlobalHydra.instance().config_loader().load_configuration(
         config_name=cfg.hydra.job.config_name, overrides=[*hydra_overrides, *fixed, f"{group}={option}"],
         run_mode=RunMode.RUN)

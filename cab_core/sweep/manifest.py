@@ -389,7 +389,7 @@ def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = 
     result_path = Path(attempt_dir) / "result.json"
     check = check_attempt(attempt_dir, identity, job_log)
     if check.state == "complete":
-        if unlisted_set_aside(Path(attempt_dir), check.result):  # its failures' note could not be written then
+        if check.result is not None and unlisted_set_aside(Path(attempt_dir), check.result):  # its failures' note could not be written then
             try:
                 annotate_result(attempt_dir, infrastructure_failures(Path(attempt_dir)))
             except OSError:

@@ -92,7 +92,7 @@ def serve() -> int:
             except OSError:  # (flushing into a full disk)
                 os.dup2(quiet, 1)
                 os.dup2(quiet, 2)
-        reply = {"status": status, "rss_mb": round(_rss_mb(), 1)}
+        reply: dict[str, object] = {"status": status, "rss_mb": round(_rss_mb(), 1)}
         if error is not None:
             reply["error"] = error
         replies.write(json.dumps(reply) + "\n")
