@@ -78,8 +78,9 @@ def test_harness_mcp_needs_no_other_harness():
 def test_both_harnesses_use_the_cores_prompt_and_image_rule():
     for name in ("system_prompt", "first_user_message", "result_images", "run_code_limits"):
         assert getattr(loop, name) is getattr(agent_io, name)
+    assert mcp.prompts is agent_io  # the MCP harness calls them through the core's module (prompts.system_prompt)
     for name in ("system_prompt", "first_user_message", "result_images", "run_code_limits"):
-        assert getattr(mcp, name) is getattr(agent_io, name)
+        assert name not in vars(mcp), name  # and keeps no copy of its own
 
 
 def test_a_model_config_without_a_harness_is_refused(tmp_path):
