@@ -32,6 +32,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 from cab_core.attempt.fork import ForkPoint
 from cab_core.attempt.records.recovery import recovery
@@ -104,7 +105,7 @@ class SupervisorConfig:
 
 def _progress_mark(d: Path) -> tuple:
     """What grows while an attempt makes progress: its log, events and state snapshots."""
-    mark = []
+    mark: list[tuple[int, int] | None] = []
     for rel in (CHILD_LOG, "events.jsonl", "privileged/snapshots.jsonl"):
         try:
             st = os.stat(d / rel)
@@ -123,6 +124,13 @@ def _rss_mb(pid: int) -> float:
         return 0.0
 
 
+def _pipe(stream: IO[bytes] | None) -> IO[bytes]:
+    """A child's standard stream that was asked for as ``subprocess.PIPE`` (which Popen always opens)."""
+    if stream is None:
+        raise RuntimeError("the child process was started without this pipe")
+    return stream
+
+
 class WarmWorker:
     """A ``cab_core.sweep.worker --worker`` process: attempts one after another (see there)."""
 
@@ -131,6 +139,7 @@ class WarmWorker:
             self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.worker", "--worker"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
                                          start_new_session=True)
+        self._stdin, self._stdout = _pipe(self.proc.stdin), _pipe(self.proc.stdout)
         self.attempts = 0
         self.rss_mb = 0.0
         self._buf = b""
@@ -141,8 +150,8 @@ class WarmWorker:
     def submit(self, job: dict) -> bool:
         """Hand the worker a job; False when it is gone (its status then says why)."""
         try:
-            self.proc.stdin.write((json.dumps(job) + "\n").encode())
-            self.proc.stdin.flush()
+            self._stdin.write((json.dumps(job) + "\n").encode())
+            self._stdin.flush()
         except (BrokenPipeError, OSError):
             return False
         self.attempts += 1
@@ -152,9 +161,9 @@ class WarmWorker:
         """The worker's answer to its job, None while it works; ``{"status": <exit status>}`` once it
         has died without one."""
         if b"\n" not in self._buf:
-            ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+            ready, _, _ = select.select([self._stdout], [], [], timeout)
             if ready:
-                chunk = os.read(self.proc.stdout.fileno(), 65536)
+                chunk = os.read(self._stdout.fileno(), 65536)
                 if not chunk:  # end of its output: the process is gone
                     return {"status": self.proc.wait()}
                 self._buf += chunk
@@ -169,11 +178,11 @@ class WarmWorker:
         """Let the worker leave (its input ends), or kill it if it does not within 5 s."""
         if self.alive():
             try:
-                self.proc.stdin.close()
+                self._stdin.close()
                 self.proc.wait(timeout=5)
             except (OSError, subprocess.TimeoutExpired):
                 kill_group(self.proc)
-        for f in (self.proc.stdin, self.proc.stdout):
+        for f in (self._stdin, self._stdout):
             try:
                 f.close()
             except OSError:
@@ -249,8 +258,9 @@ class AttemptSupervisor:
         if self.on_child is not None:
             self.on_child(proc, try_no)
         try:
-            proc.stdin.write(json.dumps({"config": self.config, "output_dir": str(self.dir)}).encode())
-            proc.stdin.close()
+            stdin = _pipe(proc.stdin)
+            stdin.write(json.dumps({"config": self.config, "output_dir": str(self.dir)}).encode())
+            stdin.close()
         except BrokenPipeError:  # the child died at once; its exit status tells why
             pass
         watch = _Watchdog(self.dir, self.settings, proc.pid)
