@@ -109,7 +109,9 @@ class Hands:
             args["target_quat"] = _floats(quat)
         return expect(self.call("reach_tcp", **args), what, ok)
 
-    def move(self, dx=0.0, dy=0.0, dz=0.0, what="move", ok=("SUCCESS",)) -> dict:
+    def move(self, dx=0.0, dy=0.0, dz=0.0, *, what="move", ok=("SUCCESS",)) -> dict:
+        """A straight move of the TCP by (dx, dy, dz) metres; ``what`` and ``ok`` by keyword, so that a
+        displacement given as ``*delta`` cannot fill them."""
         return expect(self.call("move_delta", arm=self.arm, dx=float(dx), dy=float(dy), dz=float(dz)), what, ok)
 
     def move_to(self, world, xyz, what="move", ok=("SUCCESS",)) -> dict:
