@@ -8,8 +8,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cab_core.attempt.perturb import Perturbation
-from cab_core.attempt.randomize import Randomization
+from cab_core.attempt.variation.perturb import Perturbation
+from cab_core.attempt.variation.randomize import Randomization
 from cab_core.conf.schema import check_basics, checked_view
 from cab_core.errors import ConfigError
 
@@ -37,8 +37,8 @@ class AttemptSpec:
     embodiment_cfg: dict = field(default_factory=dict)
     model_cfg: dict = field(default_factory=dict)
     harness_cfg: dict = field(default_factory=dict)
-    perturb: dict | None = None  # cab_core.attempt.perturb.Perturbation fields; None: the instance as sampled
-    #: appearance randomisation (:mod:`cab_core.attempt.randomize`): the option's name and the
+    perturb: dict | None = None  # cab_core.attempt.variation.perturb.Perturbation fields; None: the instance as sampled
+    #: appearance randomisation (:mod:`cab_core.attempt.variation.randomize`): the option's name and the
     #: parameters of the parts it draws; None: the scene as the task draws it
     randomize: dict | None = None
     #: a fork (:mod:`cab_core.attempt.fork`): ``{"parent": <the parent's folder, relative to

@@ -1,3 +1,0 @@
-"""Compatibility: moved to :mod:`cab_core.attempt.variation.randomize` (issue 27); kept only while cab_core/attempt/spec.py
-imports it from this path."""
-from cab_core.attempt.variation.randomize import Randomization  # noqa: F401
