@@ -211,7 +211,7 @@ def _parser() -> argparse.ArgumentParser:
                          f"succeeds in at least {PERTURBED_SUCCESS_MIN * 100:.0f} %% of its runs on each simulator")
     ap.add_argument("--randomize", default=None, metavar="OPTION",
                     help="every attempt under this appearance randomisation (none, lighting, textures, camera, "
-                         "distractors, all: cab_core.attempt.randomize), drawn from each attempt's seed")
+                         "distractors, all: cab_core.attempt.variation.randomize), drawn from each attempt's seed")
     ap.add_argument("--forks", action="store_true",
                     help="then fork each oracle attempt at every charged call (0..N) and let the oracle finish "
                          "from there; success: every fork succeeds or reports why the state is not recoverable")

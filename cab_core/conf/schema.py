@@ -129,7 +129,7 @@ class RecordConfig(Section):
 
 @dataclass
 class PerturbConfig(Section):
-    """``perturb.*``: small noise on the instance (cab_core.attempt.perturb checks the ranges)."""
+    """``perturb.*``: small noise on the instance (cab_core.attempt.variation.perturb checks the ranges)."""
     SECTION: ClassVar[str] = "perturb"
     seed: int | None = setting(None, "an integer, or null (no perturbation)")
     position_m: float = setting(0.001, "a number of metres")

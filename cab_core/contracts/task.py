@@ -104,7 +104,7 @@ class Task(ABC):
 
     def distractor_slots(self, instance: SceneInstance) -> list[tuple[float, float, float]]:
         """Free places ``(x, y, z of the supporting surface)`` for distractor objects (appearance
-        randomisation, :mod:`cab_core.attempt.randomize`): where no verifier, checkpoint or
+        randomisation, :mod:`cab_core.attempt.variation.randomize`): where no verifier, checkpoint or
         reference solution of this instance looks or moves. None offered: no distractors."""
         return []
 
