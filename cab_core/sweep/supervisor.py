@@ -393,6 +393,13 @@ def _drop_temporary(d: Path) -> None:
 # -- batches: many one-off attempts (an oracle or the idle agent per task, seed and simulator) -----
 
 
+def _as_dict(plain: object) -> dict:
+    """A composed config made plain (``OmegaConf.to_container``), which is a dict: the root of a config is a mapping."""
+    if not isinstance(plain, dict):
+        raise ConfigError(f"a composed config is not a mapping: {plain!r}")
+    return plain
+
+
 def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None) -> list[dict]:
     """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
     seed=S model=A sim=X`` composes it (in this thread: Hydra's composition is not thread-safe).
@@ -409,7 +416,7 @@ def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None)
             if randomize is not None:
                 overrides.append(f"randomize={randomize}")
             cfg = compose(config_name="config", overrides=normalise_overrides(overrides))
-            plain = OmegaConf.to_container(cfg, resolve=True)
+            plain = _as_dict(OmegaConf.to_container(cfg, resolve=True))
             if cold and "brdf_cache" in plain["sim"]:
                 plain["sim"]["brdf_cache"] = False
             out.append(plain)
@@ -524,7 +531,7 @@ def fork_configs(points: list[tuple[str, int]], agent: str | None = "oracle", vi
             overrides = [f"fork.from='{Path(parent).resolve()}'", f"fork.at={int(at)}", f"model={agent or 'oracle'}",
                          f"task={cfg['task']}", f"sim={cfg['sim']}", f"seed={cfg['seed']}",
                          f"record.video={'true' if video else 'false'}"]
-            c = OmegaConf.to_container(compose(config_name="config", overrides=overrides), resolve=True)
+            c = _as_dict(OmegaConf.to_container(compose(config_name="config", overrides=overrides), resolve=True))
             if agent is None:  # the parent's model and harness as recorded (a composed placeholder replaced)
                 c["model"], c["harness"] = dict(cfg["model_cfg"]), dict(cfg["harness_cfg"])
             out.append(c)
