@@ -24,22 +24,7 @@ SUITE_DIR = "plugins/suite_codeaction"
 #: imports outside the public surface that the contracts and the kits cannot give yet, each entry
 #: saying what it uses and why (issue 27): {file: {module or package, ...}} (a package allows what
 #: is under it, so that its own moves inside the engine need no edit here)
-IN_PROGRESS = {
-    # cab_core.tools.motion.HARNESS_PARAMETERS (the motion limits the system prompt states) lives in
-    # the tools, above the kits; cab_core.plugins.task_info gives the task's instruction in
-    # before_build, before any session exists (the session hands it over only in run())
-    "plugins/harness_mcp/cab_harness_mcp/harness.py": {"cab_core.plugins", "cab_core.tools"},
-    # cab_core.tools.build_registry: the tool list is served in before_build, before any session
-    # exists (AttemptSession.tool_specs() has it only in run()), with the registry's read-only and
-    # destructive flags, which the session's specs do not carry
-    "plugins/harness_mcp/cab_harness_mcp/server.py": {"cab_core.tools"},
-    # cab_core.plugins.create: the model provider and the context policy are plugins, chosen by name
-    # from the registry; cab_core.tools.motion.HARNESS_PARAMETERS, as for harness_mcp
-    "plugins/harness_reference/cab_harness_reference/loop.py": {"cab_core.plugins", "cab_core.tools"},
-    # (issue 27: in progress in another part: the mplib planner found through the registry, not
-    # imported undeclared)
-    "plugins/embodiment_aloha/cab_embodiment_aloha/reach.py": {"cab_core.plugins"},
-}
+IN_PROGRESS: dict[str, set[str]] = {}  # none left: the harnesses ask the kits (kits.harness.catalog, kits.registry)
 
 #: other known imports outside the public surface: {file: {module, ...}}. None is left: the entry
 #: modules that imported the package root for ``@cab_core.hookimpl`` now write

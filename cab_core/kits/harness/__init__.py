@@ -6,6 +6,8 @@
 * :mod:`~cab_core.kits.harness.agent_info`: who played (``result.json``'s ``agent`` block);
 * :mod:`~cab_core.kits.harness.conversation`: a fork's conversation rebuilt from its parent's records;
 * :mod:`~cab_core.kits.harness.stdio`: the process's stdin/stdout, claimed for a protocol;
+* :mod:`~cab_core.kits.harness.catalog`: the tools an attempt serves and the motion rules the
+  system prompt states, as the engine has them;
 * :class:`ToolResponse`: what a call returns (the harness contract's own type,
   :mod:`cab_core.contracts.harness`, with the session a harness drives).
 

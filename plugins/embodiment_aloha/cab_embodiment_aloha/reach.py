@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from cab_core.geometry import mat_to_quat
-from cab_core.plugins import create
+from cab_core.kits.registry import create_plugin
 
 from .embodiment import build_spec
 
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     spec = build_spec()
-    planner = create("planners", args.planner, {})
+    planner = create_plugin("planners", args.planner, {})
     planner.setup(spec, 1.0 / 250.0)
     all_zones = zones(args.step)
     versions = ", ".join(f"{k} {v}" for k, v in sorted(planner.versions().items()))

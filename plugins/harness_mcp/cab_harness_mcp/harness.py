@@ -42,8 +42,8 @@ from typing import TYPE_CHECKING
 from cab_core.errors import AttemptEnded, ConfigError
 from cab_core.kits.harness import prompts, stdio
 from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
-from cab_core.plugins import task_info
-from cab_core.tools.motion import HARNESS_PARAMETERS
+from cab_core.kits.harness.catalog import motion_rules
+from cab_core.kits.registry import task_info
 
 from .bridge import CallBridge, Job
 from .server import build_server, instructions_text, tool_list, tool_result
@@ -192,7 +192,7 @@ class McpHarness:
         s = self.settings
         self.preflight(spec.model_cfg)
         budget = {"tool_calls_limit": spec.budget_tool_calls, "sim_seconds_limit": spec.budget_sim_seconds}
-        system = prompts.system_prompt(budget, HARNESS_PARAMETERS, run_code=prompts.run_code_limits(spec))
+        system = prompts.system_prompt(budget, motion_rules(), run_code=prompts.run_code_limits(spec))
         self.task_prompt = instructions_text(system, prompts.first_user_message(task_info(spec.task).instruction)
                                              + prompts.continuation_note(getattr(spec, "fork", None)))
         self.tools = tool_list()

@@ -15,7 +15,7 @@ import mcp_types as types
 from mcp.server.lowlevel import Server
 from mcp.shared.exceptions import MCPError
 
-from cab_core.tools import build_registry
+from cab_core.kits.harness.catalog import tool_catalog
 
 from .bridge import CallBridge, SeenClient
 
@@ -30,7 +30,7 @@ def tool_list() -> list[types.Tool]:
     descriptions and input schemas are the reference harness's (``Episode.tool_specs``), with
     observation tools marked read-only and motion tools destructive."""
     tools = []
-    for d in build_registry().values():
+    for d in tool_catalog():
         spec = d.spec()
         tools.append(types.Tool(
             name=spec["name"], description=spec["description"], input_schema=spec["parameters"],

@@ -13,11 +13,11 @@ from typing import TYPE_CHECKING
 
 from cab_core.errors import AttemptEnded, CabError, ConfigError
 from cab_core.kits.harness import ToolResponse
+from cab_core.kits.harness.catalog import motion_rules
 from cab_core.kits.harness.conversation import REBUILT, transcript
 from cab_core.kits.harness.pricing import cost, usage_dict
 from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
-from cab_core.plugins import create
-from cab_core.tools.motion import HARNESS_PARAMETERS
+from cab_core.kits.registry import create_plugin
 
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
@@ -45,7 +45,7 @@ def create_provider(model_cfg: dict):
     package's own providers when the plugin is not installed as an entry point)."""
     name = _provider_name(model_cfg)
     try:
-        return create("model_providers", name, dict(model_cfg))
+        return create_plugin("model_providers", name, dict(model_cfg))
     except CabError:
         if name in PROVIDERS:
             return PROVIDERS[name](dict(model_cfg))
@@ -120,7 +120,7 @@ class ReferenceHarness:
         cfg = dict(model_cfg.get("context") or {})
         name = cfg.pop("policy", "reference")
         try:  # context policies are plugins: a third party's policy is chosen by name
-            return create("context_policies", name, cfg)
+            return create_plugin("context_policies", name, cfg)
         except Exception:
             if name != "reference":
                 raise
@@ -144,7 +144,7 @@ class ReferenceHarness:
         max_images = int(getattr(policy, "max_images_per_result", 6))  # per tool result (FACTS A.7/A.10)
         tools = self._tools(episode)
         rc = run_code_limits(getattr(episode, "spec", None))
-        system = system_prompt(episode.ledger.remaining(), HARNESS_PARAMETERS, run_code=rc)
+        system = system_prompt(episode.ledger.remaining(), motion_rules(), run_code=rc)
         fixed = int((len(system) + len(json.dumps([t.__dict__ for t in tools]))) / 4)
         history: list[Message] = [Message("user", [Text(first_user_message(episode.instruction))])]
         self._rebuild(episode, history, caps, max_images)
