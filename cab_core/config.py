@@ -26,6 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from cab_core.conf.schema import OWN_KEYS, checked_view
 from cab_core.errors import ConfigError
+from cab_core.plugins import config_dirs, task_info, task_names
 
 CORE_CONFIG_MODULE = "cab_core.conf"
 GROUPS = ("sim", "model", "harness", "task", "planner", "embodiment", "experiment", "randomize")
@@ -45,8 +46,6 @@ def extend_search_path(search_path: Any) -> None:
     """Append the plugins' config dirs and register the installed tasks' options (see above)."""
     if not is_cab_search_path(search_path):
         return
-    from cab_core.plugins import config_dirs
-
     present = {e.path for e in search_path.get_path()}
     for path in config_dirs():
         if path not in present:
@@ -58,8 +57,6 @@ def register_task_configs(search_path: Any) -> list[str]:
     """An option ``task/<name>`` (``{name: <name>}``) in Hydra's ConfigStore for every installed task
     that no config dir on ``search_path`` ships a yaml for; returns the names registered."""
     from hydra.core.config_store import ConfigStore
-
-    from cab_core.plugins import task_names
 
     shipped = {name for e in search_path.get_path() for name in shipped_options(e.path, "task")}
     store = ConfigStore.instance()
@@ -216,8 +213,6 @@ def normalise_overrides(argv: list[str]) -> list[str]:
 def scene_seed(seed, task: str) -> int:
     """Resolver ``cab.seed``: the seed an attempt uses (``seed: null`` means the task's fixed seed,
     from its suite's catalog), so that sweep directories are named ``seed-<S>`` by the seed that ran."""
-    from cab_core.plugins import task_info
-
     return task_info(task).seed if seed is None else seed
 
 

@@ -8,7 +8,12 @@ import sys
 
 from hydra.experimental.callback import Callback
 
+from cab_core.apps.cmdline import check_command_line, expand_seed_set
+from cab_core.conf.schema import one_line
 from cab_core.config import GROUPS, normalise_overrides, scene_seed  # noqa: F401  (the resolver cab.seed, registered there)
+from cab_core.errors import CabError, ConfigError, MissingDependency, PluginError, RendererUnavailable, closest
+from cab_core.kits.harness import stdio
+from cab_core.plugins import describe, distribution_versions, registry
 from cab_core.sweep import layout as sweep_layout  # noqa: F401  (registers cab.swept: the swept keys' folder of an attempt)
 
 
@@ -24,8 +29,6 @@ def wants_stdio_protocol(argv: list[str]) -> bool:
     transport = [a.split("=", 1)[1] for a in argv if a.lstrip("+").startswith("harness.transport=")]
     if transport and transport[-1] != "stdio":
         return False
-    from cab_core.plugins import registry
-
     return bool(getattr(registry("harnesses").get(sel[-1]), "speaks_on_stdio", False))
 
 
@@ -72,8 +75,6 @@ def _before_task(e: Exception) -> str | None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from cab_core.conf.schema import one_line
-
     if isinstance(e, OSError) and e.filename:
         return f"cannot create the output folder {e.filename} (hydra.run.dir): {e.strerror or e}"
     cause = e.__cause__ or e.__context__  # Hydra's job log could not be opened (logging.config's ValueError)
@@ -88,8 +89,6 @@ def version_lines() -> list[str]:
     """``cab --version``: cab's version, then each installed plugin's distribution and version
     (importlib.metadata, through the plugin registry's entry points)."""
     from importlib import metadata
-
-    from cab_core.plugins import distribution_versions
 
     dists = metadata.packages_distributions().get(__package__.split(".")[0], [])
     core = next(iter(dists), None)
@@ -106,9 +105,6 @@ def version_lines() -> list[str]:
 def main() -> None:
     """``cab``: a command-line mistake is one line on stderr and exit status 2, before Hydra
     composes, creates a folder or starts anything (cab_core.apps.cmdline)."""
-    from cab_core.apps.cmdline import check_command_line, expand_seed_set
-    from cab_core.errors import ConfigError, PluginError
-
     if "--version" in sys.argv[1:]:  # cab's, not Hydra's
         print("\n".join(version_lines()))
         return
@@ -120,8 +116,6 @@ def main() -> None:
         _refuse(str(e))
     single = args is not None and not (args.multirun or args.cfg)
     if wants_stdio_protocol(sys.argv[1:]) and "-m" not in sys.argv and "--multirun" not in sys.argv:
-        from cab_core.kits.harness import stdio
-
         stdio.claim()
     if os.environ.get("HYDRA_FULL_ERROR") == "1":  # the user asked for Hydra's tracebacks
         _hydra_entry()
@@ -185,8 +179,9 @@ def _hydra_entry(raises: HydraRaises | None = None) -> None:
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
 
+        # here, not at the top: the engine adds 0.8 s (python -X importtime) to cab_core.apps.cli's 0.35 s,
+        # which cab --help, cab-plugins and cab-schemas would pay
         from cab_core.attempt.runner import attempt_spec, run_attempt
-        from cab_core.errors import CabError, ConfigError, MissingDependency, RendererUnavailable
 
         hc = HydraConfig.get()
         out = hc.runtime.output_dir
@@ -221,6 +216,8 @@ def _sweep_job(cfg, hc) -> None:
     must not exit); the progress line goes to stderr."""
     from pathlib import Path
 
+    # here, not at the top: the sweep manifest adds 0.55 s (python -X importtime) to cab_core.apps.cli,
+    # which a single attempt, cab --help, cab-plugins and cab-schemas would pay
     from cab_core.sweep.manifest import run_job
 
     _, line = run_job(cfg, Path(hc.runtime.output_dir), Path(hc.sweep.dir), f"{hc.job.name}.log")
@@ -297,14 +294,13 @@ class SweepManifestCallback(Callback):
     exceptions into warnings, so a refusal ends the process here, with the reason on stderr."""
 
     def on_multirun_start(self, config, **kwargs) -> None:
-        from cab_core.sweep.layout import SweepJobsCollide
-        from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest
+        from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest  # 0.55 s: see _sweep_job
 
         global _SWEEP_DIR
         try:
             SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
             _SWEEP_DIR = str(config.hydra.sweep.dir)
-        except (SweepConfigChanged, SweepJobsCollide) as e:
+        except (SweepConfigChanged, sweep_layout.SweepJobsCollide) as e:
             print(f"cab: refused: {e}", file=sys.stderr)
             sys.exit(2)
         except OSError as e:  # the sweep folder cannot be created or written: a mistake in the command
@@ -316,7 +312,7 @@ class SweepManifestCallback(Callback):
             sys.exit(1)
 
     def on_multirun_end(self, config, **kwargs) -> None:
-        from cab_core.sweep.manifest import summary_line
+        from cab_core.sweep.manifest import summary_line  # 0.55 s: see _sweep_job
 
         print(summary_line(config.hydra.sweep.dir), file=sys.stderr, flush=True)
 
@@ -325,9 +321,6 @@ def plugins_main() -> None:
     """List installed plugins, their versions and what each provides (disabled ones as disabled:
     CAB_DISABLE_PLUGINS=name1,name2)."""
     import argparse
-
-    from cab_core.errors import CabError
-    from cab_core.plugins import describe
 
     ap = argparse.ArgumentParser(prog="cab-plugins", description=plugins_main.__doc__)
     ap.add_argument("--json", action="store_true", help="print JSON")
@@ -362,6 +355,8 @@ def schemas_main() -> None:
     """Print the JSON Schemas of every tool (from the pydantic argument models)."""
     import argparse
 
+    # here, not at the top: the tools' argument models add 0.46 s (python -X importtime) to
+    # cab_core.apps.cli, which cab, cab --help and cab-plugins would pay
     from cab_core.tools import schemas
 
     ap = argparse.ArgumentParser(prog="cab-schemas", description=schemas_main.__doc__)
@@ -371,8 +366,6 @@ def schemas_main() -> None:
     if a.tool:
         rows = [r for r in rows if r["name"] == a.tool]
         if not rows:
-            from cab_core.errors import closest
-
             names = [r["name"] for r in schemas()]
             near = closest(a.tool, names, cutoff=0.5)  # tool names share words: a looser match still helps
             hint = f"did you mean {' or '.join(near)}? " if near else ""

@@ -29,9 +29,10 @@ import io
 import itertools
 from typing import Any
 
-from cab_core.conf.schema import one_line
-from cab_core.config import CLOSED_GROUPS, Compositions
+from cab_core.conf.schema import check_value, one_line
+from cab_core.config import CLOSED_GROUPS, Compositions, default_selection
 from cab_core.errors import CabError, ConfigError, closest
+from cab_core.plugins import all_tasks, select_record_observers, task_conflict
 
 
 def _values(o) -> list:
@@ -70,14 +71,10 @@ def expand_seed_set(argv: list[str]) -> list[str]:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except HydraException as e:
         raise ConfigError(one_line(e)) from None
-    from cab_core.plugins import all_tasks
-
     installed = all_tasks()
     name = next(str(o.value()) for o in parsed if o.key_or_group.lstrip("+") == "seed_set")
     task = next((o for o in parsed if o.key_or_group == "task"), None)
     if task is None:
-        from cab_core.config import default_selection
-
         tasks = [default_selection(("task",))["task"]]
     elif task.value_type == ValueType.GLOB_CHOICE_SWEEP:
         glob: Any = task.value()
@@ -179,8 +176,6 @@ class Check:
     def keys(self, choices: dict[str, list[str]], keys: list) -> None:
         """Every value of every key override against the view of every selection a sweep makes of
         the ``sim`` and ``harness`` options (the other groups: their first option)."""
-        from cab_core.conf.schema import check_value
-
         others = tuple((g, vs[0]) for g, vs in choices.items() if g not in CLOSED_GROUPS)
         per_option = [[(g, v) for v in choices[g]] for g in CLOSED_GROUPS if g in choices]
         selections = [others + combo for combo in itertools.product(*per_option)]
@@ -196,15 +191,11 @@ class Check:
                 for v in _override_values(o):
                     check_value(view, key, v, option)
             if key == "record.observers" and not o.is_sweep_override():
-                from cab_core.plugins import select_record_observers
-
                 select_record_observers({"observers": o.value()})  # an observer no plugin registers: refused here
 
 
 def unknown_option(group: str, value: str, options: list[str]) -> CabError:
     if group == "task":  # a name two suites define: say so, not "unknown"
-        from cab_core.plugins import task_conflict
-
         if (conflict := task_conflict(value)) is not None:
             return conflict
     near = closest(value, options)
@@ -239,6 +230,8 @@ def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
         return
     if fork_at is None or fork_at.value() is None:
         raise ConfigError("fork.from needs fork.at=<K>: the charged call of the parent after which the fork starts")
+    # here, not at the top: the fork module (numpy, the records) adds 0.08 s (python -X importtime) to
+    # cab_core.apps.cli's 0.35 s, which every cab command would pay; only fork.from needs it
     from cab_core.attempt.fork import ForkPoint
 
     at = fork_at.value() if not fork_at.is_sweep_override() else 0

@@ -8,10 +8,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cab_core.attempt.fork import ForkPoint, fork_config
 from cab_core.attempt.variation.perturb import Perturbation
 from cab_core.attempt.variation.randomize import Randomization
 from cab_core.conf.schema import check_basics, checked_view
 from cab_core.errors import ConfigError
+from cab_core.plugins import registry, task_info, task_names
 
 
 @dataclass
@@ -66,16 +68,12 @@ _GROUP_KINDS = {"sim": "simulators", "embodiment": "embodiments", "planner": "pl
 
 def _installed(group: str) -> str:
     """What the installed plugins offer for an unset config group, in words."""
-    from cab_core.plugins import registry, task_names
-
     names = task_names() if group == "task" else sorted(registry(_GROUP_KINDS[group])) if group in _GROUP_KINDS else []
     return f"installed: {', '.join(names)}" if names else "none installed" if group != "model" else "see cab --help"
 
 
 def attempt_spec(cfg: Any, output_dir: str | Path) -> AttemptSpec:
     """Validate a composed config into one AttemptSpec (budgets and seed from the task's suite)."""
-    from cab_core.plugins import task_info
-
     c = _plain(cfg)
     for key in ("task", "sim", "embodiment", "planner", "harness", "model"):
         if c.get(key) is None:
@@ -122,9 +120,6 @@ def forked(spec: AttemptSpec, fork: dict) -> AttemptSpec:
         if fork.get("at") is not None:
             raise ConfigError("fork.at needs fork.from=<the folder of the attempt to fork>")
         return spec
-    from cab_core.attempt.fork import ForkPoint, fork_config
-    from cab_core.plugins import task_names
-
     if fork.get("at") is None:
         raise ConfigError("fork.from needs fork.at=<K>: the charged call of the parent after which the fork starts")
     point = ForkPoint.load(fork["from"], fork["at"])

@@ -18,7 +18,8 @@ PROJECT_PACKAGE = "cab_conf"
 class CabPluginConfigs(SearchPathPlugin):
     def manipulate_search_path(self, search_path: ConfigSearchPath) -> None:
         # here, not at the top: Hydra imports every hydra_plugins module in any Hydra application, and
-        # cab_core.config costs 0.5-0.9 s (python -X importtime)
+        # cab_core.config (with the configuration schema and the plugin registry) adds 0.06 s to Hydra's
+        # own imports (python -X importtime -c "import hydra, cab_core.config")
         from cab_core.config import extend_search_path
 
         extend_search_path(search_path)
