@@ -1,6 +1,7 @@
 """The report's figures, drawn with matplotlib: inline SVG for the pages, PDF/SVG/PNG files for papers.
 
-Every figure is a :class:`matplotlib.figure.Figure` made without pyplot (no global state, no GUI
+Every figure is a :class:`CabFigure` (a :class:`matplotlib.figure.Figure` that holds its name,
+title and marks' tooltips) made without pyplot (no global state, no GUI
 backend: the Agg canvas), inside :func:`style` (fixed fonts and sizes, the SVG id salt), so that
 the same data draws the same bytes every time: the files carry no date and no software version.
 
@@ -24,12 +25,17 @@ import re
 from contextlib import contextmanager
 from html import escape
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
 matplotlib.use("Agg", force=False)  # noqa: E402  (no GUI backend, ever; pyplot is never imported here)
+from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.layout_engine import ConstrainedLayoutEngine  # noqa: E402
+
+if TYPE_CHECKING:  # pragma: no cover  (the names of matplotlib's settings: its stubs only)
+    from matplotlib.typing import RcKeyType
 
 PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f",
            "#bab0ac")
@@ -38,11 +44,11 @@ PNG_DPI = 200
 WIDTH = 6.4  # inches: one column of a two-column paper page is ~3.3, a full width ~6.5-7
 # matplotlib's bundled DejaVu Sans (no font search, no download); text stays text in SVG (the
 # browser draws it, the page stays small), fonts are embedded as TrueType in PDF
-STYLE = {"font.family": "DejaVu Sans", "font.size": 9, "axes.titlesize": 10, "axes.titleweight": "bold",
+STYLE: dict[RcKeyType, Any] = {"font.family": "DejaVu Sans", "font.size": 9, "axes.titlesize": 10, "axes.titleweight": "bold",
          "svg.fonttype": "none", "pdf.fonttype": 42, "svg.hashsalt": "cab", "axes.spines.top": False,
          "axes.spines.right": False, "legend.frameon": False, "figure.dpi": 100, "path.simplify": False}
 # no date, no software version: the files of the same report are the same bytes
-METADATA = {"svg": {"Date": None, "Creator": None, "Format": None, "Type": None},
+METADATA: dict[str, dict[str, str | None]] = {"svg": {"Date": None, "Creator": None, "Format": None, "Type": None},
             "pdf": {"CreationDate": None, "ModDate": None, "Creator": None, "Producer": None},
             "png": {"Software": None}}
 NO_DATA = "no data"
@@ -55,27 +61,37 @@ def style(name: str = ""):
         yield
 
 
-def _figure(name: str, title: str, rows: int, extra: float = 0.0) -> tuple[Figure, object]:
-    fig = Figure(figsize=(WIDTH, 1.0 + 0.32 * max(rows, 1) + extra), layout="constrained")
-    fig.cab_name, fig.cab_title, fig.cab_titles = name, title, {}
+class CabFigure(Figure):
+    """A report figure: matplotlib's figure with what the report's outputs need of it."""
+
+    def __init__(self, name: str, title: str, height: float):
+        super().__init__(figsize=(WIDTH, height), layout="constrained")
+        self.cab_name = name  # the files' names, the SVG ids' prefix
+        self.cab_title = title  # the files' Title metadata, the page's aria-label
+        self.cab_titles: dict[str, str] = {}  # a marked group's gid -> its <title> (the tooltip)
+        self.cab_svg: str | None = None  # the standalone SVG, once drawn (see svg_file)
+
+
+def _figure(name: str, title: str, rows: int, extra: float = 0.0) -> tuple[CabFigure, Axes]:
+    fig = CabFigure(name, title, 1.0 + 0.32 * max(rows, 1) + extra)
     ax = fig.add_subplot()
     ax.set_title(title, loc="left")
     return fig, ax
 
 
-def _tip(fig: Figure, artist, gid: str, text: str) -> None:
+def _tip(fig: CabFigure, artist, gid: str, text: str) -> None:
     artist.set_gid(gid)
     fig.cab_titles[gid] = text
 
 
-def _pct_axis(ax, axis: str = "x") -> None:
+def _pct_axis(ax: Axes, axis: str = "x") -> None:
     from matplotlib.ticker import PercentFormatter
 
     (ax.xaxis if axis == "x" else ax.yaxis).set_major_formatter(PercentFormatter(1.0, decimals=0))
     (ax.set_xlim if axis == "x" else ax.set_ylim)(0, 1)
 
 
-def _labels(ax, labels: list[str]) -> None:
+def _labels(ax: Axes, labels: list[str]) -> None:
     ax.set_yticks(range(len(labels)), labels)
     ax.set_ylim(max(len(labels), 1) - 0.5, -0.5)  # the first row on top
     if not labels:
@@ -86,7 +102,7 @@ def pct(v: float) -> str:
     return f"{100 * v:.1f}%"
 
 
-def hbars(name: str, title: str, rows: list[tuple[str, float, tuple[float, float] | None]]) -> Figure:
+def hbars(name: str, title: str, rows: list[tuple[str, float, tuple[float, float] | None]]) -> CabFigure:
     """Horizontal bars of shares (label, value in 0..1, optional interval drawn as a whisker)."""
     with style(name):
         fig, ax = _figure(name, title, len(rows))
@@ -101,7 +117,7 @@ def hbars(name: str, title: str, rows: list[tuple[str, float, tuple[float, float
     return fig
 
 
-def _whisker_and_value(ax, v: float, y: float, ci, capsize: float, lw: float, fontsize: float) -> None:
+def _whisker_and_value(ax: Axes, v: float, y: float, ci, capsize: float, lw: float, fontsize: float) -> None:
     """A share's interval as a whisker (when given) and its value written just past the bar."""
     if ci is not None:
         ax.errorbar(v, y, xerr=[[max(v - ci[0], 0)], [max(ci[1] - v, 0)]], fmt="none", ecolor="#222",
@@ -109,7 +125,7 @@ def _whisker_and_value(ax, v: float, y: float, ci, capsize: float, lw: float, fo
     ax.text(max(v, ci[1] if ci else 0) + 0.01, y, pct(v), va="center", fontsize=fontsize)
 
 
-def stacked(name: str, title: str, rows: list[tuple[str, list[float]]], parts: list[str]) -> Figure:
+def stacked(name: str, title: str, rows: list[tuple[str, list[float]]], parts: list[str]) -> CabFigure:
     """Horizontal stacked bars of counts (each row its own total), with a legend of ``parts``."""
     with style(name):
         fig, ax = _figure(name, title, len(rows), extra=0.25 * ((len(parts) + 2) // 3))
@@ -134,7 +150,7 @@ def stacked(name: str, title: str, rows: list[tuple[str, list[float]]], parts: l
 
 
 def grouped_hbars(name: str, title: str, rows: list[tuple[str, list[tuple[float | None, tuple[float, float] | None]]]],
-                  series: list[str]) -> Figure:
+                  series: list[str]) -> CabFigure:
     """Horizontal bars in groups: one group per row label, one bar per series (value in 0..1,
     optional interval drawn as a whisker; a None value draws no bar and writes "–"), with a legend
     of ``series``. Bars are numbered in order over the bars drawn: ``<name>-bar-<k>``."""
@@ -163,7 +179,7 @@ def grouped_hbars(name: str, title: str, rows: list[tuple[str, list[tuple[float 
     return fig
 
 
-def lines(name: str, title: str, series: list[tuple[str, list[float | None]]], xlabel: str, ylabel: str) -> Figure:
+def lines(name: str, title: str, series: list[tuple[str, list[float | None]]], xlabel: str, ylabel: str) -> CabFigure:
     """Line chart of shares (0..1) over x = 0, 1, 2, ..., one line per series, with a legend."""
     with style(name):
         fig, ax = _figure(name, title, 8)
@@ -186,7 +202,7 @@ def lines(name: str, title: str, series: list[tuple[str, list[float | None]]], x
 
 
 def scatter(name: str, title: str, points: list[tuple[str, float, float]], xlabel: str, ylabel: str,
-            xfmt=lambda x: f"{x:.3g}") -> Figure:
+            xfmt=lambda x: f"{x:.3g}") -> CabFigure:
     """Labelled points (label, x, y in 0..1); the x axis spans 0..max x."""
     with style(name):
         fig, ax = _figure(name, title, 8)
@@ -197,6 +213,7 @@ def scatter(name: str, title: str, points: list[tuple[str, float, float]], xlabe
             marks.append(pt)
             note = ax.annotate(label, (x, y), xytext=(5, 4), textcoords="offset points", fontsize=7,
                                arrowprops={"arrowstyle": "-", "color": "#999", "lw": 0.5, "shrinkA": 1, "shrinkB": 4})
+            assert note.arrow_patch is not None  # made by annotate, as arrowprops are given
             note.arrow_patch.set_visible(False)  # a leader line only for a label moved away from its point
             notes.append(note)
         _pct_axis(ax, "y")
@@ -217,7 +234,7 @@ def label_box(note, renderer):
     return Text.get_window_extent(note, renderer)
 
 
-def _place_labels(fig: Figure, ax, marks: list, notes: list, gap: float = 2.0) -> None:
+def _place_labels(fig: CabFigure, ax: Axes, marks: list, notes: list, gap: float = 2.0) -> None:
     """Each point's label beside it where it overlaps no label placed before it, no other point and
     stays inside the axes: the first free place of the four corners around the point, then the same
     corners one, two... label heights further up or down (close or equal points get a stack of
@@ -260,6 +277,7 @@ def _place_labels(fig: Figure, ax, marks: list, notes: list, gap: float = 2.0) -
                     break
             if best_cost == 0:
                 break
+        assert best is not None  # the first place tried is always taken: best_cost starts as None
         note.xyann = best[:2]
         note.set_horizontalalignment("left" if best[0] > 0 else "right")
         note.arrow_patch.set_visible(best[2] > 0)
@@ -269,37 +287,40 @@ def _place_labels(fig: Figure, ax, marks: list, notes: list, gap: float = 2.0) -
 # ---------------------------------------------------------------------------------------------
 # output
 # ---------------------------------------------------------------------------------------------
-def _save(fig: Figure, fmt: str) -> bytes:
+def _save(fig: CabFigure, fmt: str) -> bytes:
     """The figure in ``fmt``. The first save lays it out (constrained layout, measured by the
     format's renderer); the SVG is always the first, so the page and every file share one layout."""
-    if fmt != "svg" and getattr(fig, "cab_svg", None) is None:
+    if fmt != "svg" and fig.cab_svg is None:
         svg_file(fig)
     buf = io.BytesIO()
     meta = dict(METADATA[fmt])
     if fmt in ("svg", "pdf"):
         meta["Title"] = fig.cab_title
     with style(fig.cab_name):
-        fig.savefig(buf, format=fmt, metadata=meta, **({"dpi": PNG_DPI} if fmt == "png" else {}))
+        if fmt == "png":
+            fig.savefig(buf, format=fmt, metadata=meta, dpi=PNG_DPI)
+        else:
+            fig.savefig(buf, format=fmt, metadata=meta)
         if isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine):
             fig.set_layout_engine("none")  # laid out once (the first save): the other formats keep it
     return buf.getvalue()
 
 
-def _with_titles(fig: Figure, text: str) -> str:
+def _with_titles(fig: CabFigure, text: str) -> str:
     """The SVG with a ``<title>`` in each marked group (the tooltip saying what the mark shows)."""
     for gid, tip in fig.cab_titles.items():
         text = text.replace(f'<g id="{gid}">', f'<g id="{gid}"><title>{escape(tip)}</title>', 1)
     return text
 
 
-def svg_file(fig: Figure) -> str:
+def svg_file(fig: CabFigure) -> str:
     """The figure as a standalone SVG document (the file beside the report); drawn once per figure."""
-    if getattr(fig, "cab_svg", None) is None:
+    if fig.cab_svg is None:
         fig.cab_svg = _with_titles(fig, _save(fig, "svg").decode())
     return fig.cab_svg
 
 
-def inline_svg(fig: Figure) -> str:
+def inline_svg(fig: CabFigure) -> str:
     """The figure as one ``<svg>`` element to embed in a page: no prolog, doctype or metadata; ids
     prefixed with the figure's name (those matplotlib gives, the marks' gids already have it)."""
     text = svg_file(fig)
@@ -319,7 +340,7 @@ def inline_svg(fig: Figure) -> str:
     return head + text[len("<svg"):].rstrip() + "\n"  # its <title> is matplotlib's (the metadata's Title)
 
 
-def write_files(figs: list[Figure], folder: Path) -> list[Path]:
+def write_files(figs: list[CabFigure], folder: Path) -> list[Path]:
     """``<folder>/<name>.{pdf,svg,png}`` of every figure; the paths written, in order."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
