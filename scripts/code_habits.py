@@ -46,7 +46,7 @@ def local_imports(tree: ast.Module) -> Iterator[tuple[int, str]]:
     for func in ast.walk(tree):
         if isinstance(func, FUNCTIONS):
             for node in ast.walk(func):
-                if is_cab_import(node):
+                if isinstance(node, (ast.Import, ast.ImportFrom)) and is_cab_import(node):
                     found[node.lineno] = ast.unparse(node)
     yield from sorted(found.items())
 
