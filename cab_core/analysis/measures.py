@@ -67,6 +67,11 @@ def claim_category(claim: bool | None, success: bool) -> str:
     return "over" if claim else "under"
 
 
+# an aborted action's abort_reason -> its cause (any other reason, or none: "other")
+_ABORT_CAUSES: dict[str | None, str] = {"stalled": "stall", "trajectory_deviation": "deviation",
+                                        "leg_budget": "allowance"}
+
+
 def action_cause(result: dict) -> str | None:
     """Why a robot action did not complete (None when it completed or is not an action)."""
     status = result.get("status")
@@ -77,8 +82,7 @@ def action_cause(result: dict) -> str | None:
         return "allowance"
     if status == "FAILED":
         return "planner"
-    return {"stalled": "stall", "trajectory_deviation": "deviation",
-            "leg_budget": "allowance"}.get(result.get("abort_reason"), "other")
+    return _ABORT_CAUSES.get(result.get("abort_reason"), "other")
 
 
 def program_error(result: dict) -> bool:

@@ -125,7 +125,8 @@ def attempt_folders(cfg: Any, jobs: list[list[str]], path_keys: list[str]) -> li
     out = []
     for job in jobs:
         v = _values(job)
-        name = {g: v.get(f"{g}.name", names.get((g, v[g])) if g in v else base[g]) for g in base}
+        # names holds (g, v[g]) for every swept group g of this job (the loop above)
+        name = {g: v.get(f"{g}.name", names[(g, v[g])] if g in v else base[g]) for g in base}
         seed = _parsed(v["seed"]) if "seed" in v else cfg.seed
         attempt = _parsed(v["attempt"]) if "attempt" in v else cfg.attempt
         out.append(f"{name['task']}/{name['model']}/{name['sim']}/{swept_component(job, path_keys)}"

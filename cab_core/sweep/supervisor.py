@@ -29,7 +29,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -237,6 +237,9 @@ class AttemptSupervisor:
         self.settings = settings
         self.job_log = job_log
         self.on_child = on_child  # observes each child process started (pid, try number)
+        self.child_error: str | None = None  # the exception that ended the last try, as a warm worker tells it
+        self.unwritten: list[str] = []  # what run() could not write (a full disk)
+        self.write_error: str | None = None  # the first file-system error that stopped a write
 
     def _env(self) -> dict:
         env = {**os.environ, PARENT_ENV: str(os.getpid())}
@@ -247,7 +250,7 @@ class AttemptSupervisor:
     def _run_child(self, try_no: int) -> tuple[int | None, str | None]:
         """One try; returns (exit status, or None when it was killed, and why it was killed: None,
         "hang" or "memory")."""
-        self.child_error = None  # the exception that ended the try, as a warm worker tells it
+        self.child_error = None
         self.dir.mkdir(parents=True, exist_ok=True)
         if self.settings.warm_workers:
             return self._run_in_worker(try_no)
@@ -286,7 +289,7 @@ class AttemptSupervisor:
         if self.on_child is not None:
             self.on_child(worker.proc, try_no)
         job = {"config": self.config, "output_dir": str(self.dir), "log": str(self.dir / CHILD_LOG)}
-        reply = None if worker.submit(job) else {"status": worker.proc.wait()}
+        reply: dict | None = None if worker.submit(job) else {"status": worker.proc.wait()}
         watch = _Watchdog(self.dir, self.settings, worker.proc.pid)
         while reply is None:
             reply = worker.reply(self.settings.poll_s)
@@ -312,6 +315,7 @@ class AttemptSupervisor:
         if killed == "memory":
             return {"kind": "memory", "detail": f"the attempt's process held more than "
                                                 f"{self.settings.worker_max_rss_mb:g} MiB; killed"}
+        assert code is not None  # a try without an exit status was killed for a hang or memory: above
         if code == EXIT_CONFIG or code == EXIT_RENDERER:
             raise ChildConfigError(f"attempt {self.dir}: {_log_tail(self.dir, 600).strip()}")
         if code != 0:
@@ -321,6 +325,7 @@ class AttemptSupervisor:
         check = check_attempt(self.dir, self.identity, self.job_log)
         if check.state != "complete":
             return {"kind": "incomplete_record", "detail": "; ".join(check.problems)}
+        assert check.result is not None  # a complete record's result.json holds a dict
         reason = check.result["termination"]["reason"]
         if reason in INFRA_TERMINATIONS:
             return {"kind": reason, "detail": f"{INFRA_TERMINATIONS[reason]}: {check.result['termination'].get('detail')}"}
@@ -344,8 +349,8 @@ class AttemptSupervisor:
         and records that could not be set aside stand in its way) and the result returned is the
         one that should have been written."""
         s = self.settings
-        self.unwritten: list[str] = []
-        self.write_error: str | None = None
+        self.unwritten = []
+        self.write_error = None
         session: list[dict] = []  # this session's failures, whether or not infrastructure.jsonl took them
         for try_no in range(1, s.max_retries + 2):
             t0 = time.monotonic()
@@ -476,11 +481,11 @@ def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | 
     if sims is None:
         sims = (default_selection(("sim",))["sim"],)
 
-    if not isinstance(seeds, dict):
-        seeds = {t: seeds if seeds is not None else [task_info(t).seed] for t in tasks}
+    by_task: Mapping[str, Sequence[int]] = seeds if isinstance(seeds, dict) else \
+        {t: seeds if seeds is not None else [task_info(t).seed] for t in tasks}
     jobs_list = []
     for t in tasks:
-        for s in seeds.get(t, ()):
+        for s in by_task.get(t, ()):
             for sim in sims:
                 for a in agents:
                     for k in (range(1, perturb + 1) if perturb else [None]):
