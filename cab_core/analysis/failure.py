@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from cab_core.attempt.engine.checkpoint_scoring import SnapshotState
-from cab_core.contracts.simulator import Simulator
+from cab_core.contracts.simulator import WorldReads
 from cab_core.contracts.verifier import WorldView
 from cab_core.kits.jsonfiles import read_json_object as read_json
 from cab_core.plugins import all_tasks, create
@@ -88,10 +88,10 @@ def transport_lost(snaps: list[dict], grip: Grip) -> bool:
 def final_subgoals(task, emb, info: dict, snaps: list[dict]) -> list[bool]:
     """The task's subgoal predicates on the recorded final snapshot."""
     last = snaps[-1]
-    # cast: a SnapshotState answers, from a record, the reads a WorldView makes of a Simulator
-    # (object and link poses, joint positions, contacts); it implements none of its other methods
     grips = {a: last["arms"][a]["gripper_cmd"] for a in last["arms"]}
-    w = WorldView(cast(Simulator, SnapshotState(last, emb)), emb, grips, info)
+    # cast: a SnapshotState answers from its record every read of WorldReads but object_names,
+    # which only a live world is asked (WorldView.remember_start, the oracles' helpers)
+    w = WorldView(cast(WorldReads, SnapshotState(last, emb)), emb, grips, info)
     return [bool(v) for v in list(task.subgoals(w))[:len(task.info.subgoals)]]
 
 

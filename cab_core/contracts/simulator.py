@@ -10,7 +10,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -35,6 +35,23 @@ class SimState:
     """An opaque, exact snapshot of the simulation (bodies, joints, drive targets, time)."""
     backend: str
     data: bytes
+
+
+class WorldReads(Protocol):
+    """The reads a :class:`~cab_core.contracts.verifier.WorldView` makes of a world: a
+    :class:`Simulator` answers them live, a recorded privileged snapshot from its record."""
+
+    def object_names(self) -> list[str]: ...
+
+    def get_object_pose(self, name: str) -> np.ndarray: ...
+
+    def get_object_qpos(self, name: str) -> np.ndarray: ...
+
+    def get_object_link_pose(self, name: str, link: str) -> np.ndarray: ...
+
+    def get_link_pose(self, link: str) -> np.ndarray: ...
+
+    def get_contacts(self) -> list[Contact]: ...
 
 
 class Simulator(ABC):

@@ -11,7 +11,7 @@ import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
     from cab_core.contracts.embodiment import EmbodimentSpec
-    from cab_core.contracts.simulator import Contact, Simulator
+    from cab_core.contracts.simulator import Contact, WorldReads
 
 Scoring = Literal["final", "latch"]
 
@@ -23,7 +23,7 @@ class WorldView:
     which is what the paper's gripper predicates read (FACTS B.3).
     """
 
-    def __init__(self, sim: Simulator, embodiment: EmbodimentSpec, gripper_commands: dict[str, float],
+    def __init__(self, sim: WorldReads, embodiment: EmbodimentSpec, gripper_commands: dict[str, float],
                  info: dict | None = None):
         self._sim = sim
         self._emb = embodiment
