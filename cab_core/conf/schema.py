@@ -266,7 +266,7 @@ def checked_view(cfg: dict, open_keys: dict[str, Any] | None = None) -> DictConf
 def check_value(view: DictConfig, key: str, value: Any, option: str | None = None) -> None:
     """Refuse (ConfigError, one line) ``key=value`` on ``view`` (:func:`checked_view`): an unknown
     key, a value of the wrong type or out of its range. ``option`` names the selected option of a
-    config group whose keys are checked (``sim=mujoco``)."""
+    config group whose keys are checked (``sim=<name>``)."""
     trial = copy.deepcopy(view)
     try:
         OmegaConf.update(trial, key, value, merge=True)

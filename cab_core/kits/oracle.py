@@ -61,7 +61,7 @@ def closest_opening(current_quat, candidates: list[np.ndarray]) -> np.ndarray:
 
 
 def finger_reach(opening: float) -> float:
-    """aloha_agilex: TCP to a finger's outer side along the opening line at gripper command
+    """For the two-finger gripper the reference oracles are written for: TCP to a finger's outer side along the opening line at gripper command
     ``opening`` (the pads' clearance is 0.11 * opening - 0.018 m)."""
     return 0.024 + 0.055 * opening
 

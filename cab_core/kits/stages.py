@@ -1,6 +1,6 @@
 """Reading a task's stage from the state (forks): small predicates a stage-aware reference
-solution uses to tell which of its steps are done (e.g. CodeActionBench's open_microwave,
-handover_block, handover_mic and grab_roller_dual_contact). They only read privileged state;
+solution uses to tell which of its steps are done (a door opened, an object handed from one hand to
+the other, a grasp closed on both sides). They only read privileged state;
 none makes a tool call. Distances in metres."""
 from __future__ import annotations
 
