@@ -34,6 +34,7 @@ from pathlib import Path
 
 import pytest
 
+from cab_core.plugins import all_tasks, registry
 from cab_core.testing.selection import GROUPS, NODE, SELECTION, Selection, selection  # noqa: F401
 
 #: the bare ``--cab-conformance`` (no ``=GROUPS``): every group, or the task groups with ``--cab-tasks``
@@ -90,10 +91,6 @@ def pytest_configure(config: pytest.Config) -> None:
     jobs = config.getoption("cab_jobs")
     if jobs is not None and jobs < 1:
         raise pytest.UsageError(f"--cab-jobs must be at least 1, got {jobs}")
-    # here, not at the top: pytest loads this plugin (pytest11) in every run in the environment; the
-    # registry is needed only with --cab-conformance
-    from cab_core.plugins import all_tasks, registry
-
     sims = _restrict("simulator", "--cab-sims", _names(config.getoption("cab_sims")), list(registry("simulators")))
     tasks: tuple[str, ...] = ()
     if {"tasks", "determinism"} & set(chosen) or config.getoption("cab_tasks") is not None:
