@@ -6,6 +6,10 @@ bash scripts/install.sh
 bash scripts/install-node-tools.sh   # MCP Inspector, Claude Code, Codex CLI: the MCP harness tests drive them
 bash scripts/install-browser.sh      # Debian's chromium and chromedriver: the report's page in a headless browser
 . .venv/bin/activate
+# the habits the tree keeps: ruff over the whole tree, mypy over cab_core (their settings: pyproject.toml)
+echo "ruff and mypy ..."
+ruff check --quiet .
+mypy --no-error-summary
 set +e
 # --cab-conformance: the conformance suites of cab_core.testing (its pytest plugin) over every installed
 # simulator and task, as a plugin author runs them on theirs

@@ -1,8 +1,7 @@
 # cab_core first: it pins the numerics (cab_core.numerics) before anything imports numpy, so the tests
 # run with the settings every attempt process has.
-import cab_core  # noqa: F401
-
-import pytest  # noqa: E402
+import cab_core  # noqa: F401, I001 (first, on purpose)
+import pytest
 
 
 @pytest.fixture(scope="session")

@@ -272,7 +272,7 @@ def boundary_values(sub: dict) -> list:
     return vals
 
 
-def cases(tool: str, fz: "Fuzz", kinds=("valid", "valid", "valid", "boundary", "boundary", "odd_value",
+def cases(tool: str, fz: Fuzz, kinds=("valid", "valid", "valid", "boundary", "boundary", "odd_value",
                                          "odd_value", "structure")):
     """Strategy for one case of ``tool``, with the attempt's live ids."""
     schema = SCHEMAS[tool]
@@ -326,7 +326,7 @@ def cases(tool: str, fz: "Fuzz", kinds=("valid", "valid", "valid", "boundary", "
     return draw_case()
 
 
-def grid(tool: str, fz: "Fuzz") -> list[Case]:
+def grid(tool: str, fz: Fuzz) -> list[Case]:
     """The deterministic sweep of one tool: every odd value in every field of a simple instance with
     the newest live ids (lists: their first and last item; every absent optional field too; the 1 MB
     string and the 100,000-item list in the first field only, to keep the record small), each unknown
@@ -652,7 +652,7 @@ class _Summary:
         tr.write_line(f"{'tool':28s} " + " ".join(f"{s:>13s}" for s in surfaces) + " |"
                       + " ".join(f"{k:>9s}" for k in kinds))
         for tool in [*TOOLS, "total"]:
-            def n(surface=None, kind=None):
+            def n(surface=None, kind=None, tool=tool):
                 return sum(v for (t, s, k), v in c.items() if tool in (t, "total") and surface in (s, None)
                            and kind in (k, None))
             tr.write_line(f"{tool:28s} " + " ".join(f"{n(surface=s):13d}" for s in surfaces) + " |"

@@ -170,8 +170,8 @@ def test_markdown_and_html(built, sweep):
     assert "http://" not in functools.reduce(lambda p, ns: p.replace(ns, ""), namespaces, page) and "https://" not in page
     for m in r["attempt_rows"]:  # every attempt's page exists
         assert (sweep / m["rel"] / "view.html").is_file()
-    links = [l.split('"')[0] for l in page.split('<a href="')[1:]]
-    assert len(links) == r["attempts"] and all((out / l).resolve().is_file() for l in links)
+    links = [a.split('"')[0] for a in page.split('<a href="')[1:]]
+    assert len(links) == r["attempts"] and all((out / a).resolve().is_file() for a in links)
 
 
 def test_cli_prints_the_summary_table(sweep, tmp_path, capsys):

@@ -4,9 +4,9 @@ every task on every simulator (the oracle succeeds, the idle agent fails) is a c
 conformance plugin: ``pytest --cab-conformance`` (scripts/test.sh turns it on)."""
 import json
 import os
-from pathlib import Path
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 

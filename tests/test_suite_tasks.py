@@ -10,13 +10,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from suite_helpers import (  # noqa: F401 (_cache: autouse)
+    TASKS,
+    _cache,
+    check_build_is_deterministic_and_json,
+    check_doc_sections,
+    check_rules_match_catalog,
+    check_seeds_give_different_layouts,
+    check_verifier_false_on_the_initial_scene,
+    fake_world,
+    task_module,
+)
 
 from cab_core.contracts.task import Task
 from cab_suite_codeaction import catalog
 from cab_suite_codeaction.tasks import TASK_MODULES
-from suite_helpers import TASKS, _cache, fake_world, task_module  # noqa: F401 (_cache: autouse)
-from suite_helpers import check_build_is_deterministic_and_json, check_doc_sections, check_rules_match_catalog
-from suite_helpers import check_seeds_give_different_layouts, check_verifier_false_on_the_initial_scene
 
 NAMES = sorted(TASKS)
 LATCH = {"beat_block_hammer", "click_bell", "press_stapler", "dump_bin_bigbin"}  # every other task: "final"

@@ -119,9 +119,9 @@ def test_resumed_sweep_redoes_no_finished_attempt(killed_and_resumed):
         assert check.state == "complete", (a, check.problems)
         if a not in k["done"]:  # (the kill may fall between a result and the supervisor's note on it)
             assert check.result["infrastructure"] == {"failed": False, "failures": []}
-    skipped = [l for l in k["rerun"].stderr.splitlines() if "complete already, skipped" in l]
+    skipped = [line for line in k["rerun"].stderr.splitlines() if "complete already, skipped" in line]
     assert len(skipped) == len(k["done"])
-    assert sum("cab sweep [" in l for l in k["rerun"].stderr.splitlines()) == len(ATTEMPTS)
+    assert sum("cab sweep [" in line for line in k["rerun"].stderr.splitlines()) == len(ATTEMPTS)
     assert k["rerun"].stderr.splitlines()[-1] == f"cab sweep: 4/4 attempts complete; {k['sweep']}"
 
 
@@ -158,7 +158,7 @@ def test_manifest_pins_the_configuration(killed_and_resumed):
     r = subprocess.run(sweep_cmd(k["sweep"], "sweep.hang_timeout_s=1200", workers=1), cwd=k["root"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert sum("complete already, skipped" in l for l in r.stderr.splitlines()) == len(ATTEMPTS)
+    assert sum("complete already, skipped" in line for line in r.stderr.splitlines()) == len(ATTEMPTS)
     assert len(json.loads((k["sweep"] / MANIFEST).read_text())["sessions"]) == 3
 
 
@@ -253,7 +253,7 @@ def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
         assert aside == (["01-interrupted"] if d.resolve() == hit[0] else [])
     m = json.loads((sweep / MANIFEST).read_text())
     assert m["sessions"][0]["launcher"] == "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher"
-    assert sum("cab sweep [" in l for l in (out + err).splitlines()) == 3
+    assert sum("cab sweep [" in line for line in (out + err).splitlines()) == 3
 
 
 @pytest.mark.parametrize("launcher, target, settings", [
