@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from cab_core.geometry import Vector
+if TYPE_CHECKING:  # the annotation only: a run-time import would add a level below the tools
+    from cab_core.geometry import Vector
+
 
 # Distinct, named colours for numbered marks and candidates (name reported to the agent).
 PALETTE: tuple[tuple[str, tuple[int, int, int]], ...] = (
