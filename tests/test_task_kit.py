@@ -54,7 +54,7 @@ def test_without_info_it_is_refused_even_under_a_catalog_name(name):
 
 
 def test_the_kits_import_only_the_contracts_errors_geometry_numerics_and_one_another():
-    graph = grimp.build_graph("cab_core")
+    graph = grimp.build_graph("cab_core", cache_dir=None)
     allowed = ("cab_core.contracts", "cab_core.errors", "cab_core.geometry", "cab_core.numerics", "cab_core.kits")
     task_kit = [m for m in graph.modules if m.startswith("cab_core.kits.")
                 and m.split(".")[2] in ("scene", "assets", "task", "margins", "oracle", "stages")]
