@@ -19,7 +19,7 @@ time.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -39,6 +39,26 @@ class ToolResponse:
     obs_ids: list[str]
     ended: bool = False
     status: str | None = None
+
+
+@dataclass
+class ModelCheck:
+    """What a harness found out about a model configuration before any attempt runs
+    (:meth:`HarnessHooks.check_model`): the plan of a sweep prints it, the pre-flight refuses a
+    configuration with ``problems``. ``None`` in a field: not known or does not apply."""
+    #: the model provider (``anthropic``, ``openai_compatible``...) and the endpoint it talks to
+    provider: str | None = None
+    endpoint: str | None = None
+    #: the environment variable of the credential, and whether it is set (None: no key needed)
+    key_env: str | None = None
+    key_present: bool | None = None
+    #: whether the endpoint answered, and whether it lists the model (where it has a model list)
+    reachable: bool | None = None
+    model_listed: bool | None = None
+    #: what a probe of the endpoint found (a local server's capability profile), JSON-able
+    capabilities: dict | None = None
+    #: each problem as one line that names the fix; a configuration with any cannot run
+    problems: list[str] = field(default_factory=list)
 
 
 @runtime_checkable
@@ -200,11 +220,20 @@ class Harness(Protocol):
 
 
 class HarnessHooks(Protocol):
-    """The optional members of a harness: the runner calls each one a harness has, in this order."""
+    """The optional members of a harness: the runner calls ``preflight``, ``before_build`` and
+    ``close`` when a harness has them, in this order; ``check_model`` is called by the sweep's plan
+    and pre-flight, before any attempt."""
 
     def preflight(self, model_cfg: dict) -> None:
         """Check what the harness needs (credentials, endpoints, an agent's config) before any
         simulator starts; raise :class:`cab_core.errors.ConfigError` naming what is missing."""
+        ...
+
+    def check_model(self, model_cfg: dict, network: bool = True) -> ModelCheck:
+        """Everything that can be checked of ``model_cfg`` before an attempt, without a simulator:
+        credentials, and with ``network`` the endpoint (it answers, it lists the model, a probe of
+        its capabilities). Never raises for a problem it finds: each goes into ``problems``. The
+        plan (``sweep.dry_run``) and a sweep's pre-flight call it once per configuration."""
         ...
 
     def before_build(self, spec: SessionSpec) -> None:
