@@ -7,6 +7,10 @@
 - wall seconds: checked at each dispatch (``wall_budget``); time the host reports as provider
   outage is credited back, capped at one extra wall budget.
 - internal calls: a cap on tool calls inside one run_code program (not charged to the episode).
+- spend (``budget.cost_usd``, null: none): the harness charges each model response's cost
+  (:meth:`BudgetLedger.charge_cost`); once the spend reaches the cap the harness sends no further
+  request and the attempt ends (``cost_budget``, scored like the other budgets). The calls of the
+  response that reached it are made: they are paid for.
 
 The values a configuration may give (``budget.*``: positive, or null for the task's catalog budget)
 are the schema's (cab_core.conf.schema.BudgetConfig).
@@ -44,12 +48,14 @@ class BudgetLedger:
     physics_steps: int = 0
     _t0: float = field(default_factory=time.monotonic)
     _wall_credit: float = 0.0
+    cost_usd: Limit | None = None  # the spend cap (budget.cost_usd); None: no cap
 
     @classmethod
     def create(cls, tool_calls: int, sim_seconds: float, wall_seconds: float, dt: float,
-               run_code_internal_calls: int = 500) -> BudgetLedger:
+               run_code_internal_calls: int = 500, cost_usd: float | None = None) -> BudgetLedger:
         return cls(Limit("tool_calls", tool_calls), Limit("sim_seconds", sim_seconds),
-                   Limit("wall_seconds", wall_seconds), run_code_internal_calls, dt)
+                   Limit("wall_seconds", wall_seconds), run_code_internal_calls, dt,
+                   cost_usd=None if cost_usd is None else Limit("cost_usd", float(cost_usd)))
 
     # -- charging -----------------------------------------------------------------------------
     def step_limit(self) -> int:
@@ -62,6 +68,11 @@ class BudgetLedger:
 
     def charge_call(self) -> None:
         self.tool_calls.usage += 1
+
+    def charge_cost(self, usd: float) -> None:
+        """The harness's spend on one model response (USD; counted against ``budget.cost_usd``)."""
+        if self.cost_usd is not None:
+            self.cost_usd.usage += max(0.0, float(usd or 0.0))
 
     def credit_wall(self, seconds: float) -> None:
         self._wall_credit = min(self.wall_seconds.limit, self._wall_credit + max(0.0, seconds))
@@ -102,6 +113,8 @@ class BudgetLedger:
             return "wall_budget"
         if self.tool_calls.exhausted:
             return "tool_budget"
+        if self.cost_usd is not None and self.cost_usd.exhausted:
+            return "cost_budget"
         return None
 
     def remaining(self) -> dict:
@@ -126,4 +139,6 @@ class BudgetLedger:
             "wall_seconds_limit": self.wall_seconds.limit,
             "wall_seconds_credited": round(self._wall_credit, 3),
             "run_code_internal_calls_limit": self.run_code_internal_calls,
+            **({"cost_usd_used": round(self.cost_usd.usage, 6), "cost_usd_limit": self.cost_usd.limit}
+               if self.cost_usd is not None else {}),
         }
