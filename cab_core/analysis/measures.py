@@ -108,6 +108,24 @@ def _provider(events: list[dict]) -> tuple[float | None, float | None]:
     return wait, (sum(u for u in usd if u is not None) if any(u is not None for u in usd) else None)
 
 
+#: provider failures that are the serving endpoint's, not the model's (a template error answering 500
+#: to ``tools``, a request the server refused)
+SERVER_ERROR_KINDS = ("server", "bad_request")
+
+
+def _server_side(events: list[dict]) -> dict:
+    """What the serving endpoint, not the model, got wrong in one attempt: tool calls the harness
+    salvaged from the server's output (left in the text, a lost brace), calls whose arguments
+    still did not parse, whether a server error ended it, and the endpoint probe's problems."""
+    calls = [c for e in events if e.get("kind") == "model_turn" for c in e.get("tool_calls") or []]
+    probe = next((e for e in events if e.get("kind") == "endpoint_probe"), None)
+    ended = any(e.get("kind") == "provider_failure" and e.get("error_kind") in SERVER_ERROR_KINDS for e in events)
+    return {"salvaged_calls": sum(bool(c.get("salvaged")) for c in calls),
+            "unparseable_calls": sum(c.get("arguments") is None for c in calls),
+            "ended_by_server_error": ended,
+            "probe_problems": list((probe or {}).get("problems") or [])}
+
+
 def _client_labels(a: Attempt) -> list[str]:
     """``name/version`` of each distinct client recorded in the attempt's ``agent`` block."""
     agent = a.agent
@@ -149,6 +167,7 @@ class AttemptMeasures:
     borderline: bool | None = None  # None: a record written before margins were recorded
     seed: int | None = None  # the task instance's seed: attempts on the same (task, seed) are paired
     randomize: str = "none"  # the appearance randomisation option (cab_core.attempt.variation.randomize)
+    server_side: dict = field(default_factory=dict)  # the serving endpoint's faults (_server_side)
 
     @classmethod
     def of(cls, a: Attempt) -> AttemptMeasures:
@@ -189,6 +208,7 @@ class AttemptMeasures:
             borderline=None if decided is None else bool(decided.get("borderline")),
             seed=r.get("seed"),
             randomize=str((r.get("randomization") or {}).get("name") or "none"),
+            server_side=_server_side(ev),
         )
 
     def spatial_at(self, k: int) -> float | None:
@@ -259,6 +279,9 @@ class ConfigSummary:
     borderline: dict = field(default_factory=dict)
     #: {"k": [1..n], "pass_at_k": [...], "pass_hat_k": [...]}: unbiased per task, averaged over tasks
     pass_k: dict = field(default_factory=dict)
+    #: the serving endpoint's faults, counted apart from the model's: tool calls salvaged from its
+    #: output, calls left unparseable, attempts a server error ended, the probe's problems
+    server_side: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, config: str, ms: list[AttemptMeasures], max_calls: int) -> ConfigSummary:
@@ -308,6 +331,11 @@ class ConfigSummary:
             clients=sorted({c for m in ms for c in m.clients}),
             borderline=_borderline(ms),
             pass_k=pass_k_curve({t: (len(v), sum(x.success for x in v)) for t, v in by_task.items()}),
+            server_side={"salvaged_calls": sum(m.server_side.get("salvaged_calls", 0) for m in ms),
+                         "unparseable_calls": sum(m.server_side.get("unparseable_calls", 0) for m in ms),
+                         "attempts_ended_by_server_error": sum(bool(m.server_side.get("ended_by_server_error"))
+                                                               for m in ms),
+                         "probe_problems": sorted({p for m in ms for p in m.server_side.get("probe_problems", [])})},
         )
 
     def as_dict(self) -> dict:

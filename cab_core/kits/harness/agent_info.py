@@ -18,6 +18,14 @@ client that identified itself in the MCP ``initialize`` handshake (``clientInfo`
 name and version in two sessions are two entries, and a session whose client identifies itself
 anew under another name or version adds one. ``client`` is null when no client identified itself.
 
+A harness talking to a model API may add ``serving``: the endpoint that served the model, the
+serving engine and version where the server says (vLLM, llama.cpp, Ollama) and the capability
+profile its probe found (``kind: "model_api"``, ``client`` null)::
+
+    "agent": {"kind": "model_api", "named_by": "config", "client": null, "clients": [],
+              "serving": {"engine": "vllm", "version": "0.11.2", "base_url": "...", "model_id": "...",
+                          "profile": {...}}}
+
 Records without the block (other harnesses, records written before it existed) are valid.
 """
 from __future__ import annotations
@@ -63,11 +71,15 @@ class AgentRecord:
     named_by: str
     client: ClientInfo | None = None
     clients: list[ClientInfo] = field(default_factory=list)
+    serving: dict | None = None  # the serving endpoint, engine and capability profile (model APIs)
 
     def as_dict(self) -> dict:
-        return {"kind": self.kind, "named_by": self.named_by,
-                "client": self.client.as_dict() if self.client else None,
-                "clients": [c.as_dict() for c in self.clients]}
+        out = {"kind": self.kind, "named_by": self.named_by,
+               "client": self.client.as_dict() if self.client else None,
+               "clients": [c.as_dict() for c in self.clients]}
+        if self.serving is not None:
+            out["serving"] = self.serving
+        return out
 
     @classmethod
     def from_dict(cls, d) -> AgentRecord:
@@ -82,8 +94,11 @@ class AgentRecord:
         if not isinstance(clients, list):
             raise RecordError(f"result.json agent.clients should be a list, got {type(clients).__name__}")
         client = d.get("client")
+        serving = d.get("serving")
+        if serving is not None and not isinstance(serving, dict):
+            raise RecordError(f"result.json agent.serving should be an object, got {type(serving).__name__}")
         return cls(d["kind"], d["named_by"], None if client is None else ClientInfo.from_dict(client),
-                   [ClientInfo.from_dict(c, f"agent.clients[{i}]") for i, c in enumerate(clients)])
+                   [ClientInfo.from_dict(c, f"agent.clients[{i}]") for i, c in enumerate(clients)], serving)
 
     @classmethod
     def of_result(cls, result: dict) -> AgentRecord | None:

@@ -271,11 +271,43 @@ class ReferenceContextPolicy:
                     break
             if out is None:
                 raise ContextOverflow(est, limit_tokens)
+        cap = capabilities.max_images_per_request if capabilities is not None else None
+        if cap is not None:
+            out = self.cap_images(out, cap)
         if out:
             if anchor:
                 out[len(anchor) - 1] = replace(out[len(anchor) - 1], cache_breakpoint=True)
             out[-1] = replace(out[-1], cache_breakpoint=True)
         return out
+
+
+    @staticmethod
+    def cap_images(messages: list[Message], cap: int) -> list[Message]:
+        """At most ``cap`` images in one request (a server's limit, e.g. vLLM's
+        ``--limit-mm-per-prompt``): the newest are kept, older ones become placeholders."""
+        why = f"withheld (the server takes at most {cap} image(s) per request)"
+        kept = 0
+        out: list[Message] = []
+        for m in reversed(messages):
+            parts: list = []
+            for p in reversed(m.parts):
+                if isinstance(p, Image):
+                    kept += 1
+                    parts.append(p if kept <= cap else image_placeholder(p, why))
+                elif isinstance(p, ToolResult) and p.images:
+                    imgs, notes = [], []
+                    for img in reversed(p.images):
+                        kept += 1
+                        if kept <= cap:
+                            imgs.append(img)
+                        else:
+                            notes.append(image_placeholder(img, why).text)
+                    text = p.text + ("\n" + "\n".join(notes[::-1]) if notes else "")
+                    parts.append(replace(p, images=imgs[::-1], text=text))
+                else:
+                    parts.append(p)
+            out.append(replace(m, parts=parts[::-1]))
+        return out[::-1]
 
 
 def build_policy(cfg: dict | None = None) -> ReferenceContextPolicy:
