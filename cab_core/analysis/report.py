@@ -293,6 +293,15 @@ def notes(r: dict) -> list[str]:
     if r["excluded"]:
         out.append(f"Excluded as infrastructure failures (not the model's): {len(r['excluded'])}: "
                    + "; ".join(f"{e['dir']} {e['why']}" for e in r["excluded"]))
+    for c in r["configs"]:  # the serving endpoint's faults, apart from the model's (measures._server_side)
+        ss = c.get("server_side") or {}
+        counts = [(ss.get("salvaged_calls", 0), "tool calls salvaged from the server's output"),
+                  (ss.get("unparseable_calls", 0), "tool calls unparseable"),
+                  (ss.get("attempts_ended_by_server_error", 0), "attempts ended by a server error")]
+        said = [f"{n} {what}" for n, what in counts if n]
+        if said or ss.get("probe_problems"):
+            out.append(f"Server-side, not the model's: {c['config']}: " + ", ".join(said or ["no faults counted"])
+                       + "".join(f"; probe: {p}" for p in ss.get("probe_problems", [])))
     out += [f"Skipped record {p['dir']}: {p['problem']}" for p in r["problems"]]
     if r.get("recoverability"):
         out += recoverability.notes(r["recoverability"])

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from cab_core.errors import AttemptEnded, CabError, ConfigError
 from cab_core.kits.harness import ToolResponse
+from cab_core.kits.harness.agent_info import AgentRecord
 from cab_core.kits.harness.catalog import motion_rules
 from cab_core.kits.harness.conversation import REBUILT, transcript
 from cab_core.kits.harness.pricing import cost, usage_dict
@@ -74,7 +75,8 @@ def _record_turn(episode: AttemptSession, turn: int, resp: Response, c: dict, ca
         text="\n".join(p.text for p in msg.parts if isinstance(p, Text)),
         thinking="\n".join(p.text for p in msg.parts if isinstance(p, Thinking)),
         tool_calls=[{"call_id": p.call_id, "name": p.name, "arguments": p.arguments,
-                     **({"raw_arguments": p.raw_arguments} if p.arguments is None else {})} for p in calls])
+                     **({"raw_arguments": p.raw_arguments} if p.arguments is None else {}),
+                     **({"salvaged": True} if p.salvaged else {})} for p in calls])
 
 
 def _ended_without_calls(episode: AttemptSession, resp: Response, no_tool_turns: int) -> bool:
@@ -136,11 +138,15 @@ class ReferenceHarness:
         if self.provider is None:
             self.preflight(model_cfg)
         provider = self.provider
+        profile = self._probe(episode, provider, model_cfg)
         caps: Capabilities = provider.capabilities
         policy = self._policy(model_cfg)
         pricing = model_cfg.get("pricing")
         limit = model_cfg.get("context_tokens")
         limit = int(limit) if limit else None
+        served = (profile or {}).get("effective_context_tokens")
+        if isinstance(served, int) and served > 0 and (limit is None or served < limit):
+            limit = served  # the server keeps less than configured (probe's needle test)
         max_images = int(getattr(policy, "max_images_per_result", 6))  # per tool result (FACTS A.7/A.10)
         tools = self._tools(episode)
         rc = run_code_limits(getattr(episode, "spec", None))
@@ -195,6 +201,26 @@ class ReferenceHarness:
             self._run_calls(episode, calls, history, caps, max_images)
         episode.recorder.event("model_usage_total", **{k: round(v, 6) if isinstance(v, float) else v
                                                        for k, v in totals.items()}, turns=turn)
+
+    @staticmethod
+    def _probe(episode: AttemptSession, provider, model_cfg: dict) -> dict | None:
+        """The endpoint's capability profile (:mod:`.probe`), probed on first use in this process
+        (``model.probe``: auto probes local servers only), applied to the provider, recorded as an
+        ``endpoint_probe`` event and in ``result.json`` (``agent.serving``)."""
+        from .probe import probe_endpoint, serving_summary, wants_probe
+
+        if not hasattr(provider, "apply_profile"):
+            return None
+        profile = getattr(provider, "profile", None)
+        if profile is None:
+            if not wants_probe(model_cfg):
+                return None
+            profile = probe_endpoint(model_cfg)
+            provider.apply_profile(profile)
+        episode.recorder.event("endpoint_probe", **{k: v for k, v in profile.items() if k != "kind"})
+        if profile.get("reachable", True):
+            episode.agent = AgentRecord("model_api", "config", serving=serving_summary(profile)).as_dict()
+        return profile
 
     @staticmethod
     def _provider_failed(episode: AttemptSession, e: ProviderError, turn: int, t0: float, totals: dict,
