@@ -138,7 +138,8 @@ def _check_qwen_wire(srv):
 @pytest.mark.sim
 def test_qwen_local_openai_compatible(tmp_path):
     with FakeChat(_qwen_script()) as srv:
-        r = _cab("qwen_local", srv.url, tmp_path / "d", None, [PRICING])  # api_key_env: null
+        # api_key_env: null; the scripted server answers turns only (the endpoint probe: tests/test_probe.py)
+        r = _cab("qwen_local", srv.url, tmp_path / "d", None, [PRICING, "model.probe=false"])
     turns = _check_records(r, tmp_path / "d", "qwen_local", True, len(srv.requests))
     assert turns[0]["usage"]["input_tokens"] == 500 and turns[0]["usage"]["cache_read_tokens"] == 1000
     _check_qwen_wire(srv)
@@ -148,7 +149,7 @@ def test_qwen_local_openai_compatible(tmp_path):
 def test_qwen_local_as_shipped_records_null_cost(tmp_path):
     """``pricing: null`` (a local server has no API cost): usage is recorded, cost is ``{"usd": null}``."""
     with FakeChat(_qwen_script()) as srv:
-        r = _cab("qwen_local", srv.url, tmp_path / "d", None)
+        r = _cab("qwen_local", srv.url, tmp_path / "d", None, ["model.probe=false"])
     _check_records(r, tmp_path / "d", "qwen_local", False, len(srv.requests))
 
 
