@@ -169,6 +169,10 @@ class Limiter:
         self.sleep = sleep
         self.waited_s = 0.0  # time this process spent waiting on limits (slots, log, pauses)
         self._n = 0
+        #: for a caller whose requests are sent deeper down (a provider's retry loop): the tokens the
+        #: next request reserves, and the grant of the last one admitted, to settle
+        self.estimate = 0
+        self.last_grant: Grant | None = None
 
     @property
     def state_path(self) -> Path:

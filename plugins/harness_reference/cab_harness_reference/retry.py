@@ -8,7 +8,10 @@ it back to the wall budget (provider outage is not the model's time).
 A ``Retry-After`` (or ``retry-after-ms``) the server sends with a rate limit or an overload is
 honoured: the retry waits that long instead of the backoff's draw, and, when the policy has a
 ``limiter`` (:class:`cab_core.kits.harness.limits.Limiter`), every process sharing the credential
-is paused until then; each retry is admitted by the limiter like a first request."""
+is paused until then. With a limiter, each try (retries included) is sent inside
+``limiter.request``: a concurrency slot held while it is in flight, a place under the per-minute
+limits taken just before it goes (``limiter.estimate`` tokens; the caller settles the real usage
+through ``limiter.last_grant``)."""
 from __future__ import annotations
 
 import email.utils
@@ -97,7 +100,16 @@ def call_with_retries(fn: Callable[[], T], classify: Callable[[BaseException], P
     while True:
         attempt += 1
         try:
-            return fn(), waited
+            if policy.limiter is None:
+                return fn(), waited
+            with policy.limiter.request(policy.limiter.estimate) as grant:  # a slot, a place under the limits
+                try:
+                    result = fn()
+                except BaseException:
+                    grant.settle(0)  # a refused or failed try is not counted in tokens
+                    raise
+            policy.limiter.last_grant = grant  # the caller settles the tokens the answer used
+            return result, waited
         except Exception as e:  # noqa: BLE001 - every failure is classified
             err = e if isinstance(e, ProviderError) else classify(e)
             if err is not e and err.__cause__ is None:
@@ -118,5 +130,3 @@ def call_with_retries(fn: Callable[[], T], classify: Callable[[BaseException], P
             t0 = time.monotonic()
             policy.sleep(d)
             waited += max(d, time.monotonic() - t0)
-            if policy.limiter is not None:  # the retry is a request too: it waits its turn
-                policy.limiter.admit()
