@@ -222,7 +222,7 @@ def test_partial_and_corrupt_records_are_reported_not_fatal(sweep, tmp_path):
     assert cfg(r, "oracle")["attempts"] == 1 and cfg(r, "oracle")["tasks"] == 1
     md = (d / "report.md").read_text()
     assert "Unfinished attempts (no result.json): 1" in md and "result.json lacks 'verdict'" in md
-    assert "Excluded as infrastructure failures (not the model's): 1" in md
+    assert "Excluded, not scored (infrastructure failures, interrupted attempts; not the model's): 1" in md
     assert "(2 not started), configuration fingerprint sha256:0f" in md
 
 

@@ -291,7 +291,8 @@ def notes(r: dict) -> list[str]:
     if r["in_flight"]:
         out.append(f"Unfinished attempts (no result.json): {len(r['in_flight'])}: " + ", ".join(r["in_flight"]))
     if r["excluded"]:
-        out.append(f"Excluded as infrastructure failures (not the model's): {len(r['excluded'])}: "
+        out.append(f"Excluded, not scored (infrastructure failures, interrupted attempts; not the model's): "
+                   f"{len(r['excluded'])}: "
                    + "; ".join(f"{e['dir']} {e['why']}" for e in r["excluded"]))
     for c in r["configs"]:  # the serving endpoint's faults, apart from the model's (measures._server_side)
         ss = c.get("server_side") or {}

@@ -108,6 +108,8 @@ def main() -> None:
     if "--version" in sys.argv[1:]:  # cab's, not Hydra's
         print("\n".join(version_lines()))
         return
+    global _TYPED
+    _TYPED = list(sys.argv[1:])
     sys.argv = [sys.argv[0]] + normalise_overrides(sys.argv[1:])
     try:
         sys.argv = [sys.argv[0]] + expand_seed_set(sys.argv[1:])
@@ -137,6 +139,16 @@ def main() -> None:
 
 
 _SWEEP_DIR: str | None = None  # the sweep's folder, once its manifest is open
+_TYPED: list[str] | None = None  # the arguments as typed: the command that runs an attempt or a sweep again
+EXIT_UNSCORED = 4  # the attempt (or some of a sweep's) ended on an infrastructure failure: recorded, not scored
+EXIT_INTERRUPTED = 130  # Ctrl-C or SIGTERM: the attempt is recorded as interrupted, not scored
+
+
+def typed_command() -> str:
+    """The command line as typed (``cab`` and its arguments, shell-quoted)."""
+    import shlex
+
+    return shlex.join(["cab", *(_TYPED if _TYPED is not None else sys.argv[1:])])
 
 
 def _full_disk(e: BaseException) -> OSError | None:
@@ -190,7 +202,12 @@ def _hydra_entry(raises: HydraRaises | None = None) -> None:
             return
         try:
             spec = attempt_spec(cfg, out)
-            result = run_attempt(spec)
+            _set_aside_unscored(out, f"{hc.job.name}.log")
+            with _sigterm_interrupts():
+                result = run_attempt(spec)
+        except KeyboardInterrupt:  # the record (if the attempt had begun) says interrupted: never scored
+            print("cab: interrupted; run the same command to run it again", file=sys.stderr)
+            sys.exit(EXIT_INTERRUPTED)
         except RendererUnavailable as e:
             print(f"cab: renderer unavailable: {e}", file=sys.stderr)
             sys.exit(3)
@@ -207,8 +224,80 @@ def _hydra_entry(raises: HydraRaises | None = None) -> None:
               f"sim={result['sim']}: success={v.get('success')} termination={result['termination']['reason']} "
               f"calls={b['tool_calls_used']}/{b['tool_calls_limit']} sim_s={b['sim_seconds_used']:.2f}/{b['sim_seconds_limit']:g} "
               f"wall_s={result['timing']['wall_seconds']:.1f} -> {out}/result.json")
+        line = unscored_line(result)
+        if line is not None:
+            print(f"cab: {line}", file=sys.stderr)
+            sys.exit(EXIT_UNSCORED)
 
     _app()
+
+
+def unscored_line(result: dict) -> str | None:
+    """One line for an attempt that ended on an infrastructure failure (what failed, where, a hint:
+    the harness puts them in the termination's detail), None for a scored attempt."""
+    from cab_core.attempt.engine.faults import INFRASTRUCTURE_TERMINATIONS
+
+    t = result.get("termination") or {}
+    reason = t.get("reason")
+    if reason not in INFRASTRUCTURE_TERMINATIONS:
+        return None
+    detail = " ".join(str(t.get("detail") or "").split()).rstrip(".") or "(no detail)"
+    what = detail if reason == "provider_failure" else f"{INFRASTRUCTURE_TERMINATIONS[reason]}: {detail}"
+    end = "" if what.endswith(("?", "!")) else "."
+    return f"{what}{end} The attempt is recorded as an infrastructure failure, not scored."
+
+
+class _sigterm_interrupts:
+    """``with _sigterm_interrupts():`` SIGTERM stops a single run as Ctrl-C does (the attempt is
+    recorded as interrupted); the handler before it comes back on leaving."""
+
+    def __enter__(self):
+        import signal
+
+        def stop(signum, frame):
+            raise KeyboardInterrupt("SIGTERM")
+
+        try:
+            self.before = signal.signal(signal.SIGTERM, stop)
+        except ValueError:  # not the main thread: left as it is
+            self.before = None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        if self.before is not None:
+            signal.signal(signal.SIGTERM, self.before)
+
+
+def _set_aside_unscored(out: str, job_log: str) -> None:
+    """A single run into a folder that holds an attempt that was never scored (interrupted, an
+    infrastructure failure, or records without ``result.json``: a process killed mid-attempt) moves
+    those records into ``set_aside/NN-<why>/`` (kept, never deleted), as a resumed sweep does, so
+    that the same command runs the attempt again. A scored attempt's folder is left as it is (the
+    recorder refuses it)."""
+    from pathlib import Path
+
+    from cab_core.sweep.attempt_state import (
+        INTERRUPTED,
+        check_attempt,
+        is_infrastructure_failure,
+        record_entries,
+        set_aside,
+    )
+
+    d = Path(out)
+    if not (d / "result.json").exists() and not (d / "events.jsonl").exists():
+        return
+    check = check_attempt(d, None, job_log)
+    if check.state != "partial":
+        return
+    res = check.result
+    if res is not None and not is_infrastructure_failure(res):
+        return  # a record that is scored but damaged: the user's to look at
+    why = INTERRUPTED if res is None or (res.get("termination") or {}).get("reason") == INTERRUPTED else "infrastructure"
+    if record_entries(d, job_log):
+        set_aside(d, why, job_log)
 
 
 def _sweep_job(cfg, hc) -> None:
@@ -313,9 +402,12 @@ class SweepManifestCallback(Callback):
             sys.exit(1)
 
     def on_multirun_end(self, config, **kwargs) -> None:
-        from cab_core.sweep.manifest import summary_line  # 0.55 s: see _sweep_job
+        from cab_core.sweep.manifest import sweep_summary  # 0.55 s: see _sweep_job
 
-        print(summary_line(config.hydra.sweep.dir), file=sys.stderr, flush=True)
+        line, complete = sweep_summary(config.hydra.sweep.dir, typed_command())
+        print(line, file=sys.stderr, flush=True)
+        if not complete:  # attempts given up on (or not written): not a finished sweep
+            sys.exit(EXIT_UNSCORED)
 
 
 def plugins_main() -> None:

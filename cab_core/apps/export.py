@@ -309,7 +309,9 @@ def _left_out(res: dict) -> str:
     if res["in_flight"]:
         parts.append(f"{len(res['in_flight'])} unfinished")
     if res["excluded"]:
-        parts.append(f"{len(res['excluded'])} infrastructure failures")
+        parts.append(f"{len(res['excluded'])} not scored ("
+                     + "; ".join(f"{d}: {why}" for d, why in res["excluded"][:3])
+                     + ("; ..." if len(res["excluded"]) > 3 else "") + ")")
     if res["problems"]:
         parts.append(f"{len(res['problems'])} unreadable ({'; '.join(f'{d}: {p}' for d, p in res['problems'][:3])})")
     return f"; left out: {', '.join(parts)}" if parts else ""

@@ -1,10 +1,11 @@
-"""From a composed config to a finished, recorded attempt."""
+"""From a composed config to a finished, recorded attempt. An attempt interrupted while the agent
+plays (Ctrl-C, SIGTERM) is recorded as ``interrupted`` (never scored) before the interruption goes on."""
 from __future__ import annotations
 
 import logging
 
 from cab_core.attempt.engine.episode import Episode
-from cab_core.attempt.engine.faults import is_infrastructure_fault
+from cab_core.attempt.engine.faults import INTERRUPTED, is_infrastructure_fault
 from cab_core.attempt.spec import AttemptSpec, attempt_spec  # noqa: F401  (attempt_spec: a composed config's spec)
 from cab_core.errors import ConfigError
 from cab_core.plugins import all_tasks, create, select_record_observers
@@ -38,6 +39,17 @@ def run_attempt(spec: AttemptSpec) -> dict:
         except Exception as e:  # the fault rule (cab_core.attempt.engine.faults): only a broken host is not scored
             log.exception("harness failed")
             episode.end("host_fault" if is_infrastructure_fault(e) else "harness_error", f"harness: {e!r}")
+        except KeyboardInterrupt as e:  # Ctrl-C, or a SIGTERM the program turned into one: never scored
+            episode.end(INTERRUPTED, interrupted_detail(e))
+            episode.finish()  # the record says so (verdict.excluded), then the interruption goes on up
+            raise
         return episode.finish()
     finally:
         episode.close()
+
+
+def interrupted_detail(e: KeyboardInterrupt) -> str:
+    """The termination detail of an interrupted attempt: which signal stopped it (a SIGTERM handler
+    raises ``KeyboardInterrupt("SIGTERM")``)."""
+    how = str(e.args[0]) if e.args else "SIGINT (Ctrl-C)"
+    return f"stopped by {how} while the agent played; not scored"

@@ -15,7 +15,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cab_core.attempt.engine.faults import INFRASTRUCTURE_TERMINATIONS
+from cab_core.attempt.engine.faults import INFRASTRUCTURE_TERMINATIONS, UNSCORED_TERMINATIONS
 from cab_core.attempt.records.result_format import (
     INFRA_REASON,
     RECORD_VERSION,
@@ -49,7 +49,9 @@ def is_infrastructure_failure(result: dict) -> bool:
     """True for a result that must not count for or against the model (reports exclude it). For a
     raw dict, unvalidated (:attr:`AttemptRecord.excluded` is the same rule on a validated record)."""
     infra = result.get("infrastructure") or {}
-    return bool(infra.get("failed")) or (result.get("termination") or {}).get("reason") == INFRA_REASON
+    reason = (result.get("termination") or {}).get("reason")
+    return bool(infra.get("failed")) or bool((result.get("verdict") or {}).get("excluded")) \
+        or reason == INFRA_REASON or reason in UNSCORED_TERMINATIONS
 
 
 def _kept_names(job_log: str | None) -> set[str]:

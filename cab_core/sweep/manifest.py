@@ -356,8 +356,14 @@ def _by_completion(results: list[Path]) -> list[tuple[float, Path]]:
     return [(ns / 1e9, p) for ns, _, p in sorted(out)]
 
 
-def summary_line(sweep_dir: Path) -> str:
+def summary_line(sweep_dir: Path, command: str | None = None) -> str:
     """The state of a whole sweep after a session: complete, infrastructure failures, missing."""
+    return sweep_summary(sweep_dir, command)[0]
+
+
+def sweep_summary(sweep_dir: Path, command: str | None = None) -> tuple[str, bool]:
+    """The sweep's summary line and whether every attempt is complete. An incomplete sweep's line
+    ends with the command that resumes it (``command``: the one this session ran, as typed)."""
     m = json.loads((Path(sweep_dir) / MANIFEST).read_text())
     complete = len(completed_results(Path(sweep_dir)))
     infra = 0
@@ -368,9 +374,11 @@ def summary_line(sweep_dir: Path) -> str:
             except (OSError, json.JSONDecodeError):
                 pass
     missing = max(m["n_jobs"] - complete - infra, 0)
+    if complete >= m["n_jobs"]:
+        return f"cab sweep: {complete}/{m['n_jobs']} attempts complete; {sweep_dir}", True
+    resume = f"run the same command to resume: {command}" if command else "run the same command again to resume"
     return (f"cab sweep: {complete}/{m['n_jobs']} attempts complete, {infra} given up on for infrastructure "
-            f"failures, {missing} missing; {sweep_dir} (run the same command again to resume)"
-            if complete < m["n_jobs"] else f"cab sweep: {complete}/{m['n_jobs']} attempts complete; {sweep_dir}")
+            f"failures (not scored), {missing} missing; {sweep_dir}; {resume}"), False
 
 
 def _hms(s: float) -> str:
@@ -397,7 +405,8 @@ def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = 
         return None, progress_line(sweep_dir, job, "complete already, skipped", result_path)
     try:
         if check.state == "partial":  # killed mid-attempt, or every try of an earlier session failed
-            infra = check.result is not None and is_infrastructure_failure(check.result)
+            infra = check.result is not None and is_infrastructure_failure(check.result) \
+                and (check.result.get("termination") or {}).get("reason") != INTERRUPTED
             set_aside(attempt_dir, GIVEN_UP if infra else INTERRUPTED, job_log)
     except OSError as e:
         return None, progress_line(sweep_dir, job, f"NOT RUN: its earlier records could not be set aside "

@@ -323,10 +323,10 @@ class AttemptSupervisor:
             why = f" ({self.child_error})" if self.child_error else ""
             return {"kind": "crash", "detail": f"attempt process {how}{why}", "log_tail": _log_tail(self.dir)}
         check = check_attempt(self.dir, self.identity, self.job_log)
-        if check.state != "complete":
+        reason = check.record.termination.reason if check.record is not None else None
+        if check.state != "complete" and reason not in INFRA_TERMINATIONS:  # an infrastructure termination is not scored: partial
             return {"kind": "incomplete_record", "detail": "; ".join(check.problems)}
         assert check.result is not None  # a complete record's result.json holds a dict
-        reason = check.result["termination"]["reason"]
         if reason in INFRA_TERMINATIONS:
             return {"kind": reason, "detail": f"{INFRA_TERMINATIONS[reason]}: {check.result['termination'].get('detail')}"}
         return None

@@ -8,7 +8,8 @@ found as :func:`cab_core.analysis.attempts.attempt_dirs` finds them (hidden fold
 records and recoverability forks skipped). Each attempt is
 
 * ``done``: ``result.json`` holds a verdict (``success`` says which);
-* ``infra``: ``result.json`` of an attempt the sweep gave up on for infrastructure failures;
+* ``infra``: ``result.json`` of an attempt that is not scored (``why`` says why): the sweep gave up on
+  it for infrastructure failures, it ended on one (a provider outage), or it was interrupted;
 * ``running``: ``events.jsonl`` without ``result.json`` (``stale`` when the log has not grown for
   :data:`STALE_S`: an attempt killed mid-way looks the same);
 
@@ -41,6 +42,7 @@ class AttemptState:
     task: str = ""
     updated: float = 0.0  # mtime of result.json (done, infra) or events.jsonl (running)
     stale: bool = False
+    why: str = ""  # infra: why the attempt is not scored (its termination reason and detail)
 
 
 @dataclass
@@ -95,7 +97,9 @@ def attempt_state(d: Path, rel: str, now: float) -> AttemptState:
             return AttemptState(rel, "done", None, "(unreadable result.json)", "", mtime)
         config = f"{r.get('model')} ({r.get('harness')}, {r.get('sim')})"
         if is_infrastructure_failure(r):
-            return AttemptState(rel, "infra", None, config, str(r.get("task", "")), mtime)
+            t = r.get("termination") or {}
+            why = f"{(r.get('verdict') or {}).get('excluded') or t.get('reason')}: {t.get('detail') or ''}".strip(": ")
+            return AttemptState(rel, "infra", None, config, str(r.get("task", "")), mtime, why=why)
         success = (r.get("verdict") or {}).get("success")
         return AttemptState(rel, "done", bool(success), config, str(r.get("task", "")), mtime)
     ev = d / "events.jsonl"

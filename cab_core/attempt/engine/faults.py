@@ -35,6 +35,13 @@ INFRASTRUCTURE_TERMINATIONS = {
     "error": "host fault (older record)",
 }
 
+# Terminations that are never scored: the infrastructure failures above, and an attempt the person
+# running it stopped (Ctrl-C, SIGTERM). A sweep retries the infrastructure ones only; a report, the
+# export and the studio exclude all of them and list them with the reason. The record of such an
+# attempt says so in ``verdict.excluded`` (:meth:`cab_core.attempt.records.result_format.AttemptRecord.build`).
+INTERRUPTED = "interrupted"
+UNSCORED_TERMINATIONS = {**INFRASTRUCTURE_TERMINATIONS, INTERRUPTED: "interrupted by the user"}
+
 # OS errors that mean the machine, not the call, is broken: out of disk or quota, I/O failure,
 # out of file handles, a read-only file system.
 _HOST_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EMFILE, errno.ENFILE, errno.EROFS, errno.ENOMEM}
@@ -54,6 +61,11 @@ def is_infrastructure_fault(exc: BaseException) -> bool:
 
 def is_infrastructure_termination(reason: str | None) -> bool:
     return reason in INFRASTRUCTURE_TERMINATIONS
+
+
+def is_unscored_termination(reason: str | None) -> bool:
+    """Whether an attempt that ended for ``reason`` counts neither for nor against the model."""
+    return reason in UNSCORED_TERMINATIONS
 
 
 def agent_message(exc: BaseException) -> str:

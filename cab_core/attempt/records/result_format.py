@@ -42,6 +42,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from cab_core.attempt.engine.faults import UNSCORED_TERMINATIONS
 from cab_core.errors import RecordError
 from cab_core.sandbox.truncate import NON_FINITE_KEY, finite_json, non_finite_note
 
@@ -122,7 +123,8 @@ class Block(BaseModel):
 
 class Termination(Block):
     """Why the attempt ended: ``reason`` (``done``, ``tool_budget``, ``no_done``, ``provider_failure``,
-    ``infrastructure_failure``...) and a sentence."""
+    ``interrupted``, ``infrastructure_failure``...) and a sentence. The reasons of
+    :data:`~cab_core.attempt.engine.faults.UNSCORED_TERMINATIONS` are never scored."""
     reason: str
     detail: str | None = None
 
@@ -162,8 +164,10 @@ class Latch(Block):
 
 
 class Verdict(Block):
-    """The hidden verdict. ``success`` is true or false, null only in an infrastructure result (then
-    ``excluded`` says why); ``error`` when scoring itself failed (``success`` false)."""
+    """The hidden verdict. ``success`` is true or false, null only in a record that is not scored (then
+    ``excluded`` says why: ``infrastructure_failure`` for a sweep's given-up attempt, else the
+    termination reason, e.g. ``provider_failure`` or ``interrupted``); ``error`` when scoring itself
+    failed (``success`` false)."""
     success: bool | None
     scoring: str | None = None
     final_state_success: bool | None = None
@@ -395,10 +399,20 @@ class AttemptRecord(Block):
 
     @property
     def excluded(self) -> bool:
-        """An infrastructure result: no verdict, not the model's failure (reports exclude it, a resumed
-        sweep runs it again)."""
+        """A record that is not scored: an infrastructure result, an attempt that ended on an
+        infrastructure failure or was interrupted (:data:`UNSCORED_TERMINATIONS`; a record written
+        before this rule, with a verdict, is read so too). Not the model's failure: reports exclude
+        it, a resumed sweep runs it again."""
         return bool(self.verdict.excluded) or bool(self.infrastructure and self.infrastructure.failed) \
-            or self.termination.reason == INFRA_REASON
+            or self.termination.reason == INFRA_REASON or self.termination.reason in UNSCORED_TERMINATIONS
+
+    @property
+    def excluded_reason(self) -> str | None:
+        """Why the record is not scored (a termination reason or ``infrastructure_failure``), None when it is."""
+        if not self.excluded:
+            return None
+        return self.verdict.excluded or (INFRA_REASON if self.infrastructure and self.infrastructure.failed
+                                         else self.termination.reason)
 
     def dump(self) -> dict:
         """The record as ``result.json`` holds it: the keys that were set, in the model's order."""
@@ -407,8 +421,16 @@ class AttemptRecord(Block):
     @classmethod
     def build(cls, **fields: Any) -> AttemptRecord:
         """A record from its fields as the host has them (numpy values, paths): made JSON first, so
-        the record holds what ``result.json`` will, then validated (:class:`MalformedRecord`)."""
-        return parse_record(json.loads(dumps(fields)))
+        the record holds what ``result.json`` will, then validated (:class:`MalformedRecord`). An
+        attempt that ended on a termination that is never scored (:data:`UNSCORED_TERMINATIONS`)
+        gets ``verdict.success`` null and ``verdict.excluded`` naming the reason."""
+        obj = json.loads(dumps(fields))
+        reason = (obj.get("termination") or {}).get("reason") if isinstance(obj.get("termination"), dict) else None
+        verdict = obj.get("verdict")
+        if reason in UNSCORED_TERMINATIONS and isinstance(verdict, dict) and not verdict.get("excluded"):
+            verdict["success"] = None
+            verdict["excluded"] = reason
+        return parse_record(obj)
 
 
 # -- reading --------------------------------------------------------------------------------------

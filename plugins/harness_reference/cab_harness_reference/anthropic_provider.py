@@ -34,6 +34,7 @@ from .types import (
     ToolResult,
     ToolSpec,
     Usage,
+    connection_reason,
 )
 
 MAX_CACHE_BREAKPOINTS = 4
@@ -50,22 +51,31 @@ def classify(e: BaseException) -> ProviderError:
     if isinstance(e, ProviderError):
         return e
     if isinstance(e, anthropic.APITimeoutError):
-        return ProviderError("timeout", msg)
+        return ProviderError("timeout", msg, reason="no answer within the timeout")
     if isinstance(e, anthropic.APIConnectionError):
-        return ProviderError("server", f"connection error: {msg}")
+        return ProviderError("unreachable", f"connection error: {msg}", reason=connection_reason(e))
     if isinstance(e, anthropic.APIStatusError):
         s = int(e.status_code)
         low = msg.lower()
+        body = e.body if isinstance(e.body, dict) else {}
+        err = body.get("error") if isinstance(body.get("error"), dict) else body
+        etype = str(err.get("type") or "")
         if s in (401, 403):
             return ProviderError("auth", msg, s)
+        if s == 402 or etype == "billing_error" or "credit balance" in low:
+            return ProviderError("quota", msg, s)  # credit spent: waiting will not help
         if s == 429:
             return ProviderError("rate_limit", msg, s)
         if s == 408:
             return ProviderError("timeout", msg, s)
         if s == 413 or (s == 400 and any(h in low for h in _CONTEXT_HINTS)):
             return ProviderError("context_length", msg, s)
-        if s >= 500 or s == 409:  # 529 overloaded included
+        if s == 529 or etype == "overloaded_error":
+            return ProviderError("overloaded", msg, s)
+        if s >= 500 or s == 409:
             return ProviderError("server", msg, s)
+        if s == 404:  # no such model: the configuration's, not the model's
+            return ProviderError("other", msg, s, reason="HTTP 404: model or endpoint not found")
         return ProviderError("bad_request", msg, s)
     return ProviderError("other", f"{type(e).__name__}: {msg}")
 
@@ -207,7 +217,11 @@ class AnthropicProvider(Provider):
                 raise ProviderError("server", f"empty completion (stop_reason={r.stop_reason})", 200)
             return r
 
-        r, waited = call_with_retries(once, classify, self.retry_policy)
+        try:
+            r, waited = call_with_retries(once, classify, self.retry_policy)
+        except ProviderError as e:  # the line cab prints names the endpoint
+            e.at(client.base_url)
+            raise
         msg, raw_stop, usage = from_wire(r)
         return Response(msg, _STOP.get(raw_stop, "other"), usage, model=str(getattr(r, "model", "") or self.model),
                         request_id=getattr(r, "_request_id", None) or getattr(r, "id", None),

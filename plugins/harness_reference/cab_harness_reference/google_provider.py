@@ -48,6 +48,7 @@ from .types import (
     ToolResult,
     ToolSpec,
     Usage,
+    connection_reason,
 )
 
 KEY_ENVS = ("GEMINI_API_KEY", "GOOGLE_API_KEY")
@@ -368,10 +369,16 @@ class GoogleProvider(Provider):
             code = int(getattr(e, "code", 0) or 0)
             msg = f"google: {code} {e.status or ''}: {e.message or e}".strip()
             low = (e.message or "").lower()
+            if code == 429 and "quota" in low and ("exceeded your current quota" in low or "billing" in low):
+                return ProviderError("quota", msg, code)  # the plan's quota: waiting will not help
             if code == 429:
                 return ProviderError("rate_limit", msg, code, retryable=True)
-            if code in (401, 403):
+            if code in (401, 403) or (code == 400 and "api key not valid" in low):
                 return ProviderError("auth", msg, code)
+            if code == 402:
+                return ProviderError("quota", msg, code)
+            if code == 529 or (code == 503 and "overloaded" in low):
+                return ProviderError("overloaded", msg, code, retryable=True)
             if code == 408:
                 return ProviderError("timeout", msg, code, retryable=True)
             if code == 504:
@@ -387,7 +394,10 @@ class GoogleProvider(Provider):
         names = {c.__name__ for c in type(e).__mro__}
         if any("Timeout" in n for n in names) or isinstance(e, TimeoutError):
             return ProviderError("timeout", f"google: {type(e).__name__}: {e}", retryable=True)
-        if names & {"ConnectError", "RemoteProtocolError", "ReadError", "NetworkError", "TransportError"} \
+        if names & {"ConnectError"} or isinstance(e, ConnectionRefusedError):
+            return ProviderError("unreachable", f"google: {type(e).__name__}: {e}", retryable=True,
+                                 reason=connection_reason(e))
+        if names & {"RemoteProtocolError", "ReadError", "NetworkError", "TransportError"} \
                 or isinstance(e, ConnectionError):
             return ProviderError("server", f"google: {type(e).__name__}: {e}", retryable=True)
         return ProviderError("other", f"google: {type(e).__name__}: {e}")
@@ -411,7 +421,11 @@ class GoogleProvider(Provider):
                 raise ProviderError("server", "google: empty completion (no candidates)", 200, retryable=True)
             return resp
 
-        resp, waited = call_with_retries(attempt, self.classify, self.retry_policy)
+        try:
+            resp, waited = call_with_retries(attempt, self.classify, self.retry_policy)
+        except ProviderError as e:  # the line cab prints names the endpoint
+            e.at(self.base_url or "https://generativelanguage.googleapis.com")
+            raise
         message, stop, raw, usage = self.from_response(resp)
         return Response(message=message, stop_reason=stop, usage=usage,
                         model=getattr(resp, "model_version", None) or self.model,

@@ -244,10 +244,13 @@ class ReferenceHarness:
             return None
         episode.recorder.event("provider_failure", turn=turn, error_kind=e.kind, status=e.status,
                                retryable=e.retryable, attempts=getattr(e, "attempts", None),
-                               waited_s=round(waited, 3), message=str(e)[:1000],
-                               latency_s=round(time.monotonic() - t0, 3))
-        episode.end("provider_failure", f"{e.kind}" + (f" (HTTP {e.status})" if e.status else "")
-                    + f": {str(e)[:200]}")
+                               waited_s=round(waited, 3), message=str(e)[:1000], url=e.url,
+                               infrastructure=e.infrastructure, latency_s=round(time.monotonic() - t0, 3))
+        if e.infrastructure:  # an outage, the credentials, the quota: never scored (the detail is cab's one line)
+            episode.end("provider_failure", e.summary())
+        else:  # the request the model's conversation made was refused: the model's own, scored
+            episode.end("provider_rejected", f"{e.kind}" + (f" (HTTP {e.status})" if e.status else "")
+                        + f": {str(e)[:200]}")
         return None
 
     def _rebuild(self, episode: AttemptSession, history: list[Message], caps: Capabilities, max_images: int) -> None:

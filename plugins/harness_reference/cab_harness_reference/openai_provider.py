@@ -41,6 +41,7 @@ from .types import (
     ToolResult,
     ToolSpec,
     Usage,
+    connection_reason,
 )
 
 INSTALL = "pip install 'cab-harness-reference[openai]'"
@@ -88,15 +89,23 @@ def classify_openai_error(exc: BaseException) -> ProviderError | None:
     code = str(getattr(exc, "code", "") or (body.get("code") if isinstance(body, dict) else "") or "")
     low = (str(exc) + " " + code).lower()
     if isinstance(exc, openai.APITimeoutError):
-        return _err("timeout", msg, None, True, exc)
+        e = _err("timeout", msg, None, True, exc)
+        e.reason = "no answer within the timeout"
+        return e
     if isinstance(exc, openai.APIConnectionError):
-        return _err("server", msg, None, True, exc)
+        e = _err("unreachable", msg, None, True, exc)
+        e.reason = connection_reason(exc)
+        return e
     if isinstance(exc, (openai.AuthenticationError, openai.PermissionDeniedError)):
         return _err("auth", msg, status, False, exc)
     if isinstance(exc, openai.RateLimitError):
         if "insufficient_quota" in low or "quota" in code.lower():
-            return _err("rate_limit", msg, status, False, exc)  # quota: waiting will not help
+            return _err("quota", msg, status, False, exc)  # quota: waiting will not help
         return _err("rate_limit", msg, status, True, exc)
+    if status == 402:  # payment required: credit spent
+        return _err("quota", msg, status, False, exc)
+    if status == 529 or (status is not None and status >= 500 and "overloaded_error" in low):
+        return _err("overloaded", msg, status, True, exc)
     if isinstance(exc, openai.InternalServerError):
         return _err("server", msg, status, True, exc)
     if isinstance(exc, openai.APIStatusError):
@@ -106,7 +115,11 @@ def classify_openai_error(exc: BaseException) -> ProviderError | None:
             return _err("timeout", msg, status, True, exc)
         if status in (409, 425) or (status is not None and status >= 500):
             return _err("server", msg, status, True, exc)
-        if status in (400, 404, 413, 422):
+        if status == 404:  # no such model or route: the configuration's, not the model's
+            e = _err("other", msg, status, False, exc)
+            e.reason = "HTTP 404: model or endpoint not found"
+            return e
+        if status in (400, 413, 422):
             return _err("bad_request", msg, status, False, exc)
         return _err("other", msg, status, False, exc)
     if isinstance(exc, openai.OpenAIError):
@@ -195,8 +208,16 @@ class _OpenAIBase(Provider):
             box["latency"] = time.monotonic() - t0
             return r
 
-        result, waited = call_with_retries(timed, self.classify, self.retry)
+        try:
+            result, waited = call_with_retries(timed, self.classify, self.retry)
+        except ProviderError as e:  # the line cab prints names the endpoint
+            e.at(self.endpoint())
+            raise
         return result, box.get("latency", 0.0), waited
+
+    def endpoint(self) -> str:
+        """The base URL requests go to (the SDK's default when none is configured)."""
+        return str(self._client.base_url) if self._client is not None else str(self.base_url or "")
 
     def request_kwargs(self, system: str, messages: list[Message], tools: list[ToolSpec]) -> dict:
         raise NotImplementedError

@@ -44,7 +44,7 @@ async function pollGroup(rel) {
   document.querySelector("#attempts tbody").replaceChildren(...g.attempts.map(a => {
     const verdict = a.state === "done" ? (a.success ? "success" : "failure") : "–";
     return el("tr", {"data-rel": a.rel}, el("td", {}, el("a", {href: "/attempt/" + base + a.rel + "/", class: "attempt-link"}, a.rel)),
-      cell("config", a.config), cell("state " + (a.stale ? "stale" : ""), a.state + (a.stale ? " (stale)" : "")),
+      cell("config", a.config), cell("state " + (a.stale ? "stale" : ""), a.state + (a.stale ? " (stale)" : "") + (a.why ? ` (not scored: ${a.why})` : "")),
       cell("verdict " + (a.success ? "good" : (a.state === "done" ? "bad" : "")), verdict));
   }));
 }
