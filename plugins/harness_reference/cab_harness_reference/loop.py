@@ -104,11 +104,13 @@ class ReferenceHarness:
 
     # -- before the simulator starts ----------------------------------------------------------
     def preflight(self, model_cfg: dict) -> None:
-        """Build the provider and check its credentials without network; raises ConfigError
-        naming the missing environment variable. The runner calls this before any simulator."""
+        """Build the provider and check its credentials; raises ConfigError naming the missing
+        environment variable. The runner calls this before any simulator, so that the endpoint
+        probe of a local server (:meth:`_probe`, once per process) costs no attempt wall time."""
         if self.provider is None:
             self.provider = create_provider(model_cfg)
         self.provider.check_credentials()
+        self._probe(None, self.provider, model_cfg)
 
     # -- helpers ------------------------------------------------------------------------------
     @staticmethod
@@ -203,10 +205,10 @@ class ReferenceHarness:
                                                        for k, v in totals.items()}, turns=turn)
 
     @staticmethod
-    def _probe(episode: AttemptSession, provider, model_cfg: dict) -> dict | None:
+    def _probe(episode: AttemptSession | None, provider, model_cfg: dict) -> dict | None:
         """The endpoint's capability profile (:mod:`.probe`), probed on first use in this process
-        (``model.probe``: auto probes local servers only), applied to the provider, recorded as an
-        ``endpoint_probe`` event and in ``result.json`` (``agent.serving``)."""
+        (``model.probe``: auto probes local servers only) and applied to the provider; with the
+        ``episode``, recorded as an ``endpoint_probe`` event and in ``result.json`` (``agent.serving``)."""
         from .probe import probe_endpoint, serving_summary, wants_probe
 
         if not hasattr(provider, "apply_profile"):
@@ -217,6 +219,8 @@ class ReferenceHarness:
                 return None
             profile = probe_endpoint(model_cfg)
             provider.apply_profile(profile)
+        if episode is None:  # the preflight: recorded once the attempt has started
+            return profile
         episode.recorder.event("endpoint_probe", **{k: v for k, v in profile.items() if k != "kind"})
         if profile.get("reachable", True):
             episode.agent = AgentRecord("model_api", "config", serving=serving_summary(profile)).as_dict()
