@@ -170,6 +170,79 @@ def search_path_overrides(config_dir: str | None, overrides: list) -> list[str]:
     return ["hydra.searchpath=[" + ",".join(repr(str(p)) for p in paths) + "]"] if paths else []
 
 
+def _option_yaml(sources: list[str], group: str, name: str) -> dict | None:
+    """The yaml of option ``name`` of ``group`` as the first of these config dirs that ships it
+    writes it (unresolved), or None."""
+    for path in sources:
+        if name in shipped_options(path, group):
+            import importlib.resources
+            from pathlib import Path
+
+            folder: Any = (Path(path[len("file://"):]) if path.startswith("file://") else
+                           importlib.resources.files(path[len("pkg://"):].replace("/", ".")))
+            node = OmegaConf.create(folder.joinpath(group, f"{name}.yaml").read_text())
+            plain = OmegaConf.to_container(node, resolve=False)
+            return plain if isinstance(plain, dict) else None
+    return None
+
+
+def _swept_options(root: Any, group: str) -> list[str] | None:
+    """The options of ``group`` a sweep (the command line's overrides and ``hydra.sweeper.params``)
+    gives more than one of, or None when it sweeps none."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import Glob
+
+    given = [str(o) for o in (OmegaConf.select(root, "hydra.overrides.task", default=None) or [])]
+    params = OmegaConf.select(root, "hydra.sweeper.params", default=None) or {}
+    given += [f"{k}={v}" for k, v in params.items()]
+    names: list[str] | None = None
+    for o in OverridesParser.create().parse_overrides([g for g in given if g.split("=", 1)[0].lstrip("+~") == group]):
+        if not o.is_sweep_override():
+            continue
+        value = o.value()
+        if isinstance(value, Glob):
+            every = {n for src in _config_sources(root) for n in shipped_options(src, group)}
+            names = value.filter(sorted(every))
+        else:
+            names = [str(v) for v in o.sweep_string_iterator()]
+    return names
+
+
+def _config_sources(root: Any) -> list[str]:
+    """The config dirs of this run's search path (``hydra.runtime.config_sources``; without it, the
+    core's and the plugins')."""
+    sources = OmegaConf.select(root, "hydra.runtime.config_sources", default=None) or []
+    out = [f"{s['schema']}://{s['path']}" for s in sources if s.get("schema") in ("pkg", "file")]
+    return out or [f"pkg://{CORE_CONFIG_MODULE}", *config_dirs()]
+
+
+def in_flight(max_in_flight: Any, *, _root_: Any) -> int:
+    """Resolver ``cab.in_flight``: the attempts a sweep keeps in flight (cab_core.conf.in_flight) for
+    ``sweep.max_in_flight`` (null: from the sweep's agents, simulators and this machine's memory)."""
+    from cab_core.conf.in_flight import DEFAULT_SLOT_MEMORY_MB
+    from cab_core.conf.in_flight import in_flight as decide
+
+    if max_in_flight is not None:
+        if isinstance(max_in_flight, bool) or not isinstance(max_in_flight, int) or max_in_flight < 1:
+            raise ConfigError(f"sweep.max_in_flight must be a positive integer or null (automatic), got {max_in_flight!r}")
+        return max_in_flight
+
+    def configs(group: str) -> list[dict | None]:
+        names = _swept_options(_root_, group)
+        if names is None:
+            node = OmegaConf.select(_root_, group, default=None)
+            return [OmegaConf.to_container(node, resolve=False) if isinstance(node, DictConfig) else None]  # type: ignore[list-item]
+        return [_option_yaml(_config_sources(_root_), group, n) for n in names]
+
+    # a model whose config cannot be read counts as model-bound: memory, not cores, then bounds the sweep
+    model_bound = any(m is None or not m.get("agent") for m in configs("model"))
+    slots = [s.get("slot_memory_mb") if s else None for s in configs("sim")]
+    slot_mb = max(float(x) if isinstance(x, (int, float)) else DEFAULT_SLOT_MEMORY_MB for x in slots)
+    sweep = OmegaConf.select(_root_, "sweep", default=None) or {}
+    return decide(None, model_bound, slot_mb, cap=int(sweep.get("in_flight_cap", 128)),
+                  reserve_mb=float(sweep.get("memory_reserve_mb", 2048))).n
+
+
 DEFAULT_GROUPS = ("sim", "embodiment", "planner")
 
 
@@ -241,3 +314,5 @@ if not OmegaConf.has_resolver("cab.seed"):
     OmegaConf.register_new_resolver("cab.seed", scene_seed)
 if not OmegaConf.has_resolver("cab.run_dir"):
     OmegaConf.register_new_resolver("cab.run_dir", run_dir)
+if not OmegaConf.has_resolver("cab.in_flight"):
+    OmegaConf.register_new_resolver("cab.in_flight", in_flight)

@@ -101,7 +101,7 @@ def test_plain_cab_composes_todays_defaults(tmp_path):
     assert {g: choices[g] for g in ("sim", "embodiment", "planner", "model", "harness", "task")} == {
         "sim": "sapien", "embodiment": "aloha_agilex", "planner": "mplib", "model": "oracle", "harness": "auto",
         "task": "beat_block_hammer"}
-    assert choices["hydra/launcher"] == "joblib" and choices["experiment"] is None
+    assert choices["hydra/launcher"] == "local" and choices["experiment"] is None
     assert cfg.hydra.mode is None  # a single run
     assert (cfg.sim.name, cfg.embodiment.name, cfg.planner.name, cfg.task.name) == (
         "sapien", "aloha_agilex", "mplib", "beat_block_hammer")

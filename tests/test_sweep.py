@@ -257,6 +257,8 @@ def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
 
 
 @pytest.mark.parametrize("launcher, target, settings", [
+    ("local", "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher",
+     {"n_jobs": "${cab.in_flight:${sweep.max_in_flight}}"}),  # the default: attempts in flight (tests/test_inflight.py)
     ("joblib", "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher", {"n_jobs": -1}),
     ("ray_local", "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher",
      {"ray": {"init": {"address": None, "num_cpus": None, "include_dashboard": False}, "remote": {"num_cpus": 1}}}),
@@ -268,7 +270,7 @@ def test_launcher_configs_compose(launcher, target, settings):
 
     pytest.importorskip(target.rsplit(".", 2)[0])
     with initialize_config_module(version_base=None, config_module="cab_core.conf"):
-        overrides = [] if launcher == "joblib" else [f"hydra/launcher={launcher}"]  # joblib is the default
+        overrides = [] if launcher == "local" else [f"hydra/launcher={launcher}"]  # local is the default
         cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
     got = OmegaConf.to_container(cfg.hydra.launcher, resolve=False)
     assert got["_target_"] == target

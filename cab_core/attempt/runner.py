@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 
+from cab_core.attempt.engine import cpu_slots
 from cab_core.attempt.engine.episode import Episode
 from cab_core.attempt.engine.faults import INTERRUPTED, is_infrastructure_fault
 from cab_core.attempt.spec import AttemptSpec, attempt_spec  # noqa: F401  (attempt_spec: a composed config's spec)
@@ -27,7 +28,8 @@ def run_attempt(spec: AttemptSpec) -> dict:
     if before_build is not None:  # e.g. a server that answers its client while the world is built
         before_build(spec)
     try:
-        episode = Episode.open(spec, observers)
+        with cpu_slots.held():  # in a sweep: at most one world built per core at a time (staggered start-ups)
+            episode = Episode.open(spec, observers)
     except BaseException:
         close = getattr(harness, "close", None)
         if close is not None:
@@ -43,7 +45,8 @@ def run_attempt(spec: AttemptSpec) -> dict:
             episode.end(INTERRUPTED, interrupted_detail(e))
             episode.finish()  # the record says so (verdict.excluded), then the interruption goes on up
             raise
-        return episode.finish()
+        with cpu_slots.held():  # scoring and the video
+            return episode.finish()
     finally:
         episode.close()
 

@@ -156,9 +156,16 @@ class SweepConfig(Section):
     warm_workers: bool = setting(True, "true or false")
     worker_max_attempts: int = setting(50, "a positive integer")
     worker_max_rss_mb: int = setting(6144, "a positive integer (MiB)")
+    max_in_flight: int | None = setting(None, "a positive integer, or null (automatic: from memory for a model's "
+                                              "sweep, one per core for model-free agents)")
+    in_flight_cap: int = setting(128, "a positive integer")
+    memory_reserve_mb: int = setting(2048, "a non-negative integer (MiB)")
+    cpu_slots: bool = setting(True, "true or false")
 
     def __post_init__(self) -> None:
-        self.positive("hang_timeout_s", "threads_per_attempt", "worker_max_attempts", "worker_max_rss_mb")
+        self.positive("hang_timeout_s", "threads_per_attempt", "worker_max_attempts", "worker_max_rss_mb",
+                      "max_in_flight", "in_flight_cap")
+        self.at_least("memory_reserve_mb", 0)
 
 
 @dataclass

@@ -211,11 +211,17 @@ class PairContacts:
                 for (a, b), e in sorted(self._acc.items())]
 
 
+#: keys of a simulator's config that the core reads, not the backend: its per-slot memory in a sweep
+#: (cab_core.conf.in_flight)
+CORE_SIM_KEYS = frozenset({"slot_memory_mb"})
+
+
 def simulator_options(cfg, known: set[str], backend: str) -> dict:
     """A backend's option dict (None: no options), or ConfigError naming the options it does not
-    know; keys starting with ``_`` are the caller's private ones and pass."""
+    know; keys starting with ``_`` are the caller's private ones and pass, and so do the keys the core
+    reads of every simulator's config (:data:`CORE_SIM_KEYS`)."""
     cfg = dict(cfg or {})
-    unknown = sorted(k for k in cfg if k not in known and not str(k).startswith("_"))
+    unknown = sorted(k for k in cfg if k not in known and k not in CORE_SIM_KEYS and not str(k).startswith("_"))
     if unknown:
         raise ConfigError(f"unknown {backend} simulator option(s) {unknown}; known: {sorted(known)}")
     return cfg

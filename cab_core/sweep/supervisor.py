@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
+from cab_core.attempt.engine import cpu_slots
 from cab_core.attempt.fork import ForkPoint
 from cab_core.attempt.records.recovery import recovery
 from cab_core.config import default_selection, normalise_overrides
@@ -76,6 +77,7 @@ class SupervisorConfig:
     warm_workers: bool = True
     worker_max_attempts: int = 50
     worker_max_rss_mb: float = 6144.0
+    cpu_slots: bool = True  # attempts share this machine's CPU slot pool (cab_core.attempt.engine.cpu_slots)
 
     @classmethod
     def from_cfg(cls, cfg: dict | None) -> SupervisorConfig:
@@ -86,7 +88,8 @@ class SupervisorConfig:
                   threads=c.get("threads_per_attempt", cls.threads),
                   warm_workers=c.get("warm_workers", cls.warm_workers),
                   worker_max_attempts=c.get("worker_max_attempts", cls.worker_max_attempts),
-                  worker_max_rss_mb=c.get("worker_max_rss_mb", cls.worker_max_rss_mb))
+                  worker_max_rss_mb=c.get("worker_max_rss_mb", cls.worker_max_rss_mb),
+                  cpu_slots=bool(c.get("cpu_slots", cls.cpu_slots)))
         if out.max_retries < 0 or out.hang_timeout_s <= 0 or out.retry_backoff_s < 0:
             raise ConfigError("sweep.max_infra_retries and sweep.retry_backoff_s must be >= 0, "
                               "sweep.hang_timeout_s > 0")
@@ -245,6 +248,8 @@ class AttemptSupervisor:
         env = {**os.environ, PARENT_ENV: str(os.getpid())}
         if self.settings.threads is not None:  # N workers on N cores: no attempt oversubscribes them
             env.update({k: str(self.settings.threads) for k in THREAD_ENV})
+        # many attempts in flight compute one per core at a time (physics, rendering, video); none while it waits on its model
+        env[cpu_slots.ENV] = str(os.cpu_count() or 1) if self.settings.cpu_slots else "0"
         return env
 
     def _run_child(self, try_no: int) -> tuple[int | None, str | None]:
@@ -278,7 +283,7 @@ class AttemptSupervisor:
     def _run_in_worker(self, try_no: int) -> tuple[int | None, str | None]:
         env = self._env()
         # one worker per thread (cab-suite-check supervises from a pool of threads) and environment
-        key = tuple(sorted((k, env.get(k)) for k in (*THREAD_ENV, PARENT_ENV))) + (sys.executable,
+        key = tuple(sorted((k, env.get(k)) for k in (*THREAD_ENV, PARENT_ENV, cpu_slots.ENV))) + (sys.executable,
                                                                                  threading.get_ident())
         worker = _WORKERS.get(key)
         if worker is not None and not worker.alive():

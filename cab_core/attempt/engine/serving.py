@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from cab_core.attempt.budget import BudgetLedger
+from cab_core.attempt.engine import cpu_slots
 from cab_core.attempt.engine.faults import is_infrastructure_fault, tool_error_payload
 from cab_core.contracts.harness import ToolResponse
 from cab_core.errors import AttemptEnded, BudgetExhausted, ObservationUnavailable, ToolArgumentError
@@ -80,7 +81,8 @@ class CallServer:
         out_obs: list[str] = []
         status = None
         try:
-            payload, out_obs, status = self._invoke(name, args, direct=True)
+            with cpu_slots.held():  # a CPU slot while the call computes; none while the agent thinks (sweeps)
+                payload, out_obs, status = self._invoke(name, args, direct=True)
             payload = strict_payload(payload)  # what the agent sees is strict JSON (NaN: null, noted)
         except Exception as e:  # only an infrastructure fault gets here (cab_core.attempt.engine.faults)
             self.recorder.event("host_fault", tool=name, arguments=args, error=repr(e), traceback=traceback.format_exc())
