@@ -478,6 +478,12 @@ def test_harness_completes_an_attempt_against_each_server(quirk, tmp_path):
                              "probe_problems": pr["problems"]}
     summary = ConfigSummary.of(m.config, [m], 10).server_side
     assert summary["salvaged_calls"] == sum(salvaged) and summary["probe_problems"] == sorted(pr["problems"])
+    from cab_core.apps.export import attempt_row  # the parquet export: the engine, and the salvaged calls
+
+    row = attempt_row(Attempt.load(out, tmp_path), quirk)
+    assert (row["serving_engine"], row["salvaged_calls"]) == (QUIRKS[quirk].get("engine"), sum(salvaged))
+    assert row["serving_version"] == {"vllm": "0.11.2", "llama.cpp": "b6912-3f2c1a7", "ollama": "0.12.6"}.get(
+        QUIRKS[quirk].get("engine"))
     if quirk == "ollama":
         assert pr["effective_context_tokens"] == 12288
         (ctx,) = {t["request_estimated_tokens"] <= 12288 for t in turns}  # the harness kept under it

@@ -42,6 +42,9 @@ ATTEMPT_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("seed", "int64", "the task instance's seed"),
     ("attempt", "int64", "the attempt number"),
     ("agent_clients", "string", "the MCP clients that played it, 'name/version' joined by ', ' (null for other harnesses)"),
+    ("serving_engine", "string", "the engine that served the model (vllm, llama.cpp, ollama; null: unknown or not probed)"),
+    ("serving_version", "string", "that engine's version, where the server says"),
+    ("salvaged_calls", "int64", "tool calls the harness salvaged from the server's output (server-side, not the model's)"),
     ("perturbation_seed", "int64", "perturb.seed (null: not perturbed)"),
     ("perturbation_position_m", "float64", "perturb.position_m: the largest shift an object could get, metres"),
     ("perturbation_angle_deg", "float64", "perturb.angle_deg: the largest turn an object could get, degrees"),
@@ -162,11 +165,15 @@ def attempt_row(a, key: str) -> dict:
     ok_ck = bool(ck) and not ck.get("error")
     subgoals, spatial = (ck.get("subgoals") or [], ck.get("spatial") or []) if ok_ck else ([], [])
     usage: dict = next((e for e in a.events if e.get("kind") == "model_usage_total"), {})
+    agent = r.get("agent")
+    serving = (agent.get("serving") if isinstance(agent, dict) else None) or {}
     return {
         "attempt_key": key, "config": a.config, "model": r.get("model"), "harness": r.get("harness"),
         "sim": r.get("sim"), "embodiment": r.get("embodiment"), "planner": r.get("planner"), "task": r.get("task"),
         "seed": _int(r.get("seed")), "attempt": _int(r.get("attempt")),
         "agent_clients": ", ".join(m.clients) or None,
+        "serving_engine": serving.get("engine"), "serving_version": serving.get("version"),
+        "salvaged_calls": m.server_side.get("salvaged_calls", 0),
         "perturbation_seed": _int(pert.get("seed")),
         "perturbation_position_m": _num(pert.get("position_m")), "perturbation_angle_deg": _num(pert.get("angle_deg")),
         "perturbation_physics_fraction": _num(pert.get("physics_fraction")),
