@@ -281,6 +281,21 @@ def test_ollama_truncation_found_by_the_needle():
     assert "OLLAMA_CONTEXT_LENGTH" in p["problems"][0]
 
 
+def test_an_endpoint_failing_every_request_is_not_taken_for_one_refusing_tools():
+    class Broken(FakeEndpoint):
+        def chat(self, body):
+            return 401, {"error": {"message": "Incorrect API key provided", "type": "invalid_request_error",
+                                   "code": "invalid_api_key"}}
+
+    with Broken() as srv:
+        p = probe_endpoint(_cfg(srv.url))
+    assert p["tools"] == "unknown" and "HTTP 401" in p["tools_error"]
+    assert "fails a plain request too (HTTP 401: Incorrect API key provided)" in p["problems"][0]
+    prov = OpenAICompatibleProvider(_cfg(srv.url))
+    prov.apply_profile(p)
+    assert not prov.tools_in_prompt  # the harness keeps sending tools; the request's own error ends it
+
+
 def test_needle_size_follows_the_configured_context_and_vllm_limit_is_read():
     class Short(FakeEndpoint):
         def chat(self, body):

@@ -238,7 +238,6 @@ def _engine(http: _Http, models: _Reply, model_id: str) -> dict:
         n_ctx = (r.body.get("default_generation_settings") or {}).get("n_ctx")
         if isinstance(n_ctx, int):
             eng["n_ctx"] = n_ctx
-        eng["jinja"] = r.body.get("chat_template_caps") is not None or None
         return eng
     r = http.get("/api/version", root=True)
     if r.ok and isinstance(r.body.get("version"), str):
@@ -257,8 +256,13 @@ def _tools(http: _Http, model: str, profile: dict, problems: list[str]) -> None:
     eng = profile["engine"]["name"] or "the server"
     if not r.ok:
         err = r.error_text()
+        profile["tools_error"] = f"HTTP {r.status}: {err[:300]}" if r.status else err[:300]
+        plain = http.chat({"model": model, "max_tokens": 8, "messages": [{"role": "user", "content": "Say ok."}]})
+        if not plain.ok:  # not the tools: the endpoint fails every request (a key, a model name, a crash)
+            problems.append(f"{eng} fails a plain request too (HTTP {plain.status}: {plain.error_text()[:160]}): "
+                            "check the key, model.model_id and the server's log")
+            return
         profile["tools"] = "rejected"
-        profile["tools_error"] = f"HTTP {r.status}: {err[:300]}"
         if "jinja" in err.lower() or (eng == "llama.cpp" and r.status == 500):
             problems.append(f"llama.cpp answers {r.status} to tools ({err[:120]}): start llama-server with --jinja "
                             "(and --chat-template-file with a template that supports tools if it still fails); "
