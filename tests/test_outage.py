@@ -357,7 +357,8 @@ def test_a_single_run_against_a_refused_port_is_not_scored_and_exits_4(tmp_path)
     assert res["verdict"]["success"] is None and res["verdict"]["excluded"] == "provider_failure"
     rep = subprocess.run(["cab-report", str(tmp_path)], capture_output=True, text=True, timeout=300)
     md = (tmp_path / "report.md").read_text()
-    assert rep.returncode == 0, rep.stderr[-2000:]
+    assert rep.returncode == 1, rep.stderr[-2000:]  # nothing left to measure: the one attempt is excluded
+    assert rep.stderr.strip().splitlines()[-1] == f"cab-report: no finished attempt to measure under {tmp_path}"
     assert "Excluded, not scored (infrastructure failures, interrupted attempts; not the model's): 1: r excluded " \
            f"(provider_failure): provider unreachable at {url} (connection refused)" in md
 
