@@ -150,6 +150,30 @@ def create(kind: str, name: str, cfg: dict | None = None, pm: pluggy.PluginManag
     return reg[name](dict(cfg or {}))
 
 
+def declared_model_keys(model_cfg: Mapping, harness: str | None = None,
+                        pm: pluggy.PluginManager | None = None) -> frozenset[str] | None:
+    """The keys a model configuration may carry besides the basic ones (``name``, ``agent``,
+    ``harness``), as the plugins that read it declare them: the attribute ``config_keys`` of the
+    harness's factory (``harness``, else ``model_cfg["harness"]``) and of the agent's or the
+    provider's factory the configuration names (``agent``, ``provider``). None where the harness is
+    not installed or one of those factories declares nothing: the keys are then open."""
+    name = harness if harness and harness != "auto" else model_cfg.get("harness")
+    harnesses = registry("harnesses", pm)
+    if not isinstance(name, str) or name not in harnesses:
+        return None
+    factories: list[Callable | None] = [harnesses[name]]
+    for kind, key in (("agents", "agent"), ("model_providers", "provider")):
+        if isinstance(model_cfg.get(key), str):
+            factories.append(registry(kind, pm).get(model_cfg[key]))
+    keys: set[str] = set()
+    for f in factories:
+        declared = getattr(f, "config_keys", None)
+        if declared is None:
+            return None
+        keys.update(declared)
+    return frozenset(keys)
+
+
 class _Tasks(NamedTuple):
     """The installed suites' tasks: ``tasks`` by name (in the suites' order), ``suites`` the names
     each suite defines (``{suite: [task, ...]}``), ``conflicts`` the one line of each name defined by

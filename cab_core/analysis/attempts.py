@@ -9,11 +9,13 @@ that is simpler, as the dict it was parsed from.
 """
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import InitVar, dataclass, field
 from functools import cached_property
 from pathlib import Path
 
+from cab_core.analysis.configurations import base_label, configuration_labels
 from cab_core.attempt.records.result_format import AttemptRecord, parse_record
 from cab_core.errors import RecordError
 from cab_core.kits.harness.agent_info import AgentRecord
@@ -58,6 +60,9 @@ class Attempt:
     result: dict
     checked: InitVar[AttemptRecord | None] = None  # ``result`` already validated, when the caller has it
     record: AttemptRecord = field(init=False)
+    #: the configuration's name among the attempts read with it (:func:`label_configurations`); ''
+    #: for an attempt read alone: its :func:`~cab_core.analysis.configurations.base_label`
+    label: str = field(default="", init=False)
 
     def __post_init__(self, checked: AttemptRecord | None) -> None:
         self.record = checked if checked is not None else check_result(self.result)
@@ -80,11 +85,28 @@ class Attempt:
 
     @property
     def config(self) -> str:
-        """The configuration this attempt belongs to, as in the paper: model, harness, simulator.
+        """The configuration this attempt belongs to, as in the paper: model, harness, simulator,
+        and the model settings that differ among the attempts read with it
+        (:mod:`cab_core.analysis.configurations`: ``qwen_local[model_id=modelA] (reference, mujoco)``).
         An attempt served over MCP has the name given when it was served, else ``mcp:<client>``
         (records written before clients were recorded: ``mcp_client``)."""
         r = self.result
-        return f"{r['model']} ({r['harness']}, {r['sim']})"
+        return self.label or base_label(r["model"], r["harness"], r["sim"])
+
+    @cached_property
+    def resolved(self) -> dict:
+        """The resolved configuration the attempt ran with (its ``attempt_start`` event's ``config``,
+        the first event of its log), ``{}`` for records without it. Read without loading the log."""
+        try:
+            with open(self.dir / "events.jsonl", encoding="utf-8") as f:
+                for line in f:
+                    event = json.loads(line)
+                    if isinstance(event, dict) and event.get("kind") == "attempt_start":
+                        config = event.get("config")
+                        return config if isinstance(config, dict) else {}
+        except (OSError, ValueError):
+            pass
+        return {}
 
     @property
     def agent(self) -> AgentRecord | None:
@@ -97,6 +119,15 @@ class Attempt:
 
     def start_event(self) -> dict:
         return next((e for e in self.events if e.get("kind") == "attempt_start"), {})
+
+
+def label_configurations(attempts: list[Attempt]) -> None:
+    """Name each attempt's configuration among ``attempts`` (:attr:`Attempt.config`): the model
+    settings that differ among attempts of one model, harness and simulator name them apart."""
+    configs = [{"model": a.result["model"], "harness": a.result["harness"], "sim": a.result["sim"],
+                "model_cfg": a.resolved.get("model_cfg")} for a in attempts]
+    for a, label in zip(attempts, configuration_labels(configs)):
+        a.label = label
 
 
 @dataclass
@@ -142,4 +173,5 @@ def scan(root: Path) -> Scan:
             out.excluded.append((rel, str(e)))
         except RecordError as e:
             out.problems.append((rel, str(e)))
+    label_configurations(out.attempts)
     return out

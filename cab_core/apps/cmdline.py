@@ -19,7 +19,12 @@ What is checked:
   sweep selects); an empty mapping of an option (``sim.physics: {}``) is open: the names in it
   are the plugin's to check when it is created, before its simulator starts.
 
-Keys under the other groups (``model.*``, ``task.*``...) are not checked here: they are open.
+* keys under ``model``: cab's own (``name``, ``agent``, ``harness``) and those the plugins reading the
+  selected model configuration declare (the ``config_keys`` of its harness's factory and of its
+  agent's or provider's, :func:`cab_core.plugins.declared_model_keys`), each model option a sweep
+  selects, the keys of its config file included; open where one of those plugins declares none.
+
+Keys under the other groups (``task.*``...) are not checked here: they are open.
 """
 from __future__ import annotations
 
@@ -27,12 +32,16 @@ import argparse
 import contextlib
 import io
 import itertools
+from collections.abc import Collection
+from dataclasses import fields
 from typing import Any
 
-from cab_core.conf.schema import check_value, one_line
+from omegaconf import DictConfig, OmegaConf
+
+from cab_core.conf.schema import ModelBasics, check_value, one_line
 from cab_core.config import CLOSED_GROUPS, Compositions, default_selection
 from cab_core.errors import CabError, ConfigError, closest
-from cab_core.plugins import all_tasks, select_record_observers, task_conflict
+from cab_core.plugins import all_tasks, declared_model_keys, select_record_observers, task_conflict
 
 
 def _values(o) -> list:
@@ -130,6 +139,7 @@ def check_command_line(argv: list[str]):
             check = Check(compositions)
             choices, keys = check.options(overrides)
             _check_fork(choices, keys)
+            check.models(choices, keys)
             if keys:
                 check.keys(choices, keys)
     except (HydraException, OmegaConfBaseException) as e:
@@ -173,6 +183,44 @@ class Check:
                 raise unknown_option(key, v, options)
         return values
 
+    def models(self, choices: dict[str, list[str]], keys: list) -> None:
+        """The keys under ``model.`` of each model option the command selects (with each ``harness``
+        option), those of its config and those the command line gives, with or without ``+``, each
+        refused in one line where the plugins reading the model configuration declare the keys they
+        read (:func:`cab_core.plugins.declared_model_keys`) and this one is not among them."""
+        given = [o for o in keys if o.key_or_group.startswith("model.")]
+        if "model" not in self.groups or not (given or choices.get("model")):
+            return  # the default model's config: checked by the tests of the config that ships it
+        per_option = [[(g, v) for v in choices[g]] for g in CLOSED_GROUPS if g in choices]
+        options: list[str | None] = [*choices.get("model", [])] or [None]
+        for m in options:
+            others = tuple((g, m if g == "model" else vs[0]) for g, vs in choices.items() if g not in CLOSED_GROUPS)
+            for combo in itertools.product(*per_option):  # as Check.keys composes them: each view made once
+                self._model(self.compositions.view(others + combo), m, given)
+
+    def _model(self, view: Any, option: str | None, given: list) -> None:
+        """The model keys of one composed ``view`` (``option``: the model option selected, None for
+        the default one) and of the command line (``given``), checked."""
+        if not isinstance(view.get("model"), DictConfig):
+            return  # no model selected: refused where the attempt is made
+        model: Any = OmegaConf.to_container(view.model, resolve=False)
+        for o in given:  # a harness, agent or provider the command line names decides the keys
+            leaf = o.key_or_group.split(".", 1)[1]
+            if leaf in ("harness", "agent", "provider", "model_id") and not o.is_sweep_override():
+                model[leaf] = o.value()
+            elif leaf == "model_id":
+                model[leaf] = "(swept)"
+        if model.get("provider") and "model_id" in model and model["model_id"] is None:  # a generic option
+            raise ConfigError(f"model={option or model.get('name')} names no model: give model.model_id=<the id "
+                              "the provider serves>")
+        declared = declared_model_keys(model, OmegaConf.select(view, "harness.name"))
+        if declared is None:
+            return  # a plugin that declares no keys: the group stays open
+        for name in model:
+            check_model_key(str(name), declared, option)
+        for o in given:
+            check_model_key(o.key_or_group.split(".")[1], declared, option, o.key_or_group)
+
     def keys(self, choices: dict[str, list[str]], keys: list) -> None:
         """Every value of every key override against the view of every selection a sweep makes of
         the ``sim`` and ``harness`` options (the other groups: their first option)."""
@@ -192,6 +240,26 @@ class Check:
                     check_value(view, key, v, option)
             if key == "record.observers" and not o.is_sweep_override():
                 select_record_observers({"observers": o.value()})  # an observer no plugin registers: refused here
+
+
+def model_keys(declared: Collection[str]) -> list[str]:
+    """The keys a model configuration may carry: cab's own (:class:`~cab_core.conf.schema.ModelBasics`) and those the
+    plugins reading it declare (``declared``: :func:`cab_core.plugins.declared_model_keys`)."""
+    basics = [f.name for f in fields(ModelBasics)]
+    return basics + sorted(set(declared) - set(basics))
+
+
+def check_model_key(name: str, declared: Collection[str], option: str | None, given: str | None = None) -> None:
+    """Refuse (ConfigError, one line) the key ``name`` under ``model.`` (``given``: the key as the
+    command line gave it, ``model.retry.max_attempts``) where neither cab nor the plugins reading
+    the model configuration ``option`` declare it, naming the closest valid keys and all of them."""
+    valid = model_keys(declared)
+    if name in valid:
+        return
+    near = closest(name, valid)
+    hint = f"did you mean {' or '.join(f'model.{n}' for n in near)}? " if near else ""
+    of = f" (model={option})" if option else ""
+    raise ConfigError(f"unknown key {given or 'model.' + name!r}; {hint}valid keys under model{of}: {', '.join(valid)}")
 
 
 def unknown_option(group: str, value: str, options: list[str]) -> CabError:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -91,10 +92,19 @@ def _strings(overrides: Any) -> list[str]:
     return [str(o) for o in plain]
 
 
+def folder_safe(value: Any) -> str:
+    """Resolver ``cab.folder_safe``: ``value`` as one folder name, every run of characters other than
+    letters, digits, ``.``, ``_`` and ``-`` made one ``_`` (a model id ``Qwen/Qwen3-VL-8B`` names the
+    configuration of a generic model option ``Qwen_Qwen3-VL-8B``; Ollama's ``qwen3-vl:8b``, ``qwen3-vl_8b``)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(value)).strip("._") or "_"
+
+
 # Registered on import (cab_core.apps.cli imports this module): Hydra resolves each job's directory in the
 # launcher's worker process, which imports the app's module.
 if not OmegaConf.has_resolver("cab.swept"):
     OmegaConf.register_new_resolver("cab.swept", _swept_resolver)
+if not OmegaConf.has_resolver("cab.folder_safe"):
+    OmegaConf.register_new_resolver("cab.folder_safe", folder_safe)
 
 
 # -- the guard ------------------------------------------------------------------------------------

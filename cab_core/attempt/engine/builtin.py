@@ -20,6 +20,8 @@ if TYPE_CHECKING:  # pragma: no cover
 class DirectHarness:
     """Runs a model-free agent in-process against the episode's tool session."""
 
+    config_keys: frozenset[str] = frozenset()  # of a model configuration: the agent's own (below) besides the basics
+
     def __init__(self, cfg: dict):
         self.cfg = cfg
         self._agent: ModelFreeAgent | None = None
@@ -45,6 +47,8 @@ class DirectHarness:
 class IdleAgent:
     """Calls done at once with a false claim: the floor every task must score 0 on."""
 
+    config_keys: frozenset[str] = frozenset()
+
     def __init__(self, cfg: dict):
         self.cfg = cfg
 
@@ -55,6 +59,8 @@ class IdleAgent:
 class OracleAgent:
     """The task's reference solution: privileged state only to compute targets; acts only
     through the public tools."""
+
+    config_keys: frozenset[str] = frozenset()
 
     def __init__(self, cfg: dict):
         self.cfg = cfg
@@ -80,6 +86,7 @@ class ScriptedAgent:
     (``"arguments"`` is accepted for ``"args"``; any other key is refused, never ignored)."""
 
     ITEM_KEYS = ("tool", "args", "arguments")
+    config_keys = frozenset({"script"})
 
     def __init__(self, cfg: dict):
         path = cfg.get("script")

@@ -288,6 +288,8 @@ class HumanAgent:
     Ends the attempt and writes ``result.json`` before it answers the call that ended it, so the
     page can show the result at once."""
 
+    config_keys = frozenset({"handle", "session", "max_images_per_result"})  # of its model configuration
+
     def __init__(self, cfg: dict):
         self.cfg = cfg
         session = cfg.get("session")

@@ -43,6 +43,14 @@ def create_codex(cfg: dict | None = None):
     return CodexLauncher(cfg)
 
 
+#: the keys of a model configuration each harness reads (cab refuses any other under ``model.``):
+#: an MCP client names itself (model.name); a vendor CLI is launched with its model and settings
+_RECORDED = {"pricing", "paper_usage", "limits"}
+create_mcp.config_keys = frozenset(_RECORDED)
+create_claude_code.config_keys = frozenset(_RECORDED | {"model_id", "effort", "api_key_env", "base_url", "vendor"})
+create_codex.config_keys = frozenset(_RECORDED | {"model_id", "reasoning_effort", "api_key_env", "base_url", "vendor"})
+
+
 @hookimpl
 def cab_harnesses():
     return {"mcp": create_mcp, "claude_code": create_claude_code, "codex": create_codex}

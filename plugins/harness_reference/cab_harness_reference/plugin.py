@@ -22,6 +22,13 @@ def _reference_policy(cfg: dict):
     return ReferenceContextPolicy.from_cfg(cfg)
 
 
+#: the keys of a model configuration the harness reads besides its provider's (which its provider
+#: factory declares, .providers): the provider, the context policy's settings and window, pricing,
+#: the published usage and the limits shared by a sweep's workers
+_reference_harness.config_keys = frozenset({
+    "provider", "context", "context_tokens", "pricing", "paper_usage", "limits"})
+
+
 @hookimpl
 def cab_harnesses():
     return {"reference": _reference_harness}

@@ -13,6 +13,21 @@ _PROVIDER_MODULES = {
     "openai_compatible": ("openai_compatible_provider", "openai", "cab-harness-reference[openai]"),
 }
 
+#: the keys of a model configuration each provider reads (``config_keys`` of its factory: cab refuses
+#: any other key under ``model.`` in one line, cab_core.plugins.declared_model_keys)
+_CONNECTION = {"model_id", "api_key_env", "base_url", "timeout_s", "connect_timeout_s", "retry", "max_output_tokens"}
+_OPENAI = _CONNECTION | {"model", "key_env", "reasoning_effort", "extra_body"}  # the two OpenAI APIs' shared reader
+CONFIG_KEYS: dict[str, frozenset[str]] = {
+    "anthropic": frozenset(_CONNECTION | {"thinking", "effort"}),
+    "openai": frozenset(_OPENAI | {"reasoning_summary", "cache_breakpoints", "image_detail"}),
+    "google": frozenset(_CONNECTION | {"model", "key_env", "api_version", "reasoning", "thinking_budget",
+                                       "include_thoughts", "temperature", "images_in_function_response",
+                                       "max_images_per_request"}),
+    # probe*: the capability probe of an OpenAI-compatible endpoint (.probe)
+    "openai_compatible": frozenset(_OPENAI | {"max_tokens_param", "replay_reasoning", "cache_control",
+                                              "probe", "probe_timeout_s", "probe_needle_tokens"}),
+}
+
 
 def _provider_factory(name: str):
     module, sdk, extra = _PROVIDER_MODULES[name]
@@ -26,6 +41,7 @@ def _provider_factory(name: str):
         return mod.factory(cfg)
 
     factory.__name__ = f"{name}_provider_factory"
+    factory.config_keys = CONFIG_KEYS[name]  # type: ignore[attr-defined]
     return factory
 
 

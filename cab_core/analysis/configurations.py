@@ -1,0 +1,84 @@
+"""What names a configuration: the model, its harness and simulator, and the model settings that
+differ among the attempts (or planned jobs) being reported together.
+
+The paper names a configuration ``model (harness, sim)``. Two attempts of the same model
+configuration with another ``model.model_id``, ``base_url``, reasoning effort or any other setting
+that changes what answers are two configurations: :func:`configuration_labels` adds the settings
+that differ within a set to the label, ``qwen_local[model_id=modelA] (reference, mujoco)``, and
+leaves a configuration whose settings are the same everywhere as the paper names it. A setting that
+does not change which model answers or how (:data:`NOT_IDENTITY`: retries, timeouts, limits,
+pricing, the key's variable, the published usage) never splits a configuration; ``model.name``
+names a configuration outright (two names are two configurations whatever their settings).
+
+One rule for every reader: cab-report and the analyses (through
+:func:`cab_core.analysis.attempts.scan`), the parquet export, cab-studio, and a sweep's plan, which
+labels its jobs from their resolved configurations (the ``attempt_start`` event's ``config``, the
+shape of :meth:`cab_core.attempt.spec.AttemptSpec.as_record`: ``model``, ``harness``, ``sim``,
+``model_cfg``).
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+#: model settings that are not the model's identity: how it is called, paid for or limited
+NOT_IDENTITY = frozenset({"name", "retry", "timeout_s", "connect_timeout_s", "limits", "pricing", "api_key_env",
+                          "key_env", "paper_usage", "session"})
+
+_UNSET = object()
+
+
+def base_label(model: Any, harness: Any, sim: Any) -> str:
+    """The paper's name of a configuration: ``model (harness, sim)``."""
+    return f"{model} ({harness}, {sim})"
+
+
+def identity(model_cfg: Mapping | None) -> dict[str, Any]:
+    """The settings of a model configuration that are its identity, flattened to dotted keys
+    (``thinking.type``, ``extra_body.enable_thinking``); ``{}`` for none (records without it)."""
+    out: dict[str, Any] = {}
+
+    def walk(prefix: str, node: Mapping) -> None:
+        for k, v in node.items():
+            key = f"{prefix}{k}"
+            if isinstance(v, Mapping) and v:
+                walk(key + ".", v)
+            else:
+                out[key] = v
+
+    walk("", {k: v for k, v in (model_cfg or {}).items() if k not in NOT_IDENTITY})
+    return out
+
+
+def _shown(value: Any) -> str:
+    if value is _UNSET:
+        return "unset"
+    if isinstance(value, str):
+        return value
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def configuration_labels(configs: Sequence[Mapping]) -> list[str]:
+    """The label of each of ``configs`` (each a mapping with ``model``, ``harness``, ``sim`` and,
+    where known, ``model_cfg``), in order: its :func:`base_label`, and where the configurations of
+    that base label differ in identity settings (:func:`identity`), those settings in brackets after
+    the model, ``qwen_local[model_id=modelA,reasoning_effort=high] (reference, mujoco)``. A
+    configuration without ``model_cfg`` (a record written before cab kept it) keeps its base label."""
+    bases = [base_label(c.get("model"), c.get("harness"), c.get("sim")) for c in configs]
+    ids: list[dict[str, Any] | None] = [identity(c["model_cfg"]) if isinstance(c.get("model_cfg"), Mapping) else None
+                                        for c in configs]
+    varying: dict[str, list[str]] = {}
+    for base in set(bases):
+        known = [i for b, i in zip(bases, ids) if b == base and i is not None]
+        keys = sorted({k for i in known for k in i})
+        varying[base] = [k for k in keys if len({_shown(i.get(k, _UNSET)) for i in known}) > 1]
+    labels = []
+    for c, base, i in zip(configs, bases, ids):
+        keys = varying[base]
+        if i is None or not keys:
+            labels.append(base)
+            continue
+        settings = ",".join(f"{k}={_shown(i.get(k, _UNSET))}" for k in keys)
+        labels.append(base_label(f"{c.get('model')}[{settings}]", c.get("harness"), c.get("sim")))
+    return labels
