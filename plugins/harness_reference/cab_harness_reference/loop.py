@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cab_core.errors import AttemptEnded, CabError, ConfigError
@@ -93,6 +94,17 @@ def _ended_without_calls(episode: AttemptSession, resp: Response, no_tool_turns:
     return True
 
 
+def sweep_folder(attempt_dir) -> Path | None:
+    """The folder of the sweep an attempt's folder lies in (the one holding the sweep manifest,
+    ``sweep.json``: cab_core.sweep.manifest.MANIFEST, not imported for a name), None for a single run."""
+    if attempt_dir is None:
+        return None
+    for d in Path(attempt_dir).resolve().parents:
+        if (d / "sweep.json").is_file():
+            return d
+    return None
+
+
 class ReferenceHarness:
     """``ReferenceHarness(cfg).run(episode, model_cfg)``. ``provider`` / ``policy`` may be
     injected (tests); otherwise they come from the model config."""
@@ -104,13 +116,19 @@ class ReferenceHarness:
 
     # -- before the simulator starts ----------------------------------------------------------
     def preflight(self, model_cfg: dict) -> None:
-        """Build the provider and check its credentials; raises ConfigError naming the missing
-        environment variable. The runner calls this before any simulator, so that the endpoint
-        probe of a local server (:meth:`_probe`, once per process) costs no attempt wall time."""
+        """Build the provider and check its credentials without network; raises ConfigError
+        naming the missing environment variable. The runner calls this before any simulator."""
         if self.provider is None:
             self.provider = create_provider(model_cfg)
         self.provider.check_credentials()
-        self._probe(None, self.provider, model_cfg)
+
+    def before_build(self, spec) -> None:
+        """Before the world is built (no attempt wall time spent): the endpoint probe of a local
+        server (:meth:`_probe`), once per process, and once per sweep where the attempt is part of
+        one (the profile is kept in the sweep's folder for its other workers)."""
+        if self.provider is None:
+            self.preflight(spec.model_cfg)
+        self._probe(None, self.provider, spec.model_cfg, sweep_folder(getattr(spec, "output_dir", None)))
 
     # -- helpers ------------------------------------------------------------------------------
     @staticmethod
@@ -205,7 +223,8 @@ class ReferenceHarness:
                                                        for k, v in totals.items()}, turns=turn)
 
     @staticmethod
-    def _probe(episode: AttemptSession | None, provider, model_cfg: dict) -> dict | None:
+    def _probe(episode: AttemptSession | None, provider, model_cfg: dict,
+               cache_dir: Path | None = None) -> dict | None:
         """The endpoint's capability profile (:mod:`.probe`), probed on first use in this process
         (``model.probe``: auto probes local servers only) and applied to the provider; with the
         ``episode``, recorded as an ``endpoint_probe`` event and in ``result.json`` (``agent.serving``)."""
@@ -217,9 +236,9 @@ class ReferenceHarness:
         if profile is None:
             if not wants_probe(model_cfg):
                 return None
-            profile = probe_endpoint(model_cfg)
+            profile = probe_endpoint(model_cfg, cache_dir=cache_dir)
             provider.apply_profile(profile)
-        if episode is None:  # the preflight: recorded once the attempt has started
+        if episode is None:  # before the world is built: recorded once the attempt has started
             return profile
         episode.recorder.event("endpoint_probe", **{k: v for k, v in profile.items() if k != "kind"})
         if profile.get("reachable", True):
