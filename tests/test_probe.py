@@ -503,3 +503,27 @@ def test_harness_completes_an_attempt_against_each_server(quirk, tmp_path):
         assert pr["effective_context_tokens"] == 12288
         (ctx,) = {t["request_estimated_tokens"] <= 12288 for t in turns}  # the harness kept under it
         assert ctx
+
+
+@pytest.mark.sim
+def test_a_sweeps_attempts_share_one_probe(tmp_path):
+    """Within a sweep (a folder with ``sweep.json``) the first attempt's profile is kept in the
+    sweep's folder: another worker process (here: the process cache cleared) does not probe again."""
+    pytest.importorskip("mujoco")
+    from cab_harness_reference.loop import sweep_folder
+
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "sweep.json").write_text("{}")
+    assert sweep_folder(sweep / "click_bell" / "qwen_local" / "attempt-1") == sweep.resolve()
+    assert sweep_folder(tmp_path / "single") is None
+    with FakeEndpoint("vllm", tool_images=False) as srv:
+        _attempt(srv.url, sweep / "click_bell" / "qwen_local" / "attempt-1")
+        first = len(srv.requests)
+        (kept,) = sweep.glob("endpoint-probe-*.json")
+        probe.clear_cache()
+        res = _attempt(srv.url, sweep / "click_bell" / "qwen_local" / "attempt-2")
+    assert res["termination"]["reason"] == "done"
+    assert len(srv.requests) - first == 2  # the attempt's two turns, no probe
+    assert res["agent"]["serving"]["profile"] == json.loads(kept.read_text())
+    assert res["agent"]["serving"]["profile"]["images_in_tool_results"] is False
