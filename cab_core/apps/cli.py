@@ -345,6 +345,38 @@ class RunFolderCallback(Callback):
                     pass
             except OSError as e:
                 _refuse(f"cannot write in the output folder {folder} (hydra.run.dir): {e.strerror or e}")
+        _plan_or_preflight(config, multirun=False)
+
+
+def _plan_or_preflight(config, multirun: bool) -> None:
+    """Before Hydra creates a run's or a sweep's folder: with ``sweep.dry_run=true`` print the plan
+    (cab_core.apps.plan) and exit, 0 or 2 when a configuration cannot run; otherwise the pre-flight
+    of every model configuration with jobs to run: one line per problem (a sweep's names the
+    configuration), exit 2, nothing run and no folder written."""
+    from omegaconf import OmegaConf
+
+    from cab_core.apps import plan  # here, not at the top: it imports the sweep manifest (0.55 s: see _sweep_job)
+
+    try:
+        if OmegaConf.select(config, "sweep.dry_run", default=False):
+            lines, problems = plan.run_plan(config, multirun)
+            print("\n".join(lines), flush=True)
+            if problems:
+                print(f"cab: {len(problems)} problem(s): a configuration cannot run (listed above)", file=sys.stderr)
+            sys.exit(2 if problems else 0)
+        network = bool(OmegaConf.select(config, "sweep.preflight_network", default=True))
+        confs = plan.configurations(config, multirun)
+        problems = plan.preflight(confs, network)
+    except CabError as e:  # a configuration that cannot be composed or checked: Hydra would only warn
+        _refuse(str(e))
+    except Exception as e:  # noqa: BLE001  (Hydra turns a callback's exception into a warning and runs on)
+        _refuse(f"the plan or pre-flight failed: {type(e).__name__}: {one_line(e)}", status=1)
+    if not problems:
+        return
+    if not multirun:  # one configuration: its problems without its name
+        problems = [p for c in confs for p in c.check.problems]
+    print("\n".join(f"cab: {'refused: ' if multirun else ''}{p}" for p in problems), file=sys.stderr)
+    sys.exit(2)
 
 
 def _remove_refused_run_folder(out: str) -> None:
@@ -387,6 +419,7 @@ class SweepManifestCallback(Callback):
         from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest  # 0.55 s: see _sweep_job
 
         global _SWEEP_DIR
+        _plan_or_preflight(config, multirun=True)
         try:
             SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
             _SWEEP_DIR = str(config.hydra.sweep.dir)

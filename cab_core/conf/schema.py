@@ -156,6 +156,8 @@ class SweepConfig(Section):
     warm_workers: bool = setting(True, "true or false")
     worker_max_attempts: int = setting(50, "a positive integer")
     worker_max_rss_mb: int = setting(6144, "a positive integer (MiB)")
+    dry_run: bool = setting(False, "true or false")
+    preflight_network: bool = setting(True, "true or false")
     max_in_flight: int | None = setting(None, "a positive integer, or null (automatic: from memory for a model's "
                                               "sweep, one per core for model-free agents)")
     in_flight_cap: int = setting(128, "a positive integer")

@@ -58,6 +58,7 @@ import subprocess
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cab_core.contracts.harness import ModelCheck
 from cab_core.errors import ConfigError, MissingDependency
 from cab_core.kits.harness.pricing import Usage, cost
 
@@ -141,6 +142,23 @@ class VendorLauncher(McpHarness):
         if key and not os.environ.get(key):
             raise ConfigError(f"{self.vendor} needs the environment variable {key} (model.vendor.api_key_env)")
         self.model_cfg = model_cfg
+
+    def check_model(self, model_cfg: dict, network: bool = True) -> ModelCheck:
+        """Before a sweep: the CLI is on PATH and its key is set (its version and its endpoint are the
+        CLI's to check when an attempt starts it: ``preflight``)."""
+        try:
+            v = self._vendor_cfg(model_cfg)
+        except ConfigError as e:
+            return ModelCheck(provider=self.vendor, problems=[str(e)])
+        key = v.get("api_key_env")
+        check = ModelCheck(provider=self.vendor, key_env=key, key_present=bool(os.environ.get(key)) if key else None,
+                           endpoint=model_cfg.get("base_url") or (os.environ.get(self.base_url_env)
+                                                                   if self.base_url_env else None))
+        if shutil.which(v["command"]) is None:
+            check.problems.append(f"{self.vendor} ({v['command']!r}) is not on PATH: install it with: {self.install_hint}")
+        if check.key_present is False:
+            check.problems.append(f"{self.vendor} needs the environment variable {key} (model.vendor.api_key_env)")
+        return check
 
     def base_url(self) -> str | None:
         """The model API's base URL: ``model.base_url``, else the provider's environment variable,

@@ -21,12 +21,13 @@ from cab_core.kits.harness.pricing import cost, usage_dict
 from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.kits.registry import create_plugin
 
+from . import checks
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
 from .types import Capabilities, Image, Message, ProviderError, Response, Text, Thinking, ToolCall, ToolResult, ToolSpec
 
 if TYPE_CHECKING:  # pragma: no cover
-    from cab_core.contracts.harness import AttemptSession
+    from cab_core.contracts.harness import AttemptSession, ModelCheck
 
 MAX_NO_TOOL_TURNS = 3
 CANCELLED = "cancelled: an earlier action in this response aborted"
@@ -129,6 +130,11 @@ class ReferenceHarness:
         if self.provider is None:
             self.preflight(spec.model_cfg)
         self._probe(None, self.provider, spec.model_cfg, sweep_folder(getattr(spec, "output_dir", None)))
+
+    def check_model(self, model_cfg: dict, network: bool = True) -> ModelCheck:
+        """Credentials, and with ``network`` the endpoint, its model list and (an OpenAI-compatible
+        server) its capabilities, before any attempt: :mod:`.checks`."""
+        return checks.check_model(model_cfg, network, create_provider)
 
     # -- helpers ------------------------------------------------------------------------------
     @staticmethod
