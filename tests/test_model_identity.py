@@ -96,7 +96,7 @@ def two_model_sweep(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("identity")
     out = tmp / "sweep"
     with FakeServer([(200, completion({"content": None, "tool_calls": [tc("call_1", "done", DONE)]}))]) as srv:
-        r = _cab(["-m", "model=qwen_local", "model.model_id=modelA,modelB", f"model.base_url={srv.url}", "+model.probe=false",
+        r = _cab(["-m", "model=qwen_local", "model.model_id=modelA,modelB", f"model.base_url={srv.url}", "++model.probe=false",
                   "task=click_bell", "sim=mujoco", "record.video=false", f"hydra.sweep.dir={out}"], tmp)
         models = sorted(body.get("model") for path, body, _ in srv.requests)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
@@ -138,7 +138,7 @@ def test_an_ad_hoc_model_runs_and_names_its_folder_and_configuration_by_its_id(t
     from test_provider_openai_compatible import completion, tc
 
     with FakeServer([(200, completion({"content": None, "tool_calls": [tc("call_1", "done", DONE)]}))]) as srv:
-        r = _cab(["model=openai_compatible", "model.model_id=org/vl:8b", f"model.base_url={srv.url}", "+model.probe=false",
+        r = _cab(["model=openai_compatible", "model.model_id=org/vl:8b", f"model.base_url={srv.url}", "++model.probe=false",
                   "task=click_bell", "sim=mujoco", "record.video=false"], tmp_path)
         (request,) = [body for _, body, _ in srv.requests]
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
@@ -234,3 +234,12 @@ def test_a_misspelt_model_key_exits_2_before_any_folder_is_written(tmp_path):
     assert r.stderr.startswith("cab: unknown key 'model.base_ur'; did you mean model.base_url? ")
     assert len(r.stderr.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.sim
+def test_two_model_ids_are_two_configurations_in_the_studios_progress(two_model_sweep):
+    from cab_core.apps.studio.tree import groups
+
+    (g,) = groups(two_model_sweep)
+    assert sorted(a["config"] for a in g.as_dict()["attempts"]) == [A, B]
+    assert all("identity" not in a for a in g.as_dict()["attempts"])  # the page shows the label only

@@ -75,14 +75,19 @@ def cab_harnesses() -> dict[str, Callable[[dict], Any]]:
     answering its client meanwhile), and ``close()``, called if building the world fails after it.
     A factory with the attribute ``speaks_on_stdio = True`` serves its agent a protocol on
     stdin/stdout: ``cab harness=<name>`` then reserves stdout for it before anything else prints
-    (unless ``harness.transport=`` names another transport). :mod:`cab_core.contracts.harness`
-    states all of this as protocols (``Harness``, ``HarnessHooks``, ``HarnessFactory``)."""
+    (unless ``harness.transport=`` names another transport). A factory's optional attribute
+    ``config_keys`` (a set of names) declares the keys of a model configuration the harness itself
+    reads (its agent's or provider's are declared by their factories): with it, cab refuses any other
+    key under ``model.`` in one line before anything runs (:func:`cab_core.plugins.declared_model_keys`);
+    without it, the keys stay open. :mod:`cab_core.contracts.harness` states all of this as
+    protocols (``Harness``, ``HarnessHooks``, ``HarnessFactory``)."""
 
 
 @hookspec
 def cab_agents() -> dict[str, Callable[[dict], Any]]:
     """Model-free agents for the ``direct`` harness: ``oracle``, ``idle``, ``scripted``...
-    ``factory(cfg)`` returns an object with ``run(session) -> None``."""
+    ``factory(cfg)`` returns an object with ``run(session) -> None``; the factory's optional
+    ``config_keys`` declares the model configuration's keys the agent reads (``scripted``: ``script``)."""
 
 
 @hookspec
@@ -90,7 +95,8 @@ def cab_model_providers() -> dict[str, Callable[[dict], Any]]:
     """Model providers: ``{"my_api": factory}``; a harness that talks to a model API creates the
     one the model config names with ``cab_core.plugins.create("model_providers", name, model_cfg)``.
     ``factory(cfg)`` returns a provider client with capability flags; the contract of the client is
-    the harness's that uses it."""
+    the harness's that uses it. The factory's optional ``config_keys`` declares the model
+    configuration's keys the provider reads (``model_id``, ``base_url``...), as a harness's does."""
 
 
 @hookspec

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from cab_core.analysis.attempts import FORKS_FOLDER, attempt_dirs
+from cab_core.analysis.configurations import configuration_labels
 from cab_core.sweep.attempt_state import SET_ASIDE, is_infrastructure_failure
 from cab_core.sweep.manifest import MANIFEST
 
@@ -43,6 +44,9 @@ class AttemptState:
     updated: float = 0.0  # mtime of result.json (done, infra) or events.jsonl (running)
     stale: bool = False
     why: str = ""  # infra: why the attempt is not scored (its termination reason and detail)
+    #: model, harness, sim and model_cfg, which name the configuration among the group's attempts as
+    #: cab-report names it (cab_core.analysis.configurations); not shown
+    identity: dict = field(default_factory=dict, repr=False)
 
 
 @dataclass
@@ -64,6 +68,8 @@ class Group:
         d = asdict(self)
         if not attempts:
             d.pop("attempts")
+        for a in d.get("attempts", []):
+            a.pop("identity", None)
         return d
 
 
@@ -85,6 +91,16 @@ def _rel(path: Path, root: Path) -> str:
     return os.path.relpath(path, root).replace(os.sep, "/")
 
 
+def _start(d: Path) -> dict:
+    """The attempt's ``attempt_start`` event (the first line of its log), ``{}`` where unreadable."""
+    try:
+        with open(d / "events.jsonl") as f:
+            start = json.loads(f.readline() or "{}")
+    except (OSError, ValueError):
+        return {}
+    return start if isinstance(start, dict) else {}
+
+
 def attempt_state(d: Path, rel: str, now: float) -> AttemptState:
     res = d / "result.json"
     if res.is_file():
@@ -101,24 +117,28 @@ def attempt_state(d: Path, rel: str, now: float) -> AttemptState:
             why = f"{(r.get('verdict') or {}).get('excluded') or t.get('reason')}: {t.get('detail') or ''}".strip(": ")
             return AttemptState(rel, "infra", None, config, str(r.get("task", "")), mtime, why=why)
         success = (r.get("verdict") or {}).get("success")
-        return AttemptState(rel, "done", bool(success), config, str(r.get("task", "")), mtime)
+        c = _start(d).get("config")
+        identity = {"model": r.get("model"), "harness": r.get("harness"), "sim": r.get("sim"),
+                    "model_cfg": c.get("model_cfg") if isinstance(c, dict) else None}
+        return AttemptState(rel, "done", bool(success), config, str(r.get("task", "")), mtime, identity=identity)
     ev = d / "events.jsonl"
     try:
         mtime = ev.stat().st_mtime
     except OSError:
         mtime = 0.0
-    config, task = "", ""
-    try:
-        with open(ev) as f:
-            start = json.loads(f.readline() or "{}")
-        c = start.get("config") or {}
+    config, task, identity = "", "", {}
+    start = _start(d)
+    c = start.get("config")
+    if isinstance(c, dict):
         config, task = f"{c.get('model', '?')} ({c.get('harness', '?')}, {c.get('sim', '?')})", str(start.get("task", ""))
-    except (OSError, ValueError, AttributeError):
-        pass
-    return AttemptState(rel, "running", None, config, task, mtime, stale=now - mtime > STALE_S)
+        identity = {k: c.get(k) for k in ("model", "harness", "sim", "model_cfg")}
+    return AttemptState(rel, "running", None, config, task, mtime, stale=now - mtime > STALE_S, identity=identity)
 
 
 def _count(g: Group, states: list[AttemptState]) -> None:
+    named = [a for a in states if a.identity]  # scored and running attempts, named as cab-report names them
+    for a, label in zip(named, configuration_labels([a.identity for a in named])):
+        a.config = label
     g.attempts = states
     for a in states:
         if a.state == "done":
