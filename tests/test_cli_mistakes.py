@@ -13,7 +13,7 @@ from cab_core.attempt.engine.builtin import ScriptedAgent
 from cab_core.errors import ConfigError
 
 BIN = os.path.dirname(sys.executable)
-BUDGET_KEYS = "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls"
+BUDGET_KEYS = "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls, cost_usd"
 
 
 def run(args, cwd):

@@ -74,7 +74,7 @@ def test_a_yaml_value_of_another_type_is_refused_when_the_attempt_is_specified()
     with pytest.raises(ConfigError) as e:
         checked_view({"budget": {"tool_calsl": 5}})
     assert str(e.value) == ("unknown key 'budget.tool_calsl'; did you mean budget.tool_calls? valid keys under budget: "
-                            "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls")
+                            "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls, cost_usd")
 
 
 @pytest.mark.parametrize("group, option, line", [

@@ -58,7 +58,7 @@ def test_unknown_budget_key_added_with_plus_is_refused(tmp_path):
     with pytest.raises(ConfigError) as e:
         attempt_spec(_compose(["+budget.tool_calsl=5"]), tmp_path)
     assert str(e.value) == ("unknown key 'budget.tool_calsl'; did you mean budget.tool_calls? valid keys under budget: "
-                            "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls")
+                            "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls, cost_usd")
 
 
 def test_bad_seed_is_a_typed_error(tmp_path):

@@ -214,6 +214,9 @@ class FakeLedger:
     def credit_wall(self, s):
         self.credited += s
 
+    def charge_cost(self, usd):
+        pass
+
 
 class FakeRecorder:
     def __init__(self):

@@ -32,6 +32,8 @@ class AttemptSpec:
     budget_sim_seconds: float
     budget_wall_seconds: float
     run_code_max_internal_calls: int = 500
+    #: the spend cap of the attempt (``budget.cost_usd``, USD); None: none
+    budget_cost_usd: float | None = None
     sandbox: dict = field(default_factory=dict)
     record: dict = field(default_factory=lambda: {"video": True, "video_every_steps": 25, "video_size": [320, 240]})
     sim_cfg: dict = field(default_factory=dict)
@@ -104,6 +106,7 @@ def attempt_spec(cfg: Any, output_dir: str | Path) -> AttemptSpec:
         planner=c["planner"]["name"], harness=harness, model=c["model"]["name"], output_dir=Path(output_dir),
         budget_tool_calls=int(tool_calls), budget_sim_seconds=float(sim_s), budget_wall_seconds=float(wall_s),
         run_code_max_internal_calls=int(max_internal),
+        budget_cost_usd=None if b.get("cost_usd") is None else float(b["cost_usd"]),
         sandbox=dict(c.get("sandbox") or {}), record=dict(c.get("record") or {}),
         sim_cfg=c["sim"], planner_cfg=c["planner"], embodiment_cfg=c["embodiment"], model_cfg=c["model"],
         harness_cfg={**(c["harness"] if c["harness"]["name"] == harness else {}), "name": harness},

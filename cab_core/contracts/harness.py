@@ -83,6 +83,9 @@ class SessionSpec(Protocol):
     budget_sim_seconds: float
     #: how many robot calls one ``run_code`` may make
     run_code_max_internal_calls: int
+    #: the attempt's spend cap in USD (``budget.cost_usd``; None: none): a harness that pays for a
+    #: model charges each response's cost (``ledger.charge_cost``) and sends no request once it is reached
+    budget_cost_usd: float | None
     #: the sandbox's settings (``sandbox.*``)
     sandbox: dict
 
@@ -123,13 +126,19 @@ class SessionLedger(Protocol):
         ...
 
     def exhausted_reason(self) -> str | None:
-        """The budget that is spent (``sim_budget``, ``wall_budget``, ``tool_budget``), None while
-        none is; a harness checks ``wall_budget`` between model turns, where no call is made."""
+        """The budget that is spent (``sim_budget``, ``wall_budget``, ``tool_budget``, ``cost_budget``),
+        None while none is; a harness checks ``wall_budget`` and ``cost_budget`` between model turns,
+        where no call is made."""
         ...
 
     def credit_wall(self, seconds: float) -> None:
         """Give back wall-clock time the harness spent waiting on a provider outage (capped at one
         extra wall budget)."""
+        ...
+
+    def charge_cost(self, usd: float) -> None:
+        """Count one model response's cost against the spend cap (``budget.cost_usd``); once it is
+        reached, ``exhausted_reason()`` is ``cost_budget`` and the harness ends the attempt so."""
         ...
 
 

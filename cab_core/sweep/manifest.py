@@ -43,6 +43,7 @@ from cab_core.sweep.attempt_state import (
     unlisted_set_aside,
 )
 from cab_core.sweep.layout import attempt_folders, check_distinct, varying_keys
+from cab_core.sweep.spend import sweep_spend
 from cab_core.sweep.supervisor import AttemptSupervisor, SupervisorConfig
 
 MANIFEST = "sweep.json"
@@ -312,7 +313,9 @@ def progress_line(sweep_dir: Path, job: str, what: str, result: Path | None = No
     left = max(m["n_jobs"] - len(done), 0)
     eta = f"ETA {_hms(left * elapsed / fresh)}" if fresh and left else ("sweep complete" if not left else "ETA ?")
     rate = f"{3600 * fresh / elapsed:.0f} attempts/h, " if fresh else ""
-    return f"cab sweep [{rank}/{m['n_jobs']}] {job}: {what} | {rate}{eta}"
+    spend = sweep_spend(Path(sweep_dir))
+    spent = f"{spend.words()} | " if spend.attempts else ""
+    return f"cab sweep [{rank}/{m['n_jobs']}] {job}: {what} | {spent}{rate}{eta}"
 
 
 ORDER = "progress.order"  # complete attempts, one folder a line, in the order a job first saw them
@@ -414,6 +417,12 @@ def run_job(cfg: Any, attempt_dir: Path, sweep_dir: Path, job_log: str | None = 
         return None, progress_line(sweep_dir, job, f"NOT RUN: its earlier records could not be set aside "
                                                    f"({e.strerror or e}); {RESUME_HINT}")
     plain = _plain(cfg)
+    cap = (plain.get("sweep") or {}).get("max_cost_usd")
+    if cap is not None:  # no new attempt once the sweep's spend (finished and in flight) has reached its cap
+        spent = sweep_spend(Path(sweep_dir)).usd
+        if spent >= float(cap):
+            return None, progress_line(sweep_dir, job, f"NOT STARTED: the sweep has spent ${spent:.2f}, its cap "
+                                                       f"sweep.max_cost_usd={cap:g} (raise it to resume)")
     sup = AttemptSupervisor(plain, attempt_dir, identity, SupervisorConfig.from_cfg(plain.get("sweep")), job_log)
     result = sup.run()
     what = describe(result)

@@ -92,7 +92,7 @@ _CACHE: dict[Path, tuple[tuple, Spend]] = {}
 
 
 def _stamp(folder: Path) -> tuple:
-    out = []
+    out: list[tuple[int, int] | None] = []
     for name in ("result.json", "events.jsonl"):
         try:
             st = (folder / name).stat()

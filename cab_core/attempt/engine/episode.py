@@ -92,7 +92,7 @@ class Episode:
         self.randomization = self.built.randomization
         self.ledger = BudgetLedger.create(spec.budget_tool_calls, spec.budget_sim_seconds,
                                           spec.budget_wall_seconds, self.sim.timestep,
-                                          spec.run_code_max_internal_calls)
+                                          spec.run_code_max_internal_calls, spec.budget_cost_usd)
         self.clock = StepClock(self.sim, self.ledger)
         self.obs = ObservationStore(on_add=self.recorder.save_observation)
         self.ctx = RobotContext(self.sim, self.planner, self.emb, self.clock, self.obs)

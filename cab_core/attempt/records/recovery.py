@@ -8,7 +8,7 @@ from typing import Any
 
 from cab_core.kits.jsonfiles import read_json_object, read_jsonl
 
-BUDGET_ENDINGS = ("tool_budget", "sim_budget", "wall_budget")
+BUDGET_ENDINGS = ("tool_budget", "sim_budget", "wall_budget", "cost_budget")
 
 
 def recovery(attempt_dir: Path) -> dict:

@@ -198,6 +198,9 @@ class Budget(Block):
     wall_seconds_limit: Num | None = None
     wall_seconds_credited: Num | None = None
     run_code_internal_calls_limit: int | None = None
+    omit_if_none = ("cost_usd_used", "cost_usd_limit")
+    cost_usd_used: Num | None = None  # the spend counted against budget.cost_usd, where a cap was set
+    cost_usd_limit: Num | None = None
 
 
 class Timing(Block):
@@ -288,12 +291,24 @@ class ClientInfo(Block):
     session: int = Field(1, ge=1)
 
 
+class ModelUsage(Block):
+    """What a harness that pays for a model spent on the attempt: tokens, USD (null without pricing),
+    seconds waited on the shared rate limits (:mod:`cab_core.kits.harness.limits`) and on retries."""
+    input_tokens: int = 0
+    output_tokens: int = 0
+    usd: Num | None = None
+    waited_on_limits_s: Num = 0.0
+    waited_on_retries_s: Num = 0.0
+
+
 class Agent(Block):
     """Who played (:mod:`cab_core.kits.harness.agent_info`): optional, written by harnesses that know."""
+    omit_if_none = ("usage",)
     kind: str
     named_by: Literal["config", "client", "placeholder"]
     client: ClientInfo | None = None
     clients: list[ClientInfo] = Field(default_factory=list)
+    usage: ModelUsage | None = None
 
 
 class Perturbation(Block):
