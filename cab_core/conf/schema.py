@@ -154,6 +154,7 @@ class SweepConfig(Section):
     retry_backoff_s: float = setting(10.0, "a number of seconds")
     threads_per_attempt: int | None = setting(1, "a positive integer, or null (unlimited)")
     warm_workers: bool = setting(True, "true or false")
+    fork_workers: bool = setting(True, "true or false")
     worker_max_attempts: int = setting(50, "a positive integer")
     worker_max_rss_mb: int = setting(6144, "a positive integer (MiB)")
     dry_run: bool = setting(False, "true or false")

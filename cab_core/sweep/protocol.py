@@ -7,6 +7,7 @@ import ctypes
 import os
 import signal
 import subprocess
+from typing import Protocol
 
 EXIT_FAULT = 1  # the attempt's process failed (crash, unexpected exception): retried as infrastructure
 EXIT_CONFIG = 2  # the configuration is wrong: never retried
@@ -28,7 +29,18 @@ def die_with_parent() -> None:
         os._exit(EXIT_FAULT)
 
 
-def kill_group(proc: subprocess.Popen) -> None:
+class ChildProcess(Protocol):
+    """What the supervisor uses of a child: a ``subprocess.Popen`` or a worker forked by
+    ``cab_core.sweep.zygote`` (``ForkedProcess``)."""
+    pid: int
+    returncode: int | None
+
+    def poll(self) -> int | None: ...
+
+    def wait(self, timeout: float | None = None) -> int | None: ...
+
+
+def kill_group(proc: ChildProcess | subprocess.Popen) -> None:
     """SIGKILL a child and anything in its process group (it leads its own), and reap it."""
     try:
         os.killpg(proc.pid, signal.SIGKILL)

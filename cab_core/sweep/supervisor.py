@@ -40,6 +40,7 @@ from cab_core.attempt.records.recovery import recovery
 from cab_core.config import default_selection, normalise_overrides
 from cab_core.errors import ConfigError, RecordError
 from cab_core.plugins import task_info
+from cab_core.sweep import zygote
 from cab_core.sweep.attempt_state import (
     INFRA_LOG,
     INFRA_TERMINATIONS,
@@ -53,7 +54,7 @@ from cab_core.sweep.attempt_state import (
     set_aside,
     write_infrastructure_result,
 )
-from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV, kill_group
+from cab_core.sweep.protocol import EXIT_CONFIG, EXIT_RENDERER, PARENT_ENV, ChildProcess, kill_group
 
 CHILD_LOG = "attempt.log"
 # Thread pools an attempt process may start: lavapipe's renderer (the largest), BLAS and OpenMP.
@@ -77,6 +78,7 @@ class SupervisorConfig:
     warm_workers: bool = True
     worker_max_attempts: int = 50
     worker_max_rss_mb: float = 6144.0
+    fork_workers: bool = True  # warm workers forked from the sweep's fork server (cab_core.sweep.zygote)
     cpu_slots: bool = True  # attempts share this machine's CPU slot pool (cab_core.attempt.engine.cpu_slots)
 
     @classmethod
@@ -89,12 +91,14 @@ class SupervisorConfig:
                   warm_workers=c.get("warm_workers", cls.warm_workers),
                   worker_max_attempts=c.get("worker_max_attempts", cls.worker_max_attempts),
                   worker_max_rss_mb=c.get("worker_max_rss_mb", cls.worker_max_rss_mb),
+                  fork_workers=c.get("fork_workers", cls.fork_workers),
                   cpu_slots=bool(c.get("cpu_slots", cls.cpu_slots)))
         if out.max_retries < 0 or out.hang_timeout_s <= 0 or out.retry_backoff_s < 0:
             raise ConfigError("sweep.max_infra_retries and sweep.retry_backoff_s must be >= 0, "
                               "sweep.hang_timeout_s > 0")
-        if not isinstance(out.warm_workers, bool):
-            raise ConfigError(f"sweep.warm_workers must be true or false, got {out.warm_workers!r}")
+        for name in ("warm_workers", "fork_workers"):
+            if not isinstance(getattr(out, name), bool):
+                raise ConfigError(f"sweep.{name} must be true or false, got {getattr(out, name)!r}")
         if isinstance(out.worker_max_attempts, bool) or not isinstance(out.worker_max_attempts, int) \
                 or out.worker_max_attempts < 1:
             raise ConfigError(f"sweep.worker_max_attempts must be a positive integer, got {out.worker_max_attempts!r}")
@@ -134,18 +138,63 @@ def _pipe(stream: IO[bytes] | None) -> IO[bytes]:
     return stream
 
 
-class WarmWorker:
-    """A ``cab_core.sweep.worker --worker`` process: attempts one after another (see there)."""
+def _plugin_packages(config: dict) -> list[str]:
+    """The plugin packages an attempt of ``config`` uses (its simulator, robot, planner and harness),
+    which a forked worker's server imports before it forks (``cab_core.sweep.zygote``)."""
+    from cab_core.plugins import registry
 
-    def __init__(self, env: dict, first_log: Path):
+    model = config.get("model") or {}
+    picks = {"simulators": (config.get("sim") or {}).get("name"),
+             "embodiments": (config.get("embodiment") or {}).get("name"),
+             "planners": (config.get("planner") or {}).get("name"),
+             "harnesses": model.get("harness") or (config.get("harness") or {}).get("name")}
+    out: list[str] = []
+    for kind, name in picks.items():
+        try:
+            factory = registry(kind).get(name) if isinstance(name, str) else None
+        except Exception:  # noqa: BLE001 (a broken plugin: the attempt reports it)
+            factory = None
+        top = str(getattr(factory, "__module__", "") or "").split(".")[0]
+        if top and top != "cab_core" and top not in out:
+            out.append(top)
+    return out
+
+
+class WarmWorker:
+    """A ``cab_core.sweep.worker --worker`` process: attempts one after another (see there). Forked
+    from this sweep's fork server when ``fork`` (``sweep.fork_workers``; ``preload``: the plugin
+    packages it imports first), so that the workers share their libraries' pages; a fresh
+    interpreter otherwise, or when no server can fork it."""
+
+    def __init__(self, env: dict, first_log: Path, fork: bool = False, preload: Sequence[str] = ()):
+        self.proc: subprocess.Popen | zygote.ForkedProcess
         with open(first_log, "ab") as log:  # what the worker says before its first job lands there
-            self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.worker", "--worker"],
-                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
-                                         start_new_session=True)
-        self._stdin, self._stdout = _pipe(self.proc.stdin), _pipe(self.proc.stdout)
+            forked = self._forked(env, log.fileno(), preload) if fork else None
+            if forked is None:
+                self.proc = subprocess.Popen([sys.executable, "-m", "cab_core.sweep.worker", "--worker"],
+                                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
+                                             start_new_session=True)
+                self._stdin, self._stdout = _pipe(self.proc.stdin), _pipe(self.proc.stdout)
+            else:
+                self.proc, self._stdin, self._stdout = forked
         self.attempts = 0
         self.rss_mb = 0.0
         self._buf = b""
+
+    @staticmethod
+    def _forked(env: dict, log: int, preload: Sequence[str]) -> tuple[zygote.ForkedProcess, IO[bytes], IO[bytes]] | None:
+        in_r, in_w = os.pipe()
+        out_r, out_w = os.pipe()
+        try:
+            proc = zygote.fork_worker(env, preload, in_r, out_w, log)
+        finally:
+            os.close(in_r)
+            os.close(out_w)
+        if proc is None:
+            os.close(in_w)
+            os.close(out_r)
+            return None
+        return proc, os.fdopen(in_w, "wb"), os.fdopen(out_r, "rb")
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -233,7 +282,7 @@ class AttemptSupervisor:
     """Runs the attempt of one attempt directory until it completes or its retries are spent."""
 
     def __init__(self, config: dict, attempt_dir: Path, identity: dict, settings: SupervisorConfig,
-                 job_log: str | None = None, on_child: Callable[[subprocess.Popen, int], None] | None = None):
+                 job_log: str | None = None, on_child: Callable[[ChildProcess, int], None] | None = None):
         self.config = config
         self.dir = Path(attempt_dir)
         self.identity = identity
@@ -290,7 +339,8 @@ class AttemptSupervisor:
             worker.close()
             worker = None
         if worker is None:
-            worker = _WORKERS[key] = WarmWorker(env, self.dir / CHILD_LOG)
+            worker = _WORKERS[key] = WarmWorker(env, self.dir / CHILD_LOG, self.settings.fork_workers,
+                                                _plugin_packages(self.config) if self.settings.fork_workers else ())
         if self.on_child is not None:
             self.on_child(worker.proc, try_no)
         job = {"config": self.config, "output_dir": str(self.dir), "log": str(self.dir / CHILD_LOG)}

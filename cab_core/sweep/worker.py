@@ -48,6 +48,22 @@ def run(job: dict) -> int:
     return 0
 
 
+def release() -> None:
+    """Free what the attempt just run left behind. Its world (episode, simulator and its native model
+    and data, renderer buffers, video writer) is held in reference cycles that only the cyclic
+    collector frees, and a full collection comes rarely: without one after each attempt a warm worker
+    kept several attempts' worlds alive and grew by about 5 MiB per attempt. Then the C heap's free
+    pages go back to the system (glibc's ``malloc_trim``; nothing elsewhere)."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    try:
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
 def _rss_mb() -> float:
     """This process's resident memory now (not its peak), in MiB."""
     with open("/proc/self/statm") as f:
@@ -87,6 +103,7 @@ def serve() -> int:
                 pass
             status = EXIT_FAULT
         finally:
+            release()
             try:
                 _output_to(quiet)
             except OSError:  # (flushing into a full disk)
