@@ -8,6 +8,7 @@ conversation its parent had up to the fork point, rebuilt from the parent's reco
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -17,6 +18,7 @@ from cab_core.kits.harness import ToolResponse
 from cab_core.kits.harness.agent_info import AgentRecord
 from cab_core.kits.harness.catalog import motion_rules
 from cab_core.kits.harness.conversation import REBUILT, transcript
+from cab_core.kits.harness.limits import Limiter, LimitSettings, credential_key, endpoint_key
 from cab_core.kits.harness.pricing import cost, usage_dict
 from cab_core.kits.harness.prompts import first_user_message, result_images, run_code_limits, system_prompt
 from cab_core.kits.registry import create_plugin
@@ -24,6 +26,7 @@ from cab_core.kits.registry import create_plugin
 from . import checks
 from .context import ContextOverflow, ReferenceContextPolicy
 from .providers import PROVIDERS
+from .retry import RetryPolicy
 from .types import Capabilities, Image, Message, ProviderError, Response, Text, Thinking, ToolCall, ToolResult, ToolSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -55,6 +58,53 @@ def create_provider(model_cfg: dict):
         raise
 
 
+def limiter_for(model_cfg: dict, provider) -> Limiter | None:
+    """The limits of ``model.limits`` (requests and tokens per minute per credential, requests in
+    flight per provider endpoint), shared by every process of this user on this machine
+    (:mod:`cab_core.kits.harness.limits`); None when the block sets none. The provider's retries are
+    admitted by it too, and a ``Retry-After`` it gets pauses every worker of the credential."""
+    settings = LimitSettings.from_cfg(model_cfg.get("limits"))
+    if not settings.active:
+        return None
+    name = _provider_name(model_cfg)
+    endpoint = getattr(provider, "base_url", None) or model_cfg.get("base_url") or "default"
+    key_env = getattr(provider, "key_env", None)
+    limiter = Limiter(credential_key(name, str(endpoint), os.environ.get(key_env) if key_env else None),
+                      settings, slots_key=endpoint_key(name, str(endpoint)))
+    for attr in ("retry", "retry_policy"):  # the providers' names for their RetryPolicy
+        if isinstance(getattr(provider, attr, None), RetryPolicy):
+            getattr(provider, attr).limiter = limiter
+    return limiter
+
+
+def request_tokens(resp: Response) -> int:
+    """What a response counts against a tokens-per-minute limit: input (cache reads and writes
+    included) and output tokens."""
+    u = resp.usage
+    return int(u.input_tokens + u.cache_read_tokens + u.cache_write_tokens + u.output_tokens)
+
+
+def limited_complete(provider, limiter: Limiter | None, system: str, request: list[Message],
+                     tools: list[ToolSpec], estimated_tokens: int) -> tuple[Response, float]:
+    """``provider.complete`` under the limiter: each try the provider's retry loop sends holds a
+    concurrency slot while in flight and a place under the per-minute limits taken just before it
+    goes (:mod:`.retry`), reserved with ``estimated_tokens`` and settled here with the real usage.
+    Returns the response and the seconds waited on limits; a ProviderError carries its wait in
+    ``waited_on_limits_s``."""
+    if limiter is None:
+        return provider.complete(system, request, tools), 0.0
+    before = limiter.waited_s
+    limiter.estimate, limiter.last_grant = max(0, int(estimated_tokens)), None
+    try:
+        resp = provider.complete(system, request, tools)
+    except ProviderError as e:
+        e.waited_on_limits_s = limiter.waited_s - before  # type: ignore[attr-defined]
+        raise
+    if limiter.last_grant is not None:
+        limiter.last_grant.settle(request_tokens(resp))
+    return resp, limiter.waited_s - before
+
+
 def _add_usage(totals: dict, resp: Response, c: dict) -> None:
     """Adds a turn's tokens, cost, waiting and latency to the attempt's totals."""
     for k, v in usage_dict(resp.usage).items():
@@ -65,14 +115,14 @@ def _add_usage(totals: dict, resp: Response, c: dict) -> None:
 
 
 def _record_turn(episode: AttemptSession, turn: int, resp: Response, c: dict, calls: list[ToolCall],
-                 request_messages: int, estimated: int) -> None:
+                 request_messages: int, estimated: int, on_limits: float = 0.0) -> None:
     """The ``model_turn`` event: what the model answered, what it cost, the request's size."""
     msg = resp.message
     episode.recorder.event(
         "model_turn", turn=turn, model=resp.model, request_id=resp.request_id,
         stop_reason=resp.stop_reason, raw_stop_reason=resp.raw_stop_reason,
         usage=usage_dict(resp.usage), cost=c, latency_s=round(resp.latency_s, 3),
-        waited_s=round(resp.waited_s, 3), request_messages=request_messages,
+        waited_s=round(resp.waited_s, 3), waited_on_limits_s=round(on_limits, 3), request_messages=request_messages,
         request_estimated_tokens=estimated,
         text="\n".join(p.text for p in msg.parts if isinstance(p, Text)),
         thinking="\n".join(p.text for p in msg.parts if isinstance(p, Thinking)),
@@ -119,6 +169,7 @@ class ReferenceHarness:
     def preflight(self, model_cfg: dict) -> None:
         """Build the provider and check its credentials without network; raises ConfigError
         naming the missing environment variable. The runner calls this before any simulator."""
+        LimitSettings.from_cfg(model_cfg.get("limits"))  # a bad model.limits value: one line, before anything runs
         if self.provider is None:
             self.provider = create_provider(model_cfg)
         self.provider.check_credentials()
@@ -185,15 +236,23 @@ class ReferenceHarness:
         turn = 0
         max_turns = int(self.cfg.get("max_turns") or 4 * int(episode.ledger.tool_calls.limit) + 16)
         totals = {"input_tokens": 0, "output_tokens": 0, "reasoning_tokens": 0, "cache_read_tokens": 0,
-                  "cache_write_tokens": 0, "usd": 0.0, "waited_s": 0.0, "latency_s": 0.0}
+                  "cache_write_tokens": 0, "usd": 0.0, "waited_s": 0.0, "latency_s": 0.0,
+                  "waited_on_limits_s": 0.0}
+        limiter = limiter_for(model_cfg, provider)
+        last_output = 0  # the previous response's output tokens: the next request's estimate of its own
 
         while not episode.ended:
             if turn >= max_turns:
                 episode.end("harness_turn_limit", f"{max_turns} model turns without the attempt ending")
                 break
             # the wall clock is checked per model turn (FACTS A.9); the other budgets at tool dispatch
-            if episode.ledger.exhausted_reason() == "wall_budget":
+            exhausted = episode.ledger.exhausted_reason()
+            if exhausted == "wall_budget":
                 episode.end("wall_budget", "wall-clock budget spent before the next model turn")
+                break
+            if exhausted == "cost_budget":  # budget.cost_usd: no request once the spend has reached it
+                episode.end("cost_budget", f"spend cap of {episode.spec.budget_cost_usd:g} USD reached "
+                                           f"({totals['usd']:.4f} USD spent)")
                 break
             turn += 1
             try:
@@ -204,18 +263,25 @@ class ReferenceHarness:
                 break
             t0 = time.monotonic()
             try:
-                resp = provider.complete(system, request, tools)
+                resp, on_limits = limited_complete(provider, limiter, system, request, tools,
+                                                   policy.estimate(request, fixed) + last_output)
             except ProviderError as e:
+                on_limits = float(getattr(e, "waited_on_limits_s", 0.0))
+                episode.ledger.credit_wall(on_limits)  # waiting on shared limits is not the model's time
+                totals["waited_on_limits_s"] += on_limits
                 forced_limit = self._provider_failed(episode, e, turn, t0, totals, policy, request, fixed,
                                                      limit, forced_limit)
                 if forced_limit is None:
                     break
                 continue
-            episode.ledger.credit_wall(resp.waited_s)
+            episode.ledger.credit_wall(resp.waited_s + on_limits)
+            totals["waited_on_limits_s"] += on_limits
+            last_output = int(resp.usage.output_tokens)
             c = cost(resp.usage, pricing)
             _add_usage(totals, resp, c)
+            episode.ledger.charge_cost(c["usd"] or 0.0)
             calls = [p for p in resp.message.parts if isinstance(p, ToolCall)]
-            _record_turn(episode, turn, resp, c, calls, len(request), policy.estimate(request, fixed))
+            _record_turn(episode, turn, resp, c, calls, len(request), policy.estimate(request, fixed), on_limits)
             history.append(resp.message)
             if not calls:
                 no_tool_turns += 1
@@ -227,6 +293,19 @@ class ReferenceHarness:
             self._run_calls(episode, calls, history, caps, max_images)
         episode.recorder.event("model_usage_total", **{k: round(v, 6) if isinstance(v, float) else v
                                                        for k, v in totals.items()}, turns=turn)
+        self._record_usage(episode, totals, pricing)
+
+    @staticmethod
+    def _record_usage(episode: AttemptSession, totals: dict, pricing: dict | None) -> None:
+        """``result.json``'s ``agent.usage``: tokens (input with cache reads and writes), spend (null
+        without pricing), seconds waited on the shared limits and on retries."""
+        agent = dict(getattr(episode, "agent", None) or AgentRecord("model_api", "config").as_dict())
+        inputs = totals["input_tokens"] + totals["cache_read_tokens"] + totals["cache_write_tokens"]
+        agent["usage"] = {"input_tokens": int(inputs), "output_tokens": int(totals["output_tokens"]),
+                          "usd": round(totals["usd"], 6) if pricing else None,
+                          "waited_on_limits_s": round(totals["waited_on_limits_s"], 3),
+                          "waited_on_retries_s": round(totals["waited_s"], 3)}
+        episode.agent = agent
 
     @staticmethod
     def _probe(episode: AttemptSession | None, provider, model_cfg: dict,
