@@ -417,3 +417,35 @@ def test_an_interrupted_single_run_is_recorded_unscored_and_its_folder_runs_agai
     aside = out / "set_aside" / "01-interrupted"
     assert json.loads((aside / "result.json").read_text())["termination"]["reason"] == "interrupted"
     assert (aside / "events.jsonl").is_file()
+
+
+# -- a sweep's end ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("given_up", [True, False])
+def test_a_sweep_that_ends_with_attempts_given_up_on_exits_4_with_the_resume_command(tmp_path, monkeypatch, capsys,
+                                                                                    given_up):
+    from omegaconf import OmegaConf
+
+    from cab_core.apps import cli
+
+    sweep = tmp_path / "sw"
+    (sweep / "a").mkdir(parents=True)
+    (sweep / "sweep.json").write_text(json.dumps({"n_jobs": 1}))
+    rec = _record({"reason": "done"}, success=True)
+    if given_up:
+        rec = {**rec, "verdict": {"success": None, "excluded": "infrastructure_failure"},
+               "termination": {"reason": "infrastructure_failure", "detail": "2 tries failed"},
+               "infrastructure": {"failed": True, "failures": []}}
+    (sweep / "a" / "result.json").write_text(json.dumps(rec))
+    monkeypatch.setattr(cli, "_TYPED", ["-m", "model=qwen_local,opus5", "task=click_bell", f"hydra.sweep.dir={sweep}"])
+    config = OmegaConf.create({"hydra": {"sweep": {"dir": str(sweep)}}})
+    if not given_up:
+        cli.SweepManifestCallback().on_multirun_end(config)
+        assert capsys.readouterr().err == f"cab sweep: 1/1 attempts complete; {sweep}\n"
+        return
+    with pytest.raises(SystemExit) as ei:
+        cli.SweepManifestCallback().on_multirun_end(config)
+    assert ei.value.code == 4
+    assert capsys.readouterr().err == (
+        f"cab sweep: 0/1 attempts complete, 1 given up on for infrastructure failures (not scored), 0 missing; "
+        f"{sweep}; run the same command to resume: cab -m model=qwen_local,opus5 task=click_bell "
+        f"hydra.sweep.dir={sweep}\n")

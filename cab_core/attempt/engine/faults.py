@@ -23,24 +23,16 @@ from __future__ import annotations
 import errno
 import re
 
+from cab_core.attempt.records.result_format import (  # noqa: F401  (the fault rule's terminations, named here too)
+    INFRASTRUCTURE_TERMINATIONS,
+    INTERRUPTED,
+    UNSCORED_TERMINATIONS,
+)
 from cab_core.errors import InfrastructureFault, RendererUnavailable, SandboxUnavailable
 
-# Termination reasons that are not the agent's: the attempt is retried by a sweep and excluded from
-# every measure. ``error`` is the reason that records written before this rule gave a host fault of
-# any kind (agent-caused or not); it is still read as infrastructure, since such a record cannot
-# tell which it was. Nothing writes it any more.
-INFRASTRUCTURE_TERMINATIONS = {
-    "provider_failure": "provider outage",
-    "host_fault": "host fault",
-    "error": "host fault (older record)",
-}
-
-# Terminations that are never scored: the infrastructure failures above, and an attempt the person
-# running it stopped (Ctrl-C, SIGTERM). A sweep retries the infrastructure ones only; a report, the
-# export and the studio exclude all of them and list them with the reason. The record of such an
-# attempt says so in ``verdict.excluded`` (:meth:`cab_core.attempt.records.result_format.AttemptRecord.build`).
-INTERRUPTED = "interrupted"
-UNSCORED_TERMINATIONS = {**INFRASTRUCTURE_TERMINATIONS, INTERRUPTED: "interrupted by the user"}
+# The terminations that are never scored (:data:`INFRASTRUCTURE_TERMINATIONS`, which a sweep retries,
+# and :data:`INTERRUPTED`) are defined with the record format, which marks them (``verdict.excluded``):
+# that module stays low in the import map.
 
 # OS errors that mean the machine, not the call, is broken: out of disk or quota, I/O failure,
 # out of file handles, a read-only file system.

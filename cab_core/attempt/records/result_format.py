@@ -42,7 +42,6 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from cab_core.attempt.engine.faults import UNSCORED_TERMINATIONS
 from cab_core.errors import RecordError
 from cab_core.sandbox.truncate import NON_FINITE_KEY, finite_json, non_finite_note
 
@@ -50,6 +49,23 @@ RECORD_VERSION = "cab-record/1"  # what this cab writes
 READABLE_VERSIONS = (RECORD_VERSION,)  # what it reads
 RESULT_FILE = "result.json"
 INFRA_REASON = "infrastructure_failure"  # the termination (and verdict exclusion) of an infrastructure result
+
+# Termination reasons that are not the agent's: the attempt is retried by a sweep and excluded from
+# every measure. ``error`` is the reason that records written before this rule gave a host fault of
+# any kind (agent-caused or not); it is still read as infrastructure, since such a record cannot
+# tell which it was. Nothing writes it any more.
+INFRASTRUCTURE_TERMINATIONS = {
+    "provider_failure": "provider outage",
+    "host_fault": "host fault",
+    "error": "host fault (older record)",
+}
+
+# Terminations that are never scored: the infrastructure failures above, and an attempt the person
+# running it stopped (Ctrl-C, SIGTERM). A sweep retries the infrastructure ones only; a report, the
+# export and the studio exclude all of them and list them with the reason. The record of such an
+# attempt says so in ``verdict.excluded`` (:meth:`AttemptRecord.build`).
+INTERRUPTED = "interrupted"
+UNSCORED_TERMINATIONS = {**INFRASTRUCTURE_TERMINATIONS, INTERRUPTED: "interrupted by the user"}
 
 
 # -- writing JSON ---------------------------------------------------------------------------------
@@ -124,7 +140,7 @@ class Block(BaseModel):
 class Termination(Block):
     """Why the attempt ended: ``reason`` (``done``, ``tool_budget``, ``no_done``, ``provider_failure``,
     ``interrupted``, ``infrastructure_failure``...) and a sentence. The reasons of
-    :data:`~cab_core.attempt.engine.faults.UNSCORED_TERMINATIONS` are never scored."""
+    :data:`UNSCORED_TERMINATIONS` are never scored."""
     reason: str
     detail: str | None = None
 
