@@ -348,3 +348,25 @@ def test_a_sweep_starts_no_attempt_once_its_spend_reaches_the_cap(tmp_path):
     assert "NOT STARTED: the sweep has spent $0.33, its cap sweep.max_cost_usd=0.25 (raise it to resume)" in out
     assert "| $0.22 spent, 220 tokens |" in out  # the progress line of the second attempt
     assert r.returncode != 0 and "1 missing" in out and "resume" in out.splitlines()[-1]
+
+
+def test_a_sweeps_spend_counts_finished_attempts_and_the_turns_of_those_in_flight(tmp_path):
+    from cab_core.sweep.spend import sweep_spend
+
+    done, flying, old = tmp_path / "a" / "attempt-1", tmp_path / "a" / "attempt-2", tmp_path / "b" / "attempt-1"
+    for d in (done, flying, old):
+        d.mkdir(parents=True)
+    (done / "events.jsonl").write_text(json.dumps({"kind": "model_turn", "cost": {"usd": 9.0}}) + "\n")
+    (done / "result.json").write_text(json.dumps({"agent": {"usage": {
+        "input_tokens": 900_000, "output_tokens": 100_000, "usd": 1.0, "waited_on_limits_s": 30.0}}}))
+    turn = {"kind": "model_turn", "usage": {"input_tokens": 100_000, "cache_read_tokens": 50_000, "output_tokens": 50_000},
+            "cost": {"usd": 0.1}, "waited_on_limits_s": 2.5}
+    (flying / "events.jsonl").write_text(json.dumps(turn) + "\n" + json.dumps({"kind": "call"}) + "\n"
+                                         + json.dumps(turn) + "\n" + '{"kind": "model_tu')  # a line being written
+    (old / "events.jsonl").write_text(json.dumps({"kind": "model_usage_total", "input_tokens": 1000, "output_tokens": 0,
+                                                  "usd": 0.03, "waited_on_limits_s": 0.0}) + "\n")
+    spend = sweep_spend(tmp_path)
+    assert spend.usd == pytest.approx(1.23) and spend.tokens == 1_401_000 and spend.attempts == 3
+    assert spend.words() == "$1.23 spent, 1.4M tokens, 35 s waiting on limits"
+    (flying / "events.jsonl").write_text(json.dumps(turn) + "\n")  # changed: read again
+    assert sweep_spend(tmp_path).usd == pytest.approx(1.13)
