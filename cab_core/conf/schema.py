@@ -83,9 +83,10 @@ class BudgetConfig(Section):
     sim_seconds: float | None = setting(None, f"a positive number or null ({CATALOG})")
     wall_seconds: float | None = setting(None, f"a positive number or null ({CATALOG})")
     run_code_max_internal_calls: int | None = setting(500, "a positive integer or null (the default, 500)")
+    cost_usd: float | None = setting(None, "a positive number of USD or null (no spend cap per attempt)")
 
     def __post_init__(self) -> None:
-        self.positive("tool_calls", "sim_seconds", "wall_seconds", "run_code_max_internal_calls")
+        self.positive("tool_calls", "sim_seconds", "wall_seconds", "run_code_max_internal_calls", "cost_usd")
 
 
 class SandboxMode(Enum):
@@ -157,17 +158,18 @@ class SweepConfig(Section):
     fork_workers: bool = setting(True, "true or false")
     worker_max_attempts: int = setting(50, "a positive integer")
     worker_max_rss_mb: int = setting(6144, "a positive integer (MiB)")
-    dry_run: bool = setting(False, "true or false")
-    preflight_network: bool = setting(True, "true or false")
     max_in_flight: int | None = setting(None, "a positive integer, or null (automatic: from memory for a model's "
                                               "sweep, one per core for model-free agents)")
     in_flight_cap: int = setting(128, "a positive integer")
     memory_reserve_mb: int = setting(2048, "a non-negative integer (MiB)")
     cpu_slots: bool = setting(True, "true or false")
+    dry_run: bool = setting(False, "true or false")
+    max_cost_usd: float | None = setting(None, "a positive number of USD or null (no spend cap per sweep)")
+    preflight_network: bool = setting(True, "true or false")
 
     def __post_init__(self) -> None:
         self.positive("hang_timeout_s", "threads_per_attempt", "worker_max_attempts", "worker_max_rss_mb",
-                      "max_in_flight", "in_flight_cap")
+                      "max_in_flight", "in_flight_cap", "max_cost_usd")
         self.at_least("memory_reserve_mb", 0)
 
 
