@@ -449,3 +449,19 @@ def test_a_sweep_that_ends_with_attempts_given_up_on_exits_4_with_the_resume_com
         f"cab sweep: 0/1 attempts complete, 1 given up on for infrastructure failures (not scored), 0 missing; "
         f"{sweep}; run the same command to resume: cab -m model=qwen_local,opus5 task=click_bell "
         f"hydra.sweep.dir={sweep}\n")
+
+
+# -- where an unscored record is listed ------------------------------------------------------------
+def test_the_studio_and_the_export_list_an_unscored_record_with_its_reason(tmp_path):
+    from cab_core.apps.export import _left_out
+    from cab_core.apps.studio.tree import attempt_state
+
+    d = tmp_path / "r"
+    d.mkdir()
+    detail = "provider unreachable at http://127.0.0.1:9/v1 (connection refused): is the server running?"
+    (d / "result.json").write_text(json.dumps(AttemptRecord.build(**_record(
+        {"reason": "provider_failure", "detail": detail})).dump()))
+    a = attempt_state(d, "r", time.time())
+    assert (a.state, a.success, a.why) == ("infra", None, f"provider_failure: {detail}")
+    assert _left_out({"in_flight": [], "problems": [], "excluded": [("r", f"excluded (provider_failure): {detail}")]}) \
+        == f"; left out: 1 not scored (r: excluded (provider_failure): {detail})"
