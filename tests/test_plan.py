@@ -15,8 +15,10 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 from test_cli_mistakes import BIN
+from test_probe import MODEL, FakeEndpoint
 
-from cab_harness_reference import checks
+from cab_harness_mcp.launchers import ClaudeCodeLauncher, CodexLauncher
+from cab_harness_reference import checks, probe
 from cab_harness_reference.loop import ReferenceHarness
 
 KEYS = ("ANTHROPIC_API_KEY", "OPENAI_API_KEY", "GEMINI_API_KEY", "GOOGLE_API_KEY", "XAI_API_KEY",
@@ -261,3 +263,32 @@ def test_no_network_no_request_and_a_missing_key_is_the_providers_own_line():
     c = _check({"name": "opus5", "provider": "anthropic", "model_id": "claude-opus-5"})
     assert (c.endpoint, c.key_present, c.reachable) == ("https://api.anthropic.com", False, None)
     assert c.problems == ["ANTHROPIC_API_KEY is not set: model 'opus5' (provider anthropic) needs it in the environment"]
+
+
+def test_a_local_server_without_vision_cannot_run_and_quirks_the_harness_handles_are_notes():
+    cfg = {"name": "local", "provider": "openai_compatible", "model_id": MODEL, "api_key_env": None}
+    probe.clear_cache()
+    with FakeEndpoint("vllm", image_cap=0) as srv:
+        blind = _check({**cfg, "base_url": srv.url})
+    with FakeEndpoint("llama.cpp", jinja=False) as srv:  # the harness describes the tools in the prompt
+        no_jinja = _check({**cfg, "base_url": srv.url})
+    with FakeEndpoint("vllm", tool_images=False) as srv:  # the harness moves images to a user message
+        no_tool_images = _check({**cfg, "base_url": srv.url})
+    assert blind.capabilities["images"] is False
+    assert len(blind.problems) == 1 and blind.problems[0].startswith("the endpoint refuses images"), blind.problems
+    assert (no_jinja.capabilities["tools"], no_jinja.problems) == ("rejected", [])
+    assert any("--jinja" in p for p in no_jinja.capabilities["problems"])
+    assert (no_tool_images.capabilities["images_in_tool_results"], no_tool_images.problems) == (False, [])
+    assert any("images are refused in tool messages" in p for p in no_tool_images.capabilities["problems"])
+
+
+def test_claude_code_and_codex_need_their_cli_on_path_and_their_key(monkeypatch):
+    monkeypatch.delenv("OPENAI_API_KEY", raising=False)
+    monkeypatch.setenv("ANTHROPIC_API_KEY", "sk-test")
+    monkeypatch.setenv("PATH", "")
+    codex = CodexLauncher({}).check_model({"name": "astra_codex", "api_key_env": "OPENAI_API_KEY"})
+    claude = ClaudeCodeLauncher({}).check_model({"name": "opus5_claude_code", "api_key_env": "ANTHROPIC_API_KEY"})
+    assert (codex.provider, codex.key_env, codex.key_present) == ("codex", "OPENAI_API_KEY", False)
+    assert codex.problems == ["codex ('codex') is not on PATH: install it with: npm install -g @openai/codex@0.154.0",
+                              "codex needs the environment variable OPENAI_API_KEY (model.vendor.api_key_env)"]
+    assert (claude.key_present, len(claude.problems)) == (True, 1) and "claude-code" in claude.problems[0]

@@ -98,7 +98,9 @@ def check_model(model_cfg: dict, network: bool, create_provider: Callable[[dict]
     _ask_endpoint(check, str(name), key, model_id, timeout_s)
     if check.reachable and name == "openai_compatible" and wants_probe(model_cfg):
         check.capabilities = caps = probe_endpoint(dict(model_cfg))
-        if caps.get("tools") == "rejected" or caps.get("images") is False:  # what the harness cannot work around
+        # what the harness cannot work around: tools refused, or images refused by a server that answers
+        # (one failing every request is an outage, which the attempts report as one)
+        if caps.get("tools") == "rejected" or (caps.get("images") is False and caps.get("tools") == "accepted"):
             check.problems += [str(p) for p in caps.get("problems") or [] if "the harness" not in str(p)]
     return check
 
