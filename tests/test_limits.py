@@ -370,3 +370,34 @@ def test_a_sweeps_spend_counts_finished_attempts_and_the_turns_of_those_in_fligh
     assert spend.words() == "$1.23 spent, 1.4M tokens, 35 s waiting on limits"
     (flying / "events.jsonl").write_text(json.dumps(turn) + "\n")  # changed: read again
     assert sweep_spend(tmp_path).usd == pytest.approx(1.13)
+
+
+@pytest.mark.parametrize("headers, wait", [
+    ({"retry-after": "7"}, 7.0),
+    ({"retry-after-ms": "1500", "retry-after": "9"}, 1.5),
+    ({"retry-after": "Fri, 01 Jan 1999 00:00:00 GMT"}, 0.0),  # a date already past: no wait
+    ({}, 60.0),  # none: the backoff's draw (the top of its range here)
+])
+def test_a_retry_waits_what_the_servers_retry_after_says(headers, wait):
+    from fake_json_api import TopOfRange
+
+    from cab_harness_reference.retry import RetryPolicy, call_with_retries
+    from cab_harness_reference.types import ProviderError
+
+    class Refused(Exception):
+        class response:  # noqa: N801 - the shape of an SDK error's HTTP response
+            pass
+
+    Refused.response.headers = headers
+    sleeps: list[float] = []
+    tries = iter([Refused("429"), "answer"])
+
+    def once():
+        t = next(tries)
+        if isinstance(t, Exception):
+            raise t
+        return t
+
+    policy = RetryPolicy(sleep=sleeps.append, rng=TopOfRange())
+    assert call_with_retries(once, lambda e: ProviderError("rate_limit", str(e), 429), policy)[0] == "answer"
+    assert sleeps == [pytest.approx(wait)]
