@@ -292,3 +292,25 @@ def test_claude_code_and_codex_need_their_cli_on_path_and_their_key(monkeypatch)
     assert codex.problems == ["codex ('codex') is not on PATH: install it with: npm install -g @openai/codex@0.154.0",
                               "codex needs the environment variable OPENAI_API_KEY (model.vendor.api_key_env)"]
     assert (claude.key_present, len(claude.problems)) == (True, 1) and "claude-code" in claude.problems[0]
+
+
+def test_the_plan_of_a_sweep_being_resumed_counts_only_what_is_left(tmp_path):
+    pytest.importorskip("mujoco")
+    sweep = ["-m", "model=idle", "task=click_bell", "sim=mujoco", "record.video=false", "hydra.launcher.n_jobs=1",
+             f"hydra.sweep.dir={tmp_path / 's'}"]
+    ran = cab([*sweep, "attempt=1"], tmp_path)
+    assert ran.returncode == 0, ran.stderr[-2000:]
+    again = cab([*sweep, "attempt=1", "sweep.dry_run=true"], tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.splitlines()[:2] == [
+        "cab plan: 1 job(s) in 1 configuration(s), 0 still to run; 1 attempt(s) in flight (hydra.launcher.n_jobs)",
+        "  idle (direct, mujoco): 1 job(s), 0 to run"]
+    more = cab([*sweep, "attempt=1,2,3", "sweep.dry_run=true"], tmp_path)  # another sweep: refused there
+    assert more.returncode == 2, more.stderr
+    lines = more.stdout.splitlines()
+    assert lines[:2] == [
+        "cab plan: 3 job(s) in 1 configuration(s), 2 still to run; 1 attempt(s) in flight (hydra.launcher.n_jobs)",
+        "  idle (direct, mujoco): 3 job(s), 2 to run"]
+    assert lines[-1] == (f"  PROBLEM: {tmp_path / 's'} holds a sweep with another configuration: running this "
+                         "command there would be refused; resume it with its own overrides, or choose a new "
+                         "hydra.sweep.dir")

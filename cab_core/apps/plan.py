@@ -322,12 +322,29 @@ def plan_lines(confs: list[Configuration], slots: int, network: bool) -> list[st
     return lines
 
 
+def folder_problem(config: Any) -> str | None:
+    """A sweep folder that holds another sweep (its manifest's fingerprint differs): the run would
+    be refused there (:meth:`cab_core.sweep.manifest.SweepManifest.open`)."""
+    sweep_dir = Path(str(config.hydra.sweep.dir))
+    try:
+        old = json.loads((sweep_dir / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    if isinstance(old, dict) and old.get("fingerprint") != SweepManifest.from_hydra(config).fingerprint:
+        return (f"{sweep_dir} holds a sweep with another configuration: running this command there would be "
+                "refused; resume it with its own overrides, or choose a new hydra.sweep.dir")
+    return None
+
+
 def run_plan(config: Any, multirun: bool) -> tuple[list[str], list[str]]:
     """(the plan's lines, the problems' lines) of the command ``config`` was composed for."""
     sweep = _plain(config.get("sweep")) or {}
     network = bool(sweep.get("preflight_network", True))
     confs = configurations(config, multirun)
     problems = preflight(confs, network)
+    folder = folder_problem(config) if multirun else None
+    if folder is not None:
+        problems.append(folder)
     attach_records(confs, record_dirs(config, multirun))
     slots = min(in_flight(config, multirun), max(1, sum(c.todo for c in confs)))
-    return plan_lines(confs, slots, network), problems
+    return plan_lines(confs, slots, network) + ([f"  PROBLEM: {folder}"] if folder else []), problems
