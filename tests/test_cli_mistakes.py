@@ -1,6 +1,7 @@
 """Every command-line mistake is one line on stderr, beginning with the program's name, with exit
 status 2, before any simulator starts and before any attempt or sweep directory is written.
 The ``cab`` cases run the installed entry point as a subprocess, as a user would."""
+import dataclasses
 import json
 import os
 import subprocess
@@ -10,10 +11,12 @@ import pytest
 
 from cab_core.apps.cmdline import check_command_line
 from cab_core.attempt.engine.builtin import ScriptedAgent
+from cab_core.conf.schema import SweepConfig
 from cab_core.errors import ConfigError
 
 BIN = os.path.dirname(sys.executable)
 BUDGET_KEYS = "tool_calls, sim_seconds, wall_seconds, run_code_max_internal_calls, cost_usd"
+SWEEP_KEYS = ", ".join(f.name for f in dataclasses.fields(SweepConfig))  # the schema's order
 
 
 def run(args, cwd):
@@ -103,8 +106,7 @@ def test_unknown_key_in_a_sweep(tmp_path):
     (["+record.vidoe=false"], "unknown key 'record.vidoe'; did you mean record.video? valid keys under record: "
                               "video, video_every_steps, video_size, observers"),
     (["sweep.max_retries=1"], "unknown key 'sweep.max_retries'; did you mean sweep.max_infra_retries? valid keys under "
-                              "sweep: max_infra_retries, hang_timeout_s, retry_backoff_s, threads_per_attempt, "
-                              "warm_workers, worker_max_attempts, worker_max_rss_mb"),
+                              f"sweep: {SWEEP_KEYS}"),
     (["sim=mujoco", "+sim.physic.impratio=2"], "unknown key 'sim.physic.impratio'; did you mean sim.physics? valid keys "
                                                "under sim (sim=mujoco): name, render, physics"),
     (["sim=sapien", "+sim.physics.impratio=2"], "unknown key 'sim.physics.impratio'; valid keys under sim (sim=sapien): "
