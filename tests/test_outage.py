@@ -465,3 +465,20 @@ def test_the_studio_and_the_export_list_an_unscored_record_with_its_reason(tmp_p
     assert (a.state, a.success, a.why) == ("infra", None, f"provider_failure: {detail}")
     assert _left_out({"in_flight": [], "problems": [], "excluded": [("r", f"excluded (provider_failure): {detail}")]}) \
         == f"; left out: 1 not scored (r: excluded (provider_failure): {detail})"
+
+
+def test_ctrl_c_of_a_sweep_is_one_line_with_the_resume_command(monkeypatch, capsys):
+    from cab_core.apps import cli
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_hydra_entry", interrupted)
+    monkeypatch.setattr(cli, "_SWEEP_DIR", "/sweeps/a")
+    monkeypatch.setattr(cli, "_TYPED", ["-m", "model=qwen_local", "attempt=1,2", "hydra.sweep.dir=/sweeps/a"])
+    with pytest.raises(SystemExit) as ei:
+        cli._sweep_entry()
+    assert ei.value.code == 130
+    assert capsys.readouterr().err == (
+        "cab: sweep /sweeps/a interrupted; finished attempts are kept, those in flight are not scored: run the same "
+        "command to resume: cab -m model=qwen_local attempt=1,2 hydra.sweep.dir=/sweeps/a\n")

@@ -165,10 +165,15 @@ def _sweep_entry() -> None:
     """``cab -m``: a disk that fills up while the sweep runs ends it with one line and the resume
     line (a job's records are the supervisor's to write; Hydra's own writes for the next job, its
     .hydra/ files and log, fail here: HYDRA_FULL_ERROR makes Hydra raise them instead of printing
-    a traceback); any other error keeps its traceback."""
+    a traceback); any other error keeps its traceback. Ctrl-C is one line too: the attempts in
+    flight are not scored (their records are set aside when the sweep resumes)."""
     with HydraRaises():  # held for the whole sweep: its jobs too
         try:
             _hydra_entry()
+        except KeyboardInterrupt:
+            where = f" {_SWEEP_DIR}" if _SWEEP_DIR else ""
+            _refuse(f"sweep{where} interrupted; finished attempts are kept, those in flight are not scored: "
+                    f"run the same command to resume: {typed_command()}", status=EXIT_INTERRUPTED)
         except Exception as e:
             full = _full_disk(e)
             if full is None:
