@@ -30,7 +30,6 @@ from pathlib import Path
 
 from cab_core.config import composed, default_selection
 from cab_core.sweep.manifest import completed_results
-from cab_core.sweep.memory import tree_pss_mb
 
 PAPER_ATTEMPTS = 675
 PAPER_MEAN_S = 23.3 * 60  # the paper's mean attempt length
@@ -39,6 +38,9 @@ PROJECTED_N = (1, 8, 32, 64)
 
 
 def _sample_pss(pid: int, every_s: float, peak: list[float], stop: threading.Event) -> None:
+    """The largest PSS of the sweep's process tree, sampled every ``every_s`` until ``stop``."""
+    from cab_core.sweep.memory import tree_pss_mb
+
     while not stop.wait(every_s):
         peak[0] = max(peak[0], tree_pss_mb(pid))
 
@@ -108,6 +110,8 @@ def main() -> None:
                     help="the agent: a scripted OpenAI-compatible model answering each turn after S seconds "
                          "(model=qwen_local; 16 turns, 15 charged calls); worker counts are attempts in flight, "
                          "and the projected wall time of experiment=paper is printed")
+    ap.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                    help="a further override of every sweep (repeatable), e.g. sweep.cpu_slots=false")
     a = ap.parse_args()
     if a.sim is None or a.task is None:
         chosen = default_selection(("sim", "task"))
@@ -130,6 +134,7 @@ def main() -> None:
         server = FakeOpenAIServer(a.fake_model_latency).__enter__()
         models = ["qwen_local"]
         extra = (f"model.base_url={server.base_url}", f"model.model_id={MODEL_ID}")
+    extra = (*extra, *a.override)
     server_cpu0 = time.process_time()
     modes = [m.strip() for m in a.modes.split(",") if m.strip()]
     if not set(modes) <= {"warm", "cold"}:
