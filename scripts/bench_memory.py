@@ -84,7 +84,8 @@ def slots(sim: str, n: int, out: Path, task: str, extra: list[str], wait_s: floa
     cab = os.path.join(os.path.dirname(sys.executable), "cab")
     cmd = [cab, "-m", f"task={task}", f"sim={sim}", "model=qwen_local", f"model.base_url={fake.url}",
            "model.model_id=held", f"attempt={','.join(str(i) for i in range(1, n + 1))}",
-           f"hydra.launcher.n_jobs={n}", f"hydra.sweep.dir={out / f'{sim}-{n}'}", *extra]
+           f"hydra.launcher.n_jobs={n}", f"hydra.sweep.dir={out / f'{sim}-{n}'}",
+           "sweep.preflight_network=false", "model.probe=false", *extra]  # the stand-in holds requests: no probe
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     t0 = time.monotonic()
     try:
@@ -151,7 +152,7 @@ def main() -> None:
     ap.add_argument("--wait", type=float, default=600.0, help="slots: seconds to wait for every attempt to ask")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("extra", nargs="*", help="slots: more overrides for cab, e.g. sweep.warm_workers=false")
-    a = ap.parse_args()
+    a = ap.parse_intermixed_args()
     a.out.mkdir(parents=True, exist_ok=True)
     if a.what == "growth":
         rows = growth(a.sim, a.attempts, a.out, a.task, a.video)

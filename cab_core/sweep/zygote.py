@@ -269,6 +269,15 @@ def serve(name: str) -> int:
             if package not in loaded:
                 _import_all(package)
                 loaded.add(package)
+        if len(os.listdir("/proc/self/task")) > 1:  # an import started a thread: a fork would inherit its locks
+            for fd in fds:
+                os.close(fd)
+            try:
+                conn.send(b"refused: a thread is running in the fork server")
+            except OSError:
+                pass
+            conn.close()
+            continue
         gc.collect()
         gc.freeze()  # what is here now is shared with every worker: no collection writes to it
         pid = os.fork()
