@@ -273,3 +273,23 @@ def test_the_benchmark_runs_attempts_in_flight_against_the_fake_model(tmp_path):
     assert projection[1]["hours_paper_mean"] == pytest.approx(675 * 23.3 / 60, rel=0.01)  # length, not CPU, binds
     assert projection[64]["hours_astra_median"] < projection[8]["hours_astra_median"]
     assert "| 64 |" in r.stdout and "23.3 min" in r.stdout
+
+
+def test_a_program_and_its_robot_calls_run_under_a_one_slot_pool(tmp_path):
+    """run_code holds no slot for the whole program, each robot call it makes holds one: under a pool of
+    one slot an attempt whose program calls the robot finishes (no waiting on itself)."""
+    from cab_core.testing.fake_openai import MODEL_ID, FakeOpenAIServer
+
+    script = (("run_code", {"code": "state = get_robot_state()\nresult = sorted(state)"}),
+              ("done", {"report": "read the state in a program", "success_claim": False}))
+    env = {**os.environ, "CAB_CPU_SLOTS": "1", "CAB_CPU_SLOTS_DIR": str(tmp_path / "slots")}
+    with FakeOpenAIServer(0.0, script) as server:
+        r = subprocess.run([os.path.join(os.path.dirname(sys.executable), "cab"), "task=click_bell", "sim=mujoco",
+                            "model=qwen_local", f"model.base_url={server.base_url}", f"model.model_id={MODEL_ID}",
+                            "model.probe=false", "record.video=false", f"hydra.run.dir={tmp_path / 'run'}"],
+                           capture_output=True, text=True, env=env, timeout=300, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    calls = [json.loads(line) for line in (tmp_path / "run" / "events.jsonl").read_text().splitlines()]
+    internal = [e for e in calls if e.get("kind") == "internal_call"]
+    assert [e["tool"] for e in internal] == ["get_robot_state"]
+    assert json.loads((tmp_path / "run" / "result.json").read_text())["termination"]["reason"] == "done"

@@ -3,6 +3,7 @@ for ``run_code``, and the record of every call. The :class:`StepClock` is the on
 advances while an agent plays."""
 from __future__ import annotations
 
+import contextlib
 import time
 import traceback
 from collections.abc import Callable
@@ -81,7 +82,9 @@ class CallServer:
         out_obs: list[str] = []
         status = None
         try:
-            with cpu_slots.held():  # a CPU slot while the call computes; none while the agent thinks (sweeps)
+            # a CPU slot while the call computes, none while the agent thinks (sweeps); a program holds one
+            # per robot call it makes (_dispatch_internal), so a long program does not keep the others waiting
+            with cpu_slots.held() if name != "run_code" else contextlib.nullcontext():
                 payload, out_obs, status = self._invoke(name, args, direct=True)
             payload = strict_payload(payload)  # what the agent sees is strict JSON (NaN: null, noted)
         except Exception as e:  # only an infrastructure fault gets here (cab_core.attempt.engine.faults)
@@ -167,7 +170,8 @@ class CallServer:
         reason = self.ledger.exhausted_reason()
         if reason in ("sim_budget", "wall_budget"):
             return DispatchResult({"error": "budget exhausted", "reason": reason}, [], ended=True)
-        payload, obs_ids, status = self._invoke(name, kwargs, direct=False)
+        with cpu_slots.held():
+            payload, obs_ids, status = self._invoke(name, kwargs, direct=False)
         payload = strict_payload(payload)
         self.recorder.event("internal_call", tool=name, arguments=kwargs, result=payload, obs_ids=obs_ids, status=status,
                             physics_steps=self.clock.steps - steps0, physics_step_end=self.clock.steps, tick=self.ctx.tick)
