@@ -40,6 +40,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 IDLE_S = 10.0  # the server leaves after this long without a worker or a request
@@ -150,18 +151,43 @@ def fork_worker(env: dict, preload: Sequence[str], stdin: int, stdout: int, stde
 # -- the server -----------------------------------------------------------------------------------
 
 
+def _imported_by(module: object) -> set[str]:
+    """The top-level packages a module's source imports anywhere, in functions too (a plugin imports
+    its simulator, planner or client library where it first needs it)."""
+    import ast
+
+    try:
+        tree = ast.parse(Path(str(getattr(module, "__file__", "") or "")).read_text())
+    except (OSError, SyntaxError, ValueError):
+        return set()
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module.split(".")[0])
+    return out
+
+
 def _import_all(package: str) -> None:
-    """Import a package and every module below it; a module that cannot be imported is left out."""
+    """Import a package, every module below it and what their code imports (in functions too); a
+    module that cannot be imported is left out."""
     try:
         pkg = importlib.import_module(package)
     except Exception:  # noqa: BLE001 (the worker imports it again and reports the error)
         return
+    modules = [pkg]
     for info in pkgutil.walk_packages(getattr(pkg, "__path__", []), package + ".", onerror=lambda _: None):
         if info.name.rsplit(".", 1)[-1] in ("__main__", "conftest") or ".tests" in info.name:
             continue
         try:
-            importlib.import_module(info.name)
+            modules.append(importlib.import_module(info.name))
         except Exception:  # noqa: BLE001 (optional dependencies of one module)
+            continue
+    for name in sorted(set().union(*(_imported_by(m) for m in modules)) - set(sys.modules)):
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001 (an optional dependency)
             continue
 
 
