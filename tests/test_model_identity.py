@@ -71,6 +71,15 @@ def test_settings_that_are_not_the_models_identity_never_split_a_configuration(k
     assert key not in identity({key: 1, "model_id": "m"})
 
 
+def test_a_setting_that_follows_the_task_does_not_split_a_configuration():
+    per_task = [dict(_cfg("scripted", script=f"{t}.json"), task=t) for t in ("lift_pot", "click_bell")]
+    assert configuration_labels(per_task) == ["scripted (reference, mujoco)"] * 2
+    two_per_task = per_task + [dict(_cfg("scripted", script="other.json"), task="lift_pot")]
+    assert configuration_labels(two_per_task) == ["scripted[script=lift_pot.json] (reference, mujoco)",
+                                                  "scripted[script=click_bell.json] (reference, mujoco)",
+                                                  "scripted[script=other.json] (reference, mujoco)"]
+
+
 def test_model_name_names_the_configuration_whatever_its_settings():
     labels = configuration_labels([_cfg("a", model_id="x"), _cfg("b", model_id="y")])
     assert labels == ["a (reference, mujoco)", "b (reference, mujoco)"]

@@ -125,7 +125,7 @@ def label_configurations(attempts: list[Attempt]) -> None:
     """Name each attempt's configuration among ``attempts`` (:attr:`Attempt.config`): the model
     settings that differ among attempts of one model, harness and simulator name them apart."""
     configs = [{"model": a.result["model"], "harness": a.result["harness"], "sim": a.result["sim"],
-                "model_cfg": a.resolved.get("model_cfg")} for a in attempts]
+                "task": a.result["task"], "model_cfg": a.resolved.get("model_cfg")} for a in attempts]
     for a, label in zip(attempts, configuration_labels(configs)):
         a.label = label
 

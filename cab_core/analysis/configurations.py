@@ -7,8 +7,10 @@ that changes what answers are two configurations: :func:`configuration_labels` a
 that differ within a set to the label, ``qwen_local[model_id=modelA] (reference, mujoco)``, and
 leaves a configuration whose settings are the same everywhere as the paper names it. A setting that
 does not change which model answers or how (:data:`NOT_IDENTITY`: retries, timeouts, limits,
-pricing, the key's variable, the published usage) never splits a configuration; ``model.name``
-names a configuration outright (two names are two configurations whatever their settings).
+pricing, the key's variable, the published usage) never splits a configuration, and neither does
+a setting that follows the task (one value per task: a scripted agent's script for each task), as a
+configuration is what is compared across tasks; ``model.name`` names a configuration outright (two
+names are two configurations whatever their settings).
 
 One rule for every reader: cab-report and the analyses (through
 :func:`cab_core.analysis.attempts.scan`), the parquet export, cab-studio, and a sweep's plan, which
@@ -61,24 +63,29 @@ def _shown(value: Any) -> str:
 
 def configuration_labels(configs: Sequence[Mapping]) -> list[str]:
     """The label of each of ``configs`` (each a mapping with ``model``, ``harness``, ``sim`` and,
-    where known, ``model_cfg``), in order: its :func:`base_label`, and where the configurations of
-    that base label differ in identity settings (:func:`identity`), those settings in brackets after
-    the model, ``qwen_local[model_id=modelA,reasoning_effort=high] (reference, mujoco)``. A
-    configuration without ``model_cfg`` (a record written before cab kept it) keeps its base label."""
+    where known, ``model_cfg`` and ``task``), in order: its :func:`base_label`, and where the
+    configurations of that base label differ in identity settings (:func:`identity`) for one task
+    (all configurations without ``task`` count as one task), those settings in brackets after the
+    model, ``qwen_local[model_id=modelA,reasoning_effort=high] (reference, mujoco)``. A configuration
+    without ``model_cfg`` (a record written before cab kept it) keeps its base label."""
     bases = [base_label(c.get("model"), c.get("harness"), c.get("sim")) for c in configs]
     ids: list[dict[str, Any] | None] = [identity(c["model_cfg"]) if isinstance(c.get("model_cfg"), Mapping) else None
                                         for c in configs]
     varying: dict[str, list[str]] = {}
     for base in set(bases):
-        known = [i for b, i in zip(bases, ids) if b == base and i is not None]
-        keys = sorted({k for i in known for k in i})
-        varying[base] = [k for k in keys if len({_shown(i.get(k, _UNSET)) for i in known}) > 1]
+        known = [(c.get("task"), s) for c, b, s in zip(configs, bases, ids) if b == base and s is not None]
+        keys = sorted({k for _, s in known for k in s})
+        values: dict[str, dict] = {k: {} for k in keys}  # key -> task -> the values it takes for that task
+        for task, settings in known:
+            for k in keys:
+                values[k].setdefault(task, set()).add(_shown(settings.get(k, _UNSET)))
+        varying[base] = [k for k in keys if any(len(v) > 1 for v in values[k].values())]
     labels = []
     for c, base, i in zip(configs, bases, ids):
         keys = varying[base]
         if i is None or not keys:
             labels.append(base)
             continue
-        settings = ",".join(f"{k}={_shown(i.get(k, _UNSET))}" for k in keys)
-        labels.append(base_label(f"{c.get('model')}[{settings}]", c.get("harness"), c.get("sim")))
+        shown = ",".join(f"{k}={_shown(i.get(k, _UNSET))}" for k in keys)
+        labels.append(base_label(f"{c.get('model')}[{shown}]", c.get("harness"), c.get("sim")))
     return labels

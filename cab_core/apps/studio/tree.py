@@ -118,7 +118,7 @@ def attempt_state(d: Path, rel: str, now: float) -> AttemptState:
             return AttemptState(rel, "infra", None, config, str(r.get("task", "")), mtime, why=why)
         success = (r.get("verdict") or {}).get("success")
         c = _start(d).get("config")
-        identity = {"model": r.get("model"), "harness": r.get("harness"), "sim": r.get("sim"),
+        identity = {"model": r.get("model"), "harness": r.get("harness"), "sim": r.get("sim"), "task": r.get("task"),
                     "model_cfg": c.get("model_cfg") if isinstance(c, dict) else None}
         return AttemptState(rel, "done", bool(success), config, str(r.get("task", "")), mtime, identity=identity)
     ev = d / "events.jsonl"
@@ -131,7 +131,7 @@ def attempt_state(d: Path, rel: str, now: float) -> AttemptState:
     c = start.get("config")
     if isinstance(c, dict):
         config, task = f"{c.get('model', '?')} ({c.get('harness', '?')}, {c.get('sim', '?')})", str(start.get("task", ""))
-        identity = {k: c.get(k) for k in ("model", "harness", "sim", "model_cfg")}
+        identity = {k: c.get(k) for k in ("model", "harness", "sim", "task", "model_cfg")}
     return AttemptState(rel, "running", None, config, task, mtime, stale=now - mtime > STALE_S, identity=identity)
 
 
