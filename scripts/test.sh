@@ -12,8 +12,10 @@ ruff check --quiet .
 mypy --no-error-summary
 set +e
 # --cab-conformance: the conformance suites of cab_core.testing (its pytest plugin) over every installed
-# simulator and task, as a plugin author runs them on theirs
-python -m pytest -q -p no:cacheprovider --cab-conformance=all "$@"
+# simulator and task, as a plugin author runs them on theirs.
+# pytest-xdist: one worker per CPU (CAB_TEST_WORKERS=N chooses; 0 runs the tests in this process); a worker
+# takes a test file at a time, or one conformance check (tests/conftest.py)
+python -m pytest -q -p no:cacheprovider --cab-conformance=all -n "${CAB_TEST_WORKERS:-$(nproc)}" --dist loadfile "$@"
 rc=$?
 set -e
 if [ "$rc" -eq 5 ]; then

@@ -25,11 +25,14 @@ def installed(tmp_path_factory) -> dict:
     """The example built and installed into a folder of its own (no edit of this environment):
     the environment for commands that see it, through its dist-info's entry points."""
     site = tmp_path_factory.mktemp("site")
+    # built from a copy: setuptools writes its build folder beside the sources, and the source tree is
+    # read by other tests at the same time (pytest-xdist workers)
+    src = tmp_path_factory.mktemp("src") / EXAMPLE.name
+    shutil.copytree(EXAMPLE, src, ignore=shutil.ignore_patterns("build", "*.egg-info"))
     r = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps",
-                        "--target", str(site), str(EXAMPLE)], capture_output=True, text=True, timeout=600)
+                        "--target", str(site), str(src)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert list(site.glob("cab_example_block_on_pad-*.dist-info"))
-    shutil.rmtree(EXAMPLE / "build", ignore_errors=True)  # setuptools' build folder in the source tree
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")])))
     return env
 
