@@ -363,14 +363,15 @@ def _plan_or_preflight(config, multirun: bool) -> None:
     from cab_core.apps import plan  # here, not at the top: it imports the sweep manifest (0.55 s: see _sweep_job)
 
     try:
+        sweep = _sweep_jobs(config) if multirun else None
         if OmegaConf.select(config, "sweep.dry_run", default=False):
-            lines, problems = plan.run_plan(config, multirun)
+            lines, problems = plan.run_plan(config, sweep)
             print("\n".join(lines), flush=True)
             if problems:
                 print(f"cab: {len(problems)} problem(s): a configuration cannot run (listed above)", file=sys.stderr)
             sys.exit(2 if problems else 0)
         network = bool(OmegaConf.select(config, "sweep.preflight_network", default=True))
-        confs = plan.configurations(config, multirun)
+        confs = plan.configurations(config, sweep)
         problems = plan.preflight(confs, network)
     except CabError as e:  # a configuration that cannot be composed or checked: Hydra would only warn
         _refuse(str(e))
@@ -382,6 +383,27 @@ def _plan_or_preflight(config, multirun: bool) -> None:
         problems = [p for c in confs for p in c.check.problems]
     print("\n".join(f"cab: {'refused: ' if multirun else ''}{p}" for p in problems), file=sys.stderr)
     sys.exit(2)
+
+
+def _sweep_jobs(config):
+    """The plan's view of a sweep (cab_core.apps.plan.SweepJobs): its jobs, those still to run (a
+    sweep folder being resumed), and why that folder would refuse this sweep."""
+    from pathlib import Path
+
+    from cab_core.apps.plan import SweepJobs
+    from cab_core.sweep.manifest import MANIFEST, SweepManifest, completed_results  # 0.55 s: see _sweep_job
+
+    manifest = SweepManifest.from_hydra(config)
+    sweep_dir = Path(str(config.hydra.sweep.dir))
+    try:
+        old = json.loads((sweep_dir / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return SweepJobs(manifest.jobs, [1] * len(manifest.jobs))
+    done = {str(p.parent.relative_to(sweep_dir)) for p in completed_results(sweep_dir)}
+    changed = isinstance(old, dict) and old.get("fingerprint") != manifest.fingerprint
+    return SweepJobs(manifest.jobs, [0 if f in done else 1 for f in manifest.folders],
+                     f"{sweep_dir} holds a sweep with another configuration: running this command there would be "
+                     "refused; resume it with its own overrides, or choose a new hydra.sweep.dir" if changed else None)
 
 
 def _remove_refused_run_folder(out: str) -> None:

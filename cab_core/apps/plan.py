@@ -2,7 +2,7 @@
 configurations before the first attempt.
 
 Both start from the configuration Hydra composed for the command (a single run's, or a sweep's with
-its jobs: :func:`cab_core.sweep.manifest.expand_jobs`), compose each distinct choice of model,
+its jobs: :class:`SweepJobs`), compose each distinct choice of model,
 harness and simulator once (not once per job: 675 jobs of ``experiment=paper`` are 9 compositions),
 and group the jobs into configurations named as reports name them
 (:func:`cab_core.analysis.configurations.configuration_labels`). Each configuration's harness is asked
@@ -30,7 +30,6 @@ from cab_core.errors import CabError
 from cab_core.kits.harness.pricing import Usage, cost
 from cab_core.plugins import create
 from cab_core.sweep.attempt_state import SET_ASIDE, is_infrastructure_failure
-from cab_core.sweep.manifest import MANIFEST, SweepManifest, completed_results, expand_jobs
 
 RECORD_ROOTS = ("outputs", "multirun")  # below the working directory: where earlier attempts are looked for
 _COMPOSED = ("model", "harness", "sim")  # the groups that make a configuration (and what fixes them)
@@ -81,18 +80,28 @@ def _describe(c: dict) -> tuple[dict, str, dict, str]:
         str((c.get("sim") or {}).get("name"))
 
 
-def configurations(config: Any, multirun: bool) -> list[Configuration]:
+@dataclass
+class SweepJobs:
+    """A sweep's jobs as its manifest sees them (the caller reads them with
+    :mod:`cab_core.sweep.manifest`, which this module does not import: it would put the plan a level
+    above the manifest, and ``cab`` a level above both): each job's overrides, 1 for a job still to run
+    (0: complete in the sweep folder being resumed), and why the sweep folder would refuse this sweep."""
+    jobs: list[list[str]]
+    todo: list[int]
+    folder_problem: str | None = None
+
+
+def configurations(config: Any, sweep: SweepJobs | None) -> list[Configuration]:
     """The configurations of the command Hydra composed ``config`` for, each with its jobs counted
     (and those still to run, for a sweep being resumed)."""
-    if not multirun:
+    if sweep is None:
         model, harness, hcfg, sim = _describe({k: _plain(config[k]) for k in _COMPOSED if k in config})
         labels = configuration_labels([{"model": model.get("name"), "harness": harness, "sim": sim, "model_cfg": model}])
         return [Configuration(labels[0], model, harness, hcfg, jobs=1, todo=1)]
     from hydra.core.global_hydra import GlobalHydra
     from hydra.types import RunMode
 
-    jobs = expand_jobs(config)
-    todo = _todo(config, jobs)
+    jobs, todo = sweep.jobs, sweep.todo
     given = [str(o) for o in _plain(config.hydra.overrides.task)]
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
@@ -121,16 +130,6 @@ def configurations(config: Any, multirun: bool) -> list[Configuration]:
         conf.jobs += 1
         conf.todo += left
     return list(out.values())
-
-
-def _todo(config: Any, jobs: list[list[str]]) -> list[int]:
-    """1 for each job still to run, 0 for one complete in the sweep folder being resumed."""
-    sweep_dir = Path(str(config.hydra.sweep.dir))
-    if not (sweep_dir / MANIFEST).is_file():
-        return [1] * len(jobs)
-    folders = SweepManifest.from_hydra(config).folders
-    done = {str(p.parent.relative_to(sweep_dir)) for p in completed_results(sweep_dir)}
-    return [0 if f in done else 1 for f in folders]
 
 
 def check(conf: Configuration, network: bool) -> ModelCheck:
@@ -322,27 +321,15 @@ def plan_lines(confs: list[Configuration], slots: int, network: bool) -> list[st
     return lines
 
 
-def folder_problem(config: Any) -> str | None:
-    """A sweep folder that holds another sweep (its manifest's fingerprint differs): the run would
-    be refused there (:meth:`cab_core.sweep.manifest.SweepManifest.open`)."""
-    sweep_dir = Path(str(config.hydra.sweep.dir))
-    try:
-        old = json.loads((sweep_dir / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return None
-    if isinstance(old, dict) and old.get("fingerprint") != SweepManifest.from_hydra(config).fingerprint:
-        return (f"{sweep_dir} holds a sweep with another configuration: running this command there would be "
-                "refused; resume it with its own overrides, or choose a new hydra.sweep.dir")
-    return None
-
-
-def run_plan(config: Any, multirun: bool) -> tuple[list[str], list[str]]:
-    """(the plan's lines, the problems' lines) of the command ``config`` was composed for."""
-    sweep = _plain(config.get("sweep")) or {}
-    network = bool(sweep.get("preflight_network", True))
-    confs = configurations(config, multirun)
+def run_plan(config: Any, sweep: SweepJobs | None) -> tuple[list[str], list[str]]:
+    """(the plan's lines, the problems' lines) of the command ``config`` was composed for (``sweep``:
+    its jobs, None for a single run)."""
+    settings = _plain(config.get("sweep")) or {}
+    network = bool(settings.get("preflight_network", True))
+    multirun = sweep is not None
+    confs = configurations(config, sweep)
     problems = preflight(confs, network)
-    folder = folder_problem(config) if multirun else None
+    folder = sweep.folder_problem if sweep is not None else None
     if folder is not None:
         problems.append(folder)
     attach_records(confs, record_dirs(config, multirun))
