@@ -15,10 +15,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cab_core.attempt.engine.faults import INFRASTRUCTURE_TERMINATIONS, UNSCORED_TERMINATIONS
 from cab_core.attempt.records.result_format import (
     INFRA_REASON,
+    INFRASTRUCTURE_TERMINATIONS,
     RECORD_VERSION,
+    UNSCORED_TERMINATIONS,
     AttemptRecord,
     Infrastructure,
     MalformedRecord,
