@@ -108,9 +108,9 @@ def test_unknown_key_in_a_sweep(tmp_path):
     (["sweep.max_retries=1"], "unknown key 'sweep.max_retries'; did you mean sweep.max_infra_retries? valid keys under "
                               f"sweep: {SWEEP_KEYS}"),
     (["sim=mujoco", "+sim.physic.impratio=2"], "unknown key 'sim.physic.impratio'; did you mean sim.physics? valid keys "
-                                               "under sim (sim=mujoco): name, render, physics"),
+                                               "under sim (sim=mujoco): name, render, physics, slot_memory_mb"),
     (["sim=sapien", "+sim.physics.impratio=2"], "unknown key 'sim.physics.impratio'; valid keys under sim (sim=sapien): "
-                                                "name, render, brdf_cache"),
+                                                "name, render, brdf_cache, slot_memory_mb"),
     (["harness=mcp", "harness.transprt=http"], "unknown key 'harness.transprt'; did you mean harness.transport? valid "
      f"keys under harness (harness=mcp): {', '.join(option_keys('harness/mcp'))}"),
     (["harness.transport=http"], "unknown key 'harness.transport'; valid keys under harness (harness=auto): name"),
@@ -127,7 +127,7 @@ def test_unknown_keys_under_each_section(overrides, line):
 def test_a_sweep_checks_keys_against_every_selected_option():
     line = command_line_refusal(["-m", "sim=pybullet,mujoco", "+sim.renderer=tiny"])
     assert line == ("unknown key 'sim.renderer'; did you mean sim.render? valid keys under sim (sim=mujoco): "
-                    "name, render, physics")
+                    "name, render, physics, slot_memory_mb")
 
 
 @pytest.mark.parametrize("overrides", [
