@@ -73,7 +73,7 @@ def _retry_after(exc: BaseException) -> float | None:
 def _err(kind: str, msg: str, status: int | None, retryable: bool,
          exc: BaseException | None = None) -> ProviderError:
     e = ProviderError(kind, msg[:500], status=status, retryable=retryable)
-    e.retry_after = _retry_after(exc) if exc is not None else None  # type: ignore[attr-defined]
+    e.retry_after_s = _retry_after(exc) if exc is not None else None
     return e
 
 
