@@ -272,7 +272,7 @@ def test_the_benchmark_runs_attempts_in_flight_against_the_fake_model(tmp_path):
     assert {1, 8, 32, 64} <= set(projection) and sum(p["default"] for p in projection.values()) == 1
     assert projection[1]["hours_paper_mean"] == pytest.approx(675 * 23.3 / 60, rel=0.01)  # length, not CPU, binds
     assert projection[64]["hours_astra_median"] < projection[8]["hours_astra_median"]
-    assert "| 64 |" in r.stdout or "| 64 (default here) |" in r.stdout and "23.3 min" in r.stdout
+    assert ("| 64 |" in r.stdout or "| 64 (default here) |" in r.stdout) and "23.3 min" in r.stdout
 
 
 def test_a_program_and_its_robot_calls_run_under_a_one_slot_pool(tmp_path):
