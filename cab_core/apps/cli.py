@@ -391,14 +391,20 @@ def _sweep_jobs(config):
     from pathlib import Path
 
     from cab_core.apps.plan import SweepJobs
-    from cab_core.sweep.manifest import MANIFEST, SweepManifest, completed_results  # 0.55 s: see _sweep_job
+    from cab_core.sweep.manifest import (  # 0.55 s: see _sweep_job
+        MANIFEST,
+        SweepManifest,
+        completed_results,
+        expand_jobs,
+    )
 
-    manifest = SweepManifest.from_hydra(config)
     sweep_dir = Path(str(config.hydra.sweep.dir))
     try:
         old = json.loads((sweep_dir / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return SweepJobs(manifest.jobs, [1] * len(manifest.jobs))
+    except (OSError, ValueError):  # a new sweep: every job is to run, and no folder needs naming (the
+        jobs = expand_jobs(config)  # manifest's folders cost one composition per swept task and model)
+        return SweepJobs(jobs, [1] * len(jobs))
+    manifest = SweepManifest.from_hydra(config)
     done = {str(p.parent.relative_to(sweep_dir)) for p in completed_results(sweep_dir)}
     changed = isinstance(old, dict) and old.get("fingerprint") != manifest.fingerprint
     return SweepJobs(manifest.jobs, [0 if f in done else 1 for f in manifest.folders],

@@ -4,17 +4,18 @@ The MCP SDK is imported only when a harness is created, so listing plugins stays
 missing SDK fails with the install command."""
 from __future__ import annotations
 
+import importlib.util
+
 from cab_core.contracts.hookspecs import hookimpl
 from cab_core.contracts.plugin_helpers import config_dirs_hook
 from cab_core.errors import MissingDependency
 
 
 def _require_sdk() -> None:
-    try:
-        import mcp  # noqa: F401
-        import uvicorn  # noqa: F401
-    except ImportError as e:  # pragma: no cover - depends on the environment
-        raise MissingDependency("the MCP Python SDK", "pip install 'mcp>=2.3,<3' uvicorn") from e
+    """The SDK is found, not imported: a sweep's plan creates each harness to check its models, and
+    importing the MCP SDK costs seconds (the harness's own modules import it when it runs)."""
+    if any(importlib.util.find_spec(name) is None for name in ("mcp", "uvicorn")):  # pragma: no cover
+        raise MissingDependency("the MCP Python SDK", "pip install 'mcp>=2.3,<3' uvicorn")
 
 
 def create_mcp(cfg: dict | None = None):
