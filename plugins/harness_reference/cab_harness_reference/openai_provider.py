@@ -27,7 +27,7 @@ from typing import Any
 
 from cab_core.errors import ConfigError, MissingDependency
 
-from .retry import RetryPolicy, call_with_retries
+from .retry import RetryPolicy, call_with_retries, retry_after_s
 from .types import (
     Capabilities,
     Image,
@@ -53,27 +53,10 @@ _CONTEXT_MARKERS = ("context_length_exceeded", "context length", "context window
                     "input is too long", "reduce the length")
 
 
-def _retry_after(exc: BaseException) -> float | None:
-    resp = getattr(exc, "response", None)
-    headers = getattr(resp, "headers", None)
-    if not headers:
-        return None
-    for h in ("retry-after-ms", "retry-after"):
-        v = headers.get(h)
-        if v is None:
-            continue
-        try:
-            s = float(v)
-        except (TypeError, ValueError):
-            continue
-        return s / 1000.0 if h == "retry-after-ms" else s
-    return None
-
-
 def _err(kind: str, msg: str, status: int | None, retryable: bool,
          exc: BaseException | None = None) -> ProviderError:
     e = ProviderError(kind, msg[:500], status=status, retryable=retryable)
-    e.retry_after_s = _retry_after(exc) if exc is not None else None
+    e.retry_after_s = retry_after_s(exc)
     return e
 
 
