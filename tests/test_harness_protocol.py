@@ -40,9 +40,9 @@ def test_the_protocol_names_what_the_harnesses_use():
     assert set(members(AttemptSession)) == {
         "spec", "out", "ended", "termination", "result", "agent", "ledger", "recorder", "task", "world",
         "fork", "instruction", "tool_specs", "call", "image", "end", "finish"}
-    assert set(members(SessionLedger)) == {"tool_calls", "remaining", "exhausted_reason", "credit_wall"}
+    assert set(members(SessionLedger)) == {"tool_calls", "remaining", "exhausted_reason", "credit_wall", "charge_cost"}
     assert set(members(EventLog)) == {"event"} and set(members(CallLimit)) == {"limit"}
-    assert set(members(Harness)) == {"run"} and set(members(HarnessHooks)) == {"preflight", "before_build", "close"}
+    assert set(members(Harness)) == {"run"} and set(members(HarnessHooks)) == {"preflight", "check_model", "before_build", "close"}
     for proto in (AttemptSession, SessionLedger, EventLog, Harness, HarnessHooks, ModelFreeAgent):
         for name, v in members(proto).items():  # every member documented
             if v is not None:

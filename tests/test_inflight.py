@@ -75,12 +75,12 @@ def test_a_sweep_of_model_free_agents_keeps_one_per_core_and_one_with_a_model_fi
 
     def root(models: str, sims: str = "mujoco") -> object:
         return OmegaConf.create({"sweep": {"in_flight_cap": 128, "memory_reserve_mb": 2048},
-                                 "model": {"name": "x", "agent": None}, "sim": {"name": "mujoco", "slot_memory_mb": 280},
+                                 "model": {"name": "x", "agent": None}, "sim": {"name": "mujoco", "slot_memory_mb": 200},
                                  "hydra": {"overrides": {"task": [f"model={models}", f"sim={sims}"]}}})
     assert resolver(None, _root_=root("idle,oracle")) == 2
-    assert resolver(None, _root_=root("idle,qwen_local")) == 6
+    assert resolver(None, _root_=root("idle,qwen_local")) == 6 * 280 // 200
     # the largest slot of the simulators swept; one without a figure counts DEFAULT_SLOT_MEMORY_MB
-    assert resolver(None, _root_=root("qwen_local", "mujoco,sapien")) == 6 * 280 // 400
+    assert resolver(None, _root_=root("qwen_local", "mujoco,sapien")) == 6  # sapien.yaml: slot_memory_mb 280
     assert resolver(None, _root_=root("qwen_local", "mujoco,pybullet")) == 6 * 280 // DEFAULT_SLOT_MEMORY_MB
 
 

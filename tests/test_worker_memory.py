@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import weakref
 from pathlib import Path
 
 import pytest
@@ -143,18 +144,21 @@ def test_nothing_of_an_attempt_lives_on_in_a_warm_worker(tmp_path):
     from cab_core.attempt.engine.episode import Episode
     from cab_core.attempt.engine.world import BuiltWorld
 
+    def worlds() -> list:
+        return [o for o in gc.get_objects() if isinstance(o, (Episode, BuiltWorld))]
+
     cfg = composed("sim=mujoco", "task=click_bell", "model=oracle")  # with video: its writer is in the cycle
     enabled = gc.isenabled()
     gc.collect()
+    before = {id(o) for o in worlds()}  # what other tests of this process still hold is not this attempt's
     gc.disable()  # no collection by chance: what the worker frees, it frees itself
     try:
         assert worker.run({"config": cfg, "output_dir": str(tmp_path / "a")}) == 0
         assert json.loads((tmp_path / "a" / "result.json").read_text())["verdict"]["success"] is True
-        held = [o for o in gc.get_objects() if isinstance(o, (Episode, BuiltWorld))]
+        held = [weakref.ref(o) for o in worlds() if id(o) not in before]
         assert held, "the attempt left no cycle: this test no longer sees what it guards against"
-        del held
         worker.release()
-        assert [o for o in gc.get_objects() if isinstance(o, (Episode, BuiltWorld))] == []
+        assert [r() for r in held if r() is not None] == []
     finally:
         if enabled:
             gc.enable()

@@ -87,7 +87,7 @@ class Attempt:
     def config(self) -> str:
         """The configuration this attempt belongs to, as in the paper: model, harness, simulator,
         and the model settings that differ among the attempts read with it
-        (:mod:`cab_core.analysis.configurations`: ``qwen_local[model_id=modelA] (reference, mujoco)``).
+        (:mod:`cab_core.analysis.configurations`: ``my_model[model_id=modelA] (my_harness, my_sim)``).
         An attempt served over MCP has the name given when it was served, else ``mcp:<client>``
         (records written before clients were recorded: ``mcp_client``)."""
         r = self.result

@@ -4,7 +4,7 @@ differ among the attempts (or planned jobs) being reported together.
 The paper names a configuration ``model (harness, sim)``. Two attempts of the same model
 configuration with another ``model.model_id``, ``base_url``, reasoning effort or any other setting
 that changes what answers are two configurations: :func:`configuration_labels` adds the settings
-that differ within a set to the label, ``qwen_local[model_id=modelA] (reference, mujoco)``, and
+that differ within a set to the label, ``my_model[model_id=modelA] (my_harness, my_sim)``, and
 leaves a configuration whose settings are the same everywhere as the paper names it. A setting that
 does not change which model answers or how (:data:`NOT_IDENTITY`: retries, timeouts, limits,
 pricing, the key's variable, the published usage) never splits a configuration, and neither does
@@ -66,7 +66,7 @@ def configuration_labels(configs: Sequence[Mapping]) -> list[str]:
     where known, ``model_cfg`` and ``task``), in order: its :func:`base_label`, and where the
     configurations of that base label differ in identity settings (:func:`identity`) for one task
     (all configurations without ``task`` count as one task), those settings in brackets after the
-    model, ``qwen_local[model_id=modelA,reasoning_effort=high] (reference, mujoco)``. A configuration
+    model, ``my_model[model_id=modelA,reasoning_effort=high] (my_harness, my_sim)``. A configuration
     without ``model_cfg`` (a record written before cab kept it) keeps its base label."""
     bases = [base_label(c.get("model"), c.get("harness"), c.get("sim")) for c in configs]
     ids: list[dict[str, Any] | None] = [identity(c["model_cfg"]) if isinstance(c.get("model_cfg"), Mapping) else None

@@ -46,7 +46,7 @@ class ModelCheck:
     """What a harness found out about a model configuration before any attempt runs
     (:meth:`HarnessHooks.check_model`): the plan of a sweep prints it, the pre-flight refuses a
     configuration with ``problems``. ``None`` in a field: not known or does not apply."""
-    #: the model provider (``anthropic``, ``openai_compatible``...) and the endpoint it talks to
+    #: the model provider (the name of a ``cab_model_providers`` entry) and the endpoint it talks to
     provider: str | None = None
     endpoint: str | None = None
     #: the environment variable of the credential, and whether it is set (None: no key needed)

@@ -3,7 +3,7 @@
 Each slot of a sweep (a joblib worker, or a thread of ``cab-suite-check``) keeps a warm worker
 (``cab_core.sweep.worker``). Started as fresh interpreters, N workers each import the engine, the
 simulator and the model's client library and hold N private copies of them (about 130 MiB each with
-MuJoCo and the reference harness). Forked from one process that has imported them (this module's
+a physics engine and a provider's SDK). Forked from one process that has imported them (this module's
 server, one per sweep), they share those pages: a page is copied only when a worker writes it, and the
 server freezes its objects out of the garbage collector's reach (``gc.freeze``) so that collections in a
 worker do not write to them.

@@ -39,6 +39,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cab_core.contracts.harness import ModelCheck
 from cab_core.errors import AttemptEnded, ConfigError
 from cab_core.kits.harness import prompts, stdio
 from cab_core.kits.harness.agent_info import AgentRecord, ClientInfo
@@ -163,6 +164,11 @@ class McpHarness:
         """Claim stdout for the protocol before anything (a simulator, a renderer) can print."""
         if self.settings.transport == "stdio" and self._stdio is None:
             self._stdio = stdio.claim()
+
+    def check_model(self, model_cfg: dict, network: bool = True) -> ModelCheck:
+        """Nothing to check before a sweep: the agent is whichever MCP client connects, with its own
+        credentials (the vendor launchers check their CLI and key)."""
+        return ModelCheck()
 
     # -- hooks for the vendor launchers ---------------------------------------------------------
     def on_serving(self, episode: AttemptSession, transport: ServerThread) -> None:
