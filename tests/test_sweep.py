@@ -230,9 +230,13 @@ def attempt_in_flight(root: int) -> tuple[Path, int] | None:
 def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     sweep = tmp_path / "sw"
+    # sweep.fork_workers=false: the attempt's process is then a child of the Ray worker supervising it, which
+    # is how attempt_in_flight finds that worker (a forked worker is the fork server's child, and dies with
+    # its supervisor through a pidfd: test_worker_memory.py)
     proc = subprocess.Popen([CAB, "-m", "hydra/launcher=ray_local", "hydra.launcher.ray.init.num_cpus=2",
                              "task=beat_block_hammer", "model=scripted", f"model.script={busy_script(tmp_path)}",
-                             "attempt=1,2,3", "record.video=false", f"hydra.sweep.dir={sweep}"], cwd=tmp_path, stdout=subprocess.PIPE,
+                             "attempt=1,2,3", "record.video=false", "sweep.fork_workers=false",
+                             f"hydra.sweep.dir={sweep}"], cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline, hit = time.monotonic() + 300, None
