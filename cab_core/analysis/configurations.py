@@ -10,7 +10,9 @@ does not change which model answers or how (:data:`NOT_IDENTITY`: retries, timeo
 pricing, the key's variable, the published usage) never splits a configuration, and neither does
 a setting that follows the task (one value per task: a scripted agent's script for each task), as a
 configuration is what is compared across tasks; ``model.name`` names a configuration outright (two
-names are two configurations whatever their settings).
+names are two configurations whatever their settings). Where the name must be a folder name and the
+model's own name is not one (an Inspect model string ``openai/gpt-4o``), ``model.label`` is what the
+label shows in its place.
 
 One rule for every reader: cab-report and the analyses (through
 :func:`cab_core.analysis.attempts.scan`), the parquet export, cab-studio, and a sweep's plan, which
@@ -26,7 +28,7 @@ from typing import Any
 
 #: model settings that are not the model's identity: how it is called, paid for or limited
 NOT_IDENTITY = frozenset({"name", "retry", "timeout_s", "connect_timeout_s", "limits", "pricing", "api_key_env",
-                          "key_env", "paper_usage", "session"})
+                          "key_env", "paper_usage", "session", "label"})
 
 _UNSET = object()
 
@@ -61,13 +63,22 @@ def _shown(value: Any) -> str:
     return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
 
 
+def _labelled(config: Mapping) -> Mapping:
+    """``config`` named by its ``model_cfg``'s ``label`` where it has one (a string), else as it is."""
+    cfg = config.get("model_cfg")
+    label = cfg.get("label") if isinstance(cfg, Mapping) else None
+    return {**config, "model": label} if isinstance(label, str) and label else config
+
+
 def configuration_labels(configs: Sequence[Mapping]) -> list[str]:
     """The label of each of ``configs`` (each a mapping with ``model``, ``harness``, ``sim`` and,
     where known, ``model_cfg`` and ``task``), in order: its :func:`base_label`, and where the
     configurations of that base label differ in identity settings (:func:`identity`) for one task
     (all configurations without ``task`` count as one task), those settings in brackets after the
-    model, ``my_model[model_id=modelA,reasoning_effort=high] (my_harness, my_sim)``. A configuration
+    model, ``my_model[model_id=modelA,reasoning_effort=high] (my_harness, my_sim)``. The model is
+    named by ``model_cfg["label"]`` where there is one, else by ``model``. A configuration
     without ``model_cfg`` (a record written before cab kept it) keeps its base label."""
+    configs = [_labelled(c) for c in configs]
     bases = [base_label(c.get("model"), c.get("harness"), c.get("sim")) for c in configs]
     ids: list[dict[str, Any] | None] = [identity(c["model_cfg"]) if isinstance(c.get("model_cfg"), Mapping) else None
                                         for c in configs]

@@ -42,7 +42,7 @@ def _provider_name(model_cfg: dict) -> str:
     name = model_cfg.get("provider")
     if not name:
         raise ConfigError(f"model {model_cfg.get('name')!r}: the reference harness needs model.provider "
-                          "(anthropic, openai, google, openai_compatible)")
+                          "(anthropic, openai, google, openai_compatible, inspect)")
     return str(name)
 
 
@@ -164,6 +164,7 @@ class ReferenceHarness:
         self.cfg = dict(cfg or {})
         self.provider = provider
         self.policy = policy
+        self._owns_provider = False  # preflight built the provider (closed after the attempt)
 
     # -- before the simulator starts ----------------------------------------------------------
     def preflight(self, model_cfg: dict) -> None:
@@ -172,6 +173,7 @@ class ReferenceHarness:
         LimitSettings.from_cfg(model_cfg.get("limits"))  # a bad model.limits value: one line, before anything runs
         if self.provider is None:
             self.provider = create_provider(model_cfg)
+            self._owns_provider = True
         self.provider.check_credentials()
 
     def before_build(self, spec) -> None:
@@ -212,6 +214,15 @@ class ReferenceHarness:
 
     # -- the loop -----------------------------------------------------------------------------
     def run(self, episode: AttemptSession, model_cfg: dict) -> None:
+        try:
+            self._run(episode, model_cfg)
+        finally:
+            # a provider built here (not injected): its clients and event loops end with the attempt
+            close = getattr(self.provider, "close", None) if self._owns_provider else None
+            if callable(close):
+                close()
+
+    def _run(self, episode: AttemptSession, model_cfg: dict) -> None:
         if self.provider is None:
             self.preflight(model_cfg)
         provider = self.provider

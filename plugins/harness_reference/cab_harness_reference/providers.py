@@ -12,6 +12,8 @@ _PROVIDER_MODULES = {
     "openai": ("openai_provider", "openai", "cab-harness-reference[openai]"),
     "google": ("google_provider", "google.genai", "cab-harness-reference[google]"),
     "openai_compatible": ("openai_compatible_provider", "openai", "cab-harness-reference[openai]"),
+    # any model Inspect AI can call, by its model string (.inspect_provider)
+    "inspect": ("inspect_provider", "inspect_ai", "cab-harness-reference[inspect]"),
 }
 
 #: the keys of a model configuration each provider reads (``config_keys`` of its factory: cab refuses
@@ -27,6 +29,10 @@ CONFIG_KEYS: dict[str, frozenset[str]] = {
     # probe*: the capability probe of an OpenAI-compatible endpoint (.probe)
     "openai_compatible": frozenset(_OPENAI | {"max_tokens_param", "replay_reasoning", "cache_control",
                                               "probe", "probe_timeout_s", "probe_needle_tokens"}),
+    # model_args: Inspect's -M model arguments; generate_config: further GenerateConfig fields;
+    # label: how reports name the configuration (the Inspect model string, which is no folder name)
+    "inspect": frozenset({"model_id", "base_url", "api_key_env", "timeout_s", "retry", "max_output_tokens",
+                          "reasoning_effort", "model_args", "generate_config", "images_in_tool_results", "label"}),
 }
 
 
