@@ -18,6 +18,14 @@ the server imports, forks, and tells the requester the worker's process id, late
 No renderer, physics world or thread exists in the server when it forks: plugins create them when an
 attempt runs. The server leaves when it has had no worker for ``IDLE_S`` seconds.
 
+Importing is not all a worker would otherwise do privately: loading a shared library (a GL or Vulkan
+driver and the compiler it links: relocations written into tens of MiB of pages), reading a file
+into memory, building a table. A plugin package may hand that to the server with the optional hook
+:data:`HOOK`, a function of its top-level module called with no argument once in the server, after
+its imports and before the first fork (``docs/plugins.md``). It must start no thread, open no
+device and create no context (the server refuses to fork once a second thread runs); a hook that
+raises is skipped, and every worker of that package tells why on its standard error (its log).
+
 A worker forked here is not its supervisor's child: it leads its own session (the supervisor's
 ``kill_group`` kills it and what it started), and it dies with its supervisor by watching the
 supervisor's process (a pidfd), as a spawned worker does with ``PR_SET_PDEATHSIG``. Where anything of
@@ -46,6 +54,7 @@ from typing import Any
 IDLE_S = 10.0  # the server leaves after this long without a worker or a request
 START_TIMEOUT_S = 120.0  # a request's wait for the server (its start and imports, under load)
 WORKER_MODULE = "cab_core.sweep.worker"
+HOOK = "cab_preload"  # a plugin package's optional preparation of what its forked workers share
 _BASE = ("cab_core.attempt.runner", WORKER_MODULE)  # what every worker imports
 
 
@@ -169,6 +178,20 @@ def _imported_by(module: object) -> set[str]:
     return out
 
 
+def _preload(package: str) -> str | None:
+    """Import ``package`` as :func:`_import_all` does, then call its :data:`HOOK` if it has one.
+    Returns what went wrong with the hook (one line), None when nothing did or there is none."""
+    _import_all(package)
+    hook = getattr(sys.modules.get(package), HOOK, None)
+    if hook is None:
+        return None
+    try:
+        hook()
+    except Exception as e:  # noqa: BLE001 (a failed preparation costs memory, never the worker)
+        return f"cab fork server: {package}.{HOOK}() failed and was skipped: {type(e).__name__}: {e}"
+    return None
+
+
 def _import_all(package: str) -> None:
     """Import a package, every module below it and what their code imports (in functions too); a
     module that cannot be imported is left out."""
@@ -205,8 +228,9 @@ def _watch_supervisor(pid: int) -> None:
     threading.Thread(target=watch, name="supervisor-watch", daemon=True).start()
 
 
-def _child(req: dict, fds: list[int], keep: list[int]) -> None:
-    """In the forked worker: become the worker the request asked for; never returns."""
+def _child(req: dict, fds: list[int], keep: list[int], notes: Sequence[str] = ()) -> None:
+    """In the forked worker: become the worker the request asked for (``notes``: lines for its
+    standard error first); never returns."""
     code = 1
     try:
         for fd in keep:
@@ -215,6 +239,8 @@ def _child(req: dict, fds: list[int], keep: list[int]) -> None:
         for target, fd in enumerate(fds):
             os.dup2(fd, target)
             os.close(fd)
+        for line in notes:
+            print(line, file=sys.stderr, flush=True)
         signal.set_wakeup_fd(-1)
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
         os.environ.clear()
@@ -251,7 +277,7 @@ def serve(name: str) -> int:
     signal.set_wakeup_fd(wake_w)
     signal.signal(signal.SIGCHLD, lambda *_: None)
     children: dict[int, socket.socket] = {}
-    loaded: set[str] = set()
+    loaded: dict[str, str | None] = {}  # package -> what went wrong with its hook
     while True:
         waiting: list[Any] = [listener, wake_r]
         ready, _, _ = select.select(waiting, [], [], None if children else IDLE_S)
@@ -293,8 +319,8 @@ def serve(name: str) -> int:
             continue
         for package in req.get("preload", []):
             if package not in loaded:
-                _import_all(package)
-                loaded.add(package)
+                loaded[package] = _preload(package)
+        notes = [n for p in req.get("preload", []) if (n := loaded.get(p))]
         if len(os.listdir("/proc/self/task")) > 1:  # an import started a thread: a fork would inherit its locks
             for fd in fds:
                 os.close(fd)
@@ -309,7 +335,7 @@ def serve(name: str) -> int:
         pid = os.fork()
         if pid == 0:
             _child(req, fds, [listener.fileno(), wake_r, wake_w, conn.fileno(),
-                              *(c.fileno() for c in children.values())])
+                              *(c.fileno() for c in children.values())], notes)
         for fd in fds:
             os.close(fd)
         try:

@@ -30,7 +30,12 @@ from cab_core.errors import ConfigError
 class VideoWriter:
     """H.264 MP4 through imageio-ffmpeg, frames pushed as they are rendered. The frames go to
     ``<stem>.partial.mp4`` until :meth:`close`, which renames it to ``path``: a video file under its
-    own name is always complete (a process that dies while rendering leaves only the partial one)."""
+    own name is always complete (a process that dies while rendering leaves only the partial one).
+
+    The encoder (an ``ffmpeg`` process, about 16 MiB) starts with the first frame, not when the
+    writer is made: an attempt whose frames are rendered after it (from state samples) does not keep
+    one running while it waits on its model. A writer closed without a frame starts it then, so the
+    file is what an encoder given no frame writes."""
 
     def __init__(self, path: Path, fps: float, size_wh: tuple[int, int]):
         import imageio_ffmpeg
@@ -39,25 +44,43 @@ class VideoWriter:
         self.part = path.with_suffix(".partial" + path.suffix)
         self.frames = 0
         self.closed = False
-        self._gen = imageio_ffmpeg.write_frames(str(self.part), size_wh, fps=fps, codec="libx264",
-                                                quality=None, bitrate=None, macro_block_size=8,
-                                                output_params=["-crf", "23", "-preset", "veryfast"],
-                                                ffmpeg_log_level="error")
-        self._gen.send(None)
+        self._write_frames = imageio_ffmpeg.write_frames
+        self._fps = fps
+        self._size = size_wh
+        self._gen: Any = None
+        self._ended = False  # close() has run (``closed``: and the file is complete under its name)
+
+    @property
+    def started(self) -> bool:
+        """Whether the encoder process has been started (by the first frame, or by :meth:`close`)."""
+        return self._gen is not None or self._ended
+
+    def _start(self) -> Any:
+        if self._gen is None:
+            self._gen = self._write_frames(str(self.part), self._size, fps=self._fps, codec="libx264",
+                                           quality=None, bitrate=None, macro_block_size=8,
+                                           output_params=["-crf", "23", "-preset", "veryfast"],
+                                           ffmpeg_log_level="error")
+            self._gen.send(None)
+        return self._gen
 
     def add(self, frame: np.ndarray) -> None:
-        self._gen.send(np.ascontiguousarray(frame, dtype=np.uint8))
+        if self._ended:
+            raise ValueError(f"{self.path.name} is closed")
+        self._start().send(np.ascontiguousarray(frame, dtype=np.uint8))
         self.frames += 1
 
     def close(self) -> None:
-        """Finish the file and give it its name (idempotent)."""
-        if self._gen is not None:
-            try:
-                self._gen.close()
-            finally:
-                self._gen = None
-            self.part.replace(self.path)
-            self.closed = True
+        """Finish the file and give it its name (idempotent; after a failure, a no-op)."""
+        if self._ended:
+            return
+        try:
+            self._start().close()
+        finally:
+            self._gen = None
+            self._ended = True
+        self.part.replace(self.path)
+        self.closed = True
 
 
 class Recorder:

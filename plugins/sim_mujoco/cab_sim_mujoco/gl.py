@@ -105,6 +105,35 @@ def choose_backend(environ=os.environ) -> tuple[str, str]:
                               "or build the simulator with render: false for physics-only use")
 
 
+# the libraries a backend's context loads when it starts (beyond the one _loads tries): Mesa's EGL
+# vendor library, which links Mesa's drivers and LLVM (glvnd's libEGL loads it on first use)
+_DRIVER_LIBS = {"egl": ("libEGL_mesa.so.0",), "osmesa": (), "glfw": ()}
+
+
+def preload() -> list[str]:
+    """Load, without starting anything, what the context of the backend :func:`choose_backend`
+    picks will load: its library and driver libraries, and PyOpenGL's bindings of that platform.
+    Called in a sweep's fork server (``cab_sim_mujoco.cab_preload``), so that its workers share
+    these pages instead of each relocating its own copy of Mesa and LLVM (about 50 MiB). No thread,
+    display or context is made; returns the libraries loaded. A backend that cannot start here
+    loads nothing (the worker says why when it renders)."""
+    try:
+        backend, _ = choose_backend()
+        _context_class(backend)  # PyOpenGL's platform module, bound to this backend
+    except RendererUnavailable:
+        return []
+    from OpenGL import GL  # noqa: F401  (the GL bindings and the library behind them)
+
+    loaded = []
+    for soname in _DRIVER_LIBS[backend]:
+        try:
+            ctypes.CDLL(soname)
+        except OSError:  # not Mesa (a GPU vendor's driver): nothing of it is loaded here
+            continue
+        loaded.append(soname)
+    return loaded
+
+
 def _context_class(backend: str):
     """The GLContext class of ``backend``; setting PYOPENGL_PLATFORM first is what binds it.
     PyOpenGL's note that its optional C accelerator is not installed (an INFO record on first

@@ -69,13 +69,24 @@ class _Thing:
     links: dict[str, int] | None = None  # articulation: link -> body id
 
 
+def scene_capacity(model) -> int:
+    """The geoms an ``MjvScene`` of ``model`` holds: at least one for everything the scene update
+    may draw with any visualisation option (each geom, site, camera, light, body, joint, actuator,
+    sensor, skin, flex and its vertices, tendon wrap, equality constraint) and a margin for the
+    decorations (contacts, perturbation, selection), where a fixed 20000 held 20 MiB a worker.
+    :meth:`_Renderer.render` grows the scene should it ever be full."""
+    counts = ("ngeom", "nsite", "ncam", "nlight", "nbody", "njnt", "nu", "nsensor", "nskin", "nflex",
+              "nflexvert", "nwrap", "ntendon", "neq")
+    return 2 * sum(int(getattr(model, n, 0)) for n in counts) + 1000
+
+
 class _Renderer:
     """MuJoCo's OpenGL renderer for one model: scene, context and the options that hide collision
     geoms. Drawn into MuJoCo's off-screen framebuffer, read back, flipped to image rows."""
 
     def __init__(self, model, width: int, height: int):
         self.gl, self.info = gl.context(width, height)
-        self.scene = mujoco.MjvScene(model, maxgeom=20000)
+        self.scene = mujoco.MjvScene(model, maxgeom=scene_capacity(model))
         with gl.current(self.gl):
             self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         self.option = mujoco.MjvOption()
@@ -89,6 +100,10 @@ class _Renderer:
         self.camera.fixedcamid = camera_id
         mujoco.mjv_updateScene(model, data, self.option, self.perturb, self.camera,
                                mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        while self.scene.ngeom >= self.scene.maxgeom:  # full: a geom may have been left out; never draw so
+            self.scene = mujoco.MjvScene(model, maxgeom=2 * self.scene.maxgeom)
+            mujoco.mjv_updateScene(model, data, self.option, self.perturb, self.camera,
+                                   mujoco.mjtCatBit.mjCAT_ALL, self.scene)
         rect = mujoco.MjrRect(0, 0, width, height)
         rgb = np.empty((height, width, 3), dtype=np.uint8)
         with gl.current(self.gl):  # on whichever thread calls, released afterwards

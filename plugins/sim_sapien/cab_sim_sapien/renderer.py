@@ -7,6 +7,7 @@ turn that into a diagnosis with the command that fixes it. Nothing here imports 
 """
 from __future__ import annotations
 
+import ctypes
 import ctypes.util
 import glob
 import json
@@ -71,6 +72,28 @@ def lavapipe() -> dict[str, str | None]:
             lib = _icd_library(manifest)
             return {"manifest": manifest, "library": lib, "mesa": _version_in_library(lib) if lib else None}
     return {"manifest": None, "library": None, "mesa": None}
+
+
+def preload() -> list[str]:
+    """Load, without creating an instance or a device, the Vulkan loader SAPIEN uses and the Mesa
+    drivers (``libvulkan_*``, lavapipe among them) of the manifests the loader would read. Called in a
+    sweep's fork server (``cab_sim_sapien.cab_preload``) so that its workers share these libraries
+    and the relocations of the LLVM they link, instead of each writing its own (tens of MiB). Other
+    vendors' drivers are left to the worker (they may talk to a device when loaded). Returns the
+    libraries loaded; one that does not load is left out (the worker reports it when it renders)."""
+    wanted = [os.environ.get("SAPIEN_VULKAN_LIBRARY_PATH") or "libvulkan.so.1"]
+    for manifest in icd_files():
+        lib = _icd_library(manifest)
+        if lib and os.path.basename(lib).startswith("libvulkan_"):
+            wanted.append(lib)
+    loaded = []
+    for lib in dict.fromkeys(wanted):
+        try:
+            ctypes.CDLL(lib)
+        except OSError:
+            continue
+        loaded.append(lib)
+    return loaded
 
 
 def mesa_version_tuple(version: str | None) -> tuple[int, int] | None:
