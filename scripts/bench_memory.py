@@ -3,7 +3,8 @@
 ``slots``: runs ``cab -m task=T sim=S model=qwen_local attempt=1..N hydra.launcher.n_jobs=N`` against a
 local OpenAI-compatible stand-in that holds every model request open, so each of the N attempts sits
 built and waiting on its model, as a model-bound sweep's attempts do; once all N have asked, prints the
-PSS of every process of the sweep by role and per slot, then ends the sweep. ``growth``: one warm
+PSS of every process of the sweep by role and per slot (all of it over N; with several N, also the
+marginal cost of one more slot), then ends the sweep. ``growth``: one warm
 worker runs K oracle attempts one after another (``AttemptSupervisor``, as a sweep does) and prints its
 RSS and PSS after each. Not a test: figures depend on the machine and its load (printed beside them).
 
@@ -65,13 +66,27 @@ class HoldingModel:
         self.server.server_close()
 
 
-def _role(pid: int) -> str:
+def _cmdline(pid: int) -> str:
     try:
-        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
     except OSError:
+        return ""
+
+
+def _role(pid: int) -> str:
+    cmd = _cmdline(pid)
+    if not cmd:
         return "gone"
     if "cab_core.sweep.worker" in cmd:
         return "attempt worker"
+    if "cab_core.sweep.zygote" in cmd:  # the fork server, and the workers it forked (its children)
+        try:
+            parent = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            parent = 0
+        return "attempt worker" if "cab_core.sweep.zygote" in _cmdline(parent) else "fork server"
+    if "ffmpeg" in cmd:
+        return "video encoder"
     if "resource_tracker" in cmd:
         return "resource tracker"
     if "loky" in cmd or "joblib" in cmd:
@@ -115,7 +130,11 @@ def slots(sim: str, n: int, out: Path, task: str, extra: list[str], wait_s: floa
                     "uss_mb": round(sum(m["uss"] for m in ms), 1), "rss_mb": round(sum(m["rss"] for m in ms), 1)}
                 for r, ms in sorted(roles.items())}
     fixed = sum(v["pss_mb"] for r, v in per_role.items() if r in ("main", "resource tracker"))
-    return {"sim": sim, "slots": n, "total_pss_mb": round(total, 1), "per_slot_pss_mb": round((total - fixed) / n, 1),
+    # per slot: everything the sweep holds (its main process, fork server and trackers included) over
+    # N; "excluding main" is the measure of the first figures (issue 28), taken with a launcher
+    # process per slot, when the main process held nothing per slot
+    return {"sim": sim, "slots": n, "total_pss_mb": round(total, 1), "per_slot_pss_mb": round(total / n, 1),
+            "per_slot_excl_main_mb": round((total - fixed) / n, 1),
             "start_s": round(ready_s, 1), "roles": per_role, "load_avg_1min": round(os.getloadavg()[0], 2)}
 
 
@@ -161,8 +180,12 @@ def main() -> None:
               f"after {last['attempt']} ({(last['pss_mb'] - first['pss_mb']) / max(1, last['attempt'] - first['attempt']):+.2f}"
               f" MiB per attempt); load {os.getloadavg()[0]:.2f}")
         return
+    previous = None
     for n in (int(x) for x in a.slots.split(",")):
         r = slots(a.sim, n, a.out, a.task, a.extra, a.wait)
+        if previous is not None and n != previous["slots"]:  # what one more attempt in flight costs
+            r["marginal_pss_mb"] = round((r["total_pss_mb"] - previous["total_pss_mb"]) / (n - previous["slots"]), 1)
+        previous = r
         print(json.dumps(r), flush=True)
 
 

@@ -261,8 +261,8 @@ def test_ray_worker_killed_loses_only_its_attempt_in_flight(tmp_path):
 
 
 @pytest.mark.parametrize("launcher, target, settings", [
-    ("local", "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher",
-     {"n_jobs": "${cab.in_flight:${sweep.max_in_flight}}"}),  # the default: attempts in flight (tests/test_inflight.py)
+    ("local", "hydra_plugins.cab_launcher.local_launcher.LocalLauncher",
+     {"n_jobs": "${cab.in_flight:${sweep.max_in_flight}}", "stagger_s": 0.25}),  # the default: attempts in flight (tests/test_inflight.py)
     ("joblib", "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher", {"n_jobs": -1}),
     ("ray_local", "hydra_plugins.hydra_ray_launcher.ray_launcher.RayLauncher",
      {"ray": {"init": {"address": None, "num_cpus": None, "include_dashboard": False}, "remote": {"num_cpus": 1}}}),

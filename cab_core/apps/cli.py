@@ -165,11 +165,12 @@ def _sweep_entry() -> None:
     """``cab -m``: a disk that fills up while the sweep runs ends it with one line and the resume
     line (a job's records are the supervisor's to write; Hydra's own writes for the next job, its
     .hydra/ files and log, fail here: HYDRA_FULL_ERROR makes Hydra raise them instead of printing
-    a traceback); any other error keeps its traceback. Ctrl-C is one line too: the attempts in
-    flight are not scored (their records are set aside when the sweep resumes)."""
+    a traceback); any other error keeps its traceback. Ctrl-C (or SIGTERM) is one line too: the
+    attempts in flight are not scored (their records are set aside when the sweep resumes)."""
     with HydraRaises():  # held for the whole sweep: its jobs too
         try:
-            _hydra_entry()
+            with _sigterm_interrupts():  # SIGTERM (a scheduler, `kill`) stops a sweep as Ctrl-C does
+                _hydra_entry()
         except KeyboardInterrupt:
             where = f" {_SWEEP_DIR}" if _SWEEP_DIR else ""
             _refuse(f"sweep{where} interrupted; finished attempts are kept, those in flight are not scored: "

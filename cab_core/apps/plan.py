@@ -255,7 +255,7 @@ def estimate(conf: Configuration) -> Estimate:
 
 def in_flight(config: Any, multirun: bool) -> int:
     """The attempts a command runs at once: 1 for a single run, else the launcher's ``n_jobs``
-    (-1 or less: one per core and beyond, as joblib counts: cores + 1 + n_jobs)."""
+    (-1 or less: cores + 1 + n_jobs, as cab's launcher and joblib count)."""
     if not multirun:
         return 1
     from omegaconf import OmegaConf

@@ -1,6 +1,6 @@
 """``cab-bench-sweep``: attempts per hour of a real sweep with 1 worker and with N workers.
 
-Runs the same sweep (``cab -m``, the joblib launcher) once per agent, worker count and mode into
+Runs the same sweep (``cab -m``, the default launcher) once per agent, worker count and mode into
 fresh sweep directories under ``--out``, checks that every attempt completed, and prints attempts per
 hour, the speed-up over one worker, the CPU the sweep's processes used and their memory (PSS) per
 attempt in flight.

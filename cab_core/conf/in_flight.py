@@ -6,7 +6,7 @@ sweep.memory_reserve_mb) / slot memory))``, the slot memory being the largest ``
 sweep's simulators (each simulator's yaml documents its measured figure; :data:`DEFAULT_SLOT_MEMORY_MB`
 for one that does not). A CPU-bound sweep (only model-free agents: oracle, idle, scripted, human: a
 config with ``agent:`` set) keeps one attempt per core, as before. An integer ``sweep.max_in_flight``
-is used as it is. The joblib launcher's ``n_jobs`` is this figure (the resolver ``cab.in_flight``,
+is used as it is. The local launcher's ``n_jobs`` (hydra_plugins.cab_launcher) is this figure (the resolver ``cab.in_flight``,
 cab_core.config), so a sweep's plan reads it from ``hydra.launcher.n_jobs``.
 """
 from __future__ import annotations

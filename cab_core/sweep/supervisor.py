@@ -14,8 +14,9 @@ drops from seconds to a fraction of one); each attempt builds its world fresh. A
 after any try that is not a clean attempt (crash, hang, host fault), after
 ``sweep.worker_max_attempts`` attempts, and when its resident memory exceeds
 ``sweep.worker_max_rss_mb`` (after an attempt; during one the worker is killed and the attempt
-retried, kind ``memory``). Each launcher process (a joblib or Ray worker) holds at most one worker
-per thread and environment; under SLURM each job is its own process, so each attempt gets a fresh one there.
+retried, kind ``memory``). Each launcher process (the ``cab -m`` process, whose threads run the jobs
+under cab's own launcher; a joblib or Ray worker) holds at most one worker per thread and environment;
+under SLURM each job is its own process, so each attempt gets a fresh one there.
 With ``warm_workers: false`` every try is a fresh process, as before.
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ import concurrent.futures as cf
 import json
 import os
 import select
+import signal
 import subprocess
 import sys
 import threading
@@ -244,11 +246,28 @@ class WarmWorker:
 _WORKERS: dict[tuple, WarmWorker] = {}  # this process's warm workers, by environment and thread
 
 
+_ABANDONED = threading.Event()  # set by abandon(): the process is about to end, mid-sweep
+
+
 @atexit.register
 def close_workers() -> None:
     """Close every warm worker of this process (at exit; tests call it too)."""
     while _WORKERS:
         _WORKERS.popitem()[1].close()
+
+
+def abandon() -> None:
+    """Stop every supervisor of this process now (a sweep interrupted while its jobs run in threads
+    of this process): each warm worker's process group is killed at once, without waiting on the
+    connections that supervising threads are reading, and no supervisor starts another try or
+    writes a failure afterwards (its thread ends in ``KeyboardInterrupt``). The attempts in flight
+    leave no ``result.json``: a resumed sweep sets their records aside."""
+    _ABANDONED.set()
+    while _WORKERS:
+        try:
+            os.killpg(_WORKERS.popitem()[1].proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError, KeyError):
+            pass
 
 
 def _log_tail(d: Path, n: int = 1200) -> str:
@@ -409,12 +428,16 @@ class AttemptSupervisor:
         session: list[dict] = []  # this session's failures, whether or not infrastructure.jsonl took them
         for try_no in range(1, s.max_retries + 2):
             t0 = time.monotonic()
+            if _ABANDONED.is_set():
+                raise KeyboardInterrupt("the sweep was stopped")
             try:
                 code, killed = self._run_child(try_no)
             except OSError as e:  # the try's folder or log could not be made
                 self.unwritten.append(f"the folder or log of try {try_no}")
                 self.write_error = self.write_error or (e.strerror or type(e).__name__)
                 break
+            if _ABANDONED.is_set():  # its worker was killed by abandon(): not a failure of the attempt
+                raise KeyboardInterrupt("the sweep was stopped")
             failure = self._failure(code, killed)
             if failure is None:
                 failures = infrastructure_failures(self.dir, session)

@@ -1,0 +1,1 @@
+"""cab's Hydra launcher for sweeps on one machine (local_launcher)."""
