@@ -129,6 +129,18 @@ def _np(pose: sapien.Pose) -> np.ndarray:
 _RENDERER_KEEPALIVE: list = []
 _WARMED_SHADERS: set[str] = set()
 
+# Pictures of SAPIEN's default shader pack that cab never reads and that no other picture is drawn
+# from: composite outputs beside "Color" (linear depth, segmentation views, position), the
+# G-buffer's "Custom" (object coordinates, which the lighting pass declares but does not read), and
+# the line and point layers (cab draws no lines or points; their empty layers composite the same).
+# In 8-bit RGBA instead of float RGBA they take 12 bytes a pixel less each: about 25 MiB for a
+# 640x480 camera, 6 MiB for 320x240, in every worker; "Color" is the same bit for bit. The formats
+# are process-wide settings that a camera reads when its first picture allocates them: set for that
+# picture, then put back (SAPIEN's own for any other camera, such as another shader pack's).
+_UNREAD_PICTURES = ("DepthLinear", "SegmentationView0", "SegmentationView1", "Position", "Custom", "Line",
+                    "Point")
+_SMALL, _FULL = "r8g8b8a8unorm", "r32g32b32a32sfloat"
+
 
 def _shader_dir(shader: str) -> str:
     """A camera shader directory: a path, or the name of one shipped with SAPIEN."""
@@ -508,7 +520,20 @@ class SapienSimulator(ss.CameraAccessors, ss.LastStepContacts, Simulator):
         self._apply_targets(start)
 
     def _build_cameras(self, specs: list[CameraSpec]) -> None:
+        """The cameras; with SAPIEN's default shader pack, their unread pictures in 8 bits
+        (``_UNREAD_PICTURES``: process-wide settings, read as a camera joins the scene, put back
+        afterwards for any other camera)."""
         self._cameras: dict[str, _Camera] = {}
+        slim = self._rs is not None and self._shader_path == _shader_dir("default")
+        for name in _UNREAD_PICTURES if slim else ():
+            sapien.render.set_picture_format(name, _SMALL)
+        try:
+            self._add_cameras(specs)
+        finally:
+            for name in _UNREAD_PICTURES if slim else ():
+                sapien.render.set_picture_format(name, _FULL)
+
+    def _add_cameras(self, specs: list[CameraSpec]) -> None:
         for spec in specs:
             ss.check_camera_spec(spec, self._cameras)
             local = _sp(ss.pose_or_bad(spec.pose))
