@@ -38,7 +38,8 @@ and a finalizer at the latest) closes the models' clients and the loops.
 SDKs retry twice by default, honouring ``Retry-After``; ``model.model_args.max_retries: 0`` turns
 those off). The wait between Inspect's tries is cab's: the server's ``Retry-After`` where it sent
 one (which also pauses every worker sharing the credential under ``model.limits``), else the
-backoff of ``model.retry`` (full jitter, ``base_delay_s`` per kind). When the retries are spent the
+backoff of ``model.retry`` (full jitter, ``base_delay_s`` per kind); what cab never retries (a spent
+quota, refused credentials) Inspect does not retry either. When the retries are spent the
 error that escapes (tenacity's ``RetryError`` around the SDK's exception, Inspect's
 ``ModelGenerateError`` around a refused request, ``AttemptTimeoutError``) is mapped to cab's
 :data:`~.types.PROVIDER_ERROR_KINDS` by the SDK's own classifier (OpenAI, Anthropic, Google), else
@@ -79,7 +80,7 @@ from cab_core.errors import ConfigError, MissingDependency
 
 from .google_provider import inline_schema
 from .openai_provider import image_label, png_data_url, stop_reason
-from .retry import RetryPolicy, retry_after_s
+from .retry import RETRYABLE_KINDS, RetryPolicy, retry_after_s
 from .types import (
     Capabilities,
     Image,
@@ -189,8 +190,8 @@ def to_tool_infos(tools: list[ToolSpec]) -> list:
     arguments with its ``$defs``/``$ref`` inlined (Inspect's schema model holds no references).
     Inspect's ``JSONSchema`` keeps type, description, default, enum, items, properties,
     additionalProperties, anyOf, required and the bounds (pattern, min/maxLength, minimum/maximum);
-    it drops ``title``, ``minItems``/``maxItems``, ``exclusiveMinimum`` and the object's own
-    ``description``."""
+    it drops ``title``, ``minItems``/``maxItems``, ``exclusiveMinimum``, ``default: null`` and the
+    object's own ``description`` (and Inspect's OpenAI-compatible provider sends no bounds)."""
     from inspect_ai.tool import ToolInfo, ToolParams
 
     try:
@@ -403,7 +404,7 @@ class InspectProvider(Provider):
                               "model string <provider>/<model> (e.g. openai/gpt-4o, anthropic/claude-sonnet-4-5, "
                               "openai-api/<service>/<model>, mockllm/model)")
         self.key_env = self.cfg.get("api_key_env") or None
-        self.key_envs: tuple[str, ...] = (self.key_env,) if self.key_env else ()
+        self._key_vars: tuple[str, ...] | None = (self.key_env,) if self.key_env else None
         self.base_url = self.cfg.get("base_url") or None
         self.timeout_s = self.cfg.get("timeout_s")
         self.retry = RetryPolicy.from_cfg(self.cfg.get("retry"), sleep=sleep or time.sleep, rng=rng or random.Random())
@@ -468,13 +469,16 @@ class InspectProvider(Provider):
         try:
             model = im.get_model(self.model, config=self.config(), base_url=self.base_url, api_key=key,
                                  memoize=False, **self._model_args())
-        except PrerequisiteError as e:
+        except PrerequisiteError as e:  # its message names the variables, marked up: [blue]OPENAI_API_KEY[/blue]
+            named = tuple(v for v in re.findall(r"\[blue\]([A-Za-z0-9_]+)\[/blue\]", str(e.message))
+                          if re.search(r"KEY|TOKEN|SECRET|CREDENTIAL", v))
+            self._key_vars = self._key_vars or named or None
             raise ConfigError(f"model.model_id={self.model}: {_plain(e.message)}") from None
         except (ValueError, TypeError, ImportError) as e:
             raise ConfigError(f"model.model_id={self.model}: Inspect cannot build this model "
                               f"({type(e).__name__}: {' '.join(str(e).split())[:300]})") from None
-        if not self.key_envs:
-            self.key_envs = tuple(getattr(model.api, "api_key_vars", None) or ())
+        if self._key_vars is None:
+            self._key_vars = tuple(getattr(model.api, "api_key_vars", None) or ())
         if self._forced_images is None:
             self.capabilities = Capabilities(images_in_tool_results=bool(model.api.tool_result_images()),
                                              parallel_tool_calls=True, reasoning=True)
@@ -495,14 +499,33 @@ class InspectProvider(Provider):
             runner.close()
             raise
         slot = _Slot(runner, model)
-        model.api.retry_wait = lambda: self._wait(slot)  # Inspect's retry loop waits cab's backoff
+        # Inspect's retry loop waits cab's backoff, and gives up where cab would (quota, auth, ...)
+        model.api.retry_wait = lambda: self._wait(slot)
+        model.api.should_retry = self._should_retry(model.api.should_retry)
         with self._lock:
             self._slots.append(slot)
         self._local.slot = slot
         return slot
 
+    @staticmethod
+    def _should_retry(inspects: Callable[[Exception], Any]) -> Callable[[Exception], Any]:
+        """Inspect's retry decision, vetoed for what cab never retries: a spent quota (a 429 that
+        waiting will not cure), refused credentials, a refused request."""
+        def should_retry(ex: Exception) -> Any:
+            if classify_error(ex).kind not in RETRYABLE_KINDS:
+                return False
+            return inspects(ex)
+        return should_retry
+
     def _wait(self, slot: _Slot) -> Callable[[Any], float]:
+        config = self.config()
+
         def wait(state: Any) -> float:
+            # tenacity asks for the wait before its stop check: after the last try there is no wait
+            if config.max_retries is not None and state.attempt_number > config.max_retries:
+                return 0.0
+            if config.timeout is not None and (state.seconds_since_start or 0.0) >= config.timeout:
+                return 0.0
             exc = state.outcome.exception() if state.outcome is not None else None
             err = classify_error(exc) if exc is not None else ProviderError("other", "")
             after = err.retry_after_s
@@ -514,6 +537,18 @@ class InspectProvider(Provider):
             slot.tries = state.attempt_number + 1
             return d
         return wait
+
+    @property
+    def key_envs(self) -> tuple[str, ...]:
+        """The variables the key is read from: ``model.api_key_env``, else those Inspect's provider
+        declares (``api_key_vars``, or the ones its missing-key error names); building the model
+        (no network) where not known yet."""
+        if self._key_vars is None:
+            try:
+                self._slot()
+            except ConfigError:
+                pass
+        return self._key_vars or ()
 
     def check_credentials(self) -> None:
         """Builds this thread's Inspect model (no network): a missing key or SDK, or an unknown
