@@ -48,12 +48,13 @@ class AttemptFailed(RuntimeError):
 
 
 def cab_command(task: str, sim: str, seed: int | None, model_name: str, folder: Path,
-                overrides: list[str]) -> list[str]:
+                overrides: list[str], attempt: int = 1) -> list[str]:
     """The command line of one served attempt. The configuration is named by the Inspect model
-    string (``model.name``), the attempt folder is ``hydra.run.dir``."""
+    string (``model.name``), the attempt number is the Inspect epoch, the attempt folder is
+    ``hydra.run.dir``."""
     quoted = model_name.replace("\\", "\\\\").replace("'", "\\'")
     cmd = ["cab", "+harness=mcp", f"task={task}", f"sim={sim}", f"model.name='{quoted}'",
-           f"hydra.run.dir={folder}"]
+           f"attempt={attempt}", f"hydra.run.dir={folder}"]
     if seed is not None:
         cmd.append(f"seed={seed}")
     return cmd + list(overrides)

@@ -123,12 +123,13 @@ def attempt_folder(root: Path, task: str, model: str, sim: str, seed: int, epoch
 
 
 def _set_aside(folder: Path) -> None:
-    """A retried sample's earlier try (an infrastructure failure) keeps its files, beside the new one."""
+    """An earlier try of the sample (an infrastructure failure, or a run before in the same records
+    folder) keeps its files, beside the new one."""
     if folder.exists() and any(folder.iterdir()):
         k = 1
-        while folder.with_name(f"{folder.name}.failed-{k}").exists():
+        while folder.with_name(f"{folder.name}.previous-{k}").exists():
             k += 1
-        shutil.move(str(folder), str(folder.with_name(f"{folder.name}.failed-{k}")))
+        shutil.move(str(folder), str(folder.with_name(f"{folder.name}.previous-{k}")))
 
 
 def _continue_unless_ended(served) -> Any:
@@ -171,16 +172,21 @@ def cab_attempt(sim: str, overrides: list[str], agent: str = "react", records: s
         folder = attempt_folder(records_root(records), md["task"], model, sim, int(md["seed"]), state.epoch)
         _set_aside(folder)
         state.metadata[ATTEMPT_DIR] = str(folder)
-        command = cab_command(md["task"], sim, int(md["seed"]), model, folder, overrides)
-        if agent == "reference":
-            from .reference import run_reference
+        command = cab_command(md["task"], sim, int(md["seed"]), model, folder, overrides, attempt=state.epoch)
+        try:
+            if agent == "reference":
+                from .reference import run_reference
 
-            await run_reference(state, command, folder, exit_grace_s)
-        else:
-            async with serve_attempt(command, folder, exit_grace_s=exit_grace_s,
-                                     call_timeout_s=call_timeout_s) as served:
-                state.messages = [ChatMessageSystem(content=served.system), ChatMessageUser(content=served.first_user)]
-                state = await run_react(state, served, generate)
+                await run_reference(state, md["task"], sim, int(md["seed"]), folder, overrides, exit_grace_s)
+            else:
+                async with serve_attempt(command, folder, exit_grace_s=exit_grace_s,
+                                         call_timeout_s=call_timeout_s) as served:
+                    state.messages = [ChatMessageSystem(content=served.system),
+                                      ChatMessageUser(content=served.first_user)]
+                    state = await run_react(state, served, generate)
+        except Exception:
+            read_result(folder)  # cab died or hung up (the connection lost): AttemptFailed, with cab's last words
+            raise                # the attempt was recorded: the error is Inspect's (a limit, the provider)
         read_result(folder)  # no record, or an excluded one: a sample error, never a score
         return state
 
