@@ -182,7 +182,7 @@ def test_the_key_inspects_provider_reads_is_checked_without_network(monkeypatch)
     p = provider(f"http://127.0.0.1:{closed_port()}/v1")
     with pytest.raises(ConfigError) as e:
         p.check_credentials()
-    assert str(e.value) == (f"model.model_id=openai-api/fake/{MODEL_ID}: Unable to initialise fake client "
+    assert str(e.value) == (f"model.model_id=openai-api/fake/{MODEL_ID}: Unable to initialise fake client: "
                             "No FAKE_API_KEY defined in the environment.")
     monkeypatch.setenv("FAKE_API_KEY", "k")
     p.check_credentials()

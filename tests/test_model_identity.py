@@ -233,7 +233,7 @@ def test_every_shipped_model_option_carries_only_declared_keys():
     for option in options:
         if option != "human":  # played from cab-studio only
             check_command_line([f"model={option}", "model.model_id=m", "task=click_bell"]
-                               if option in ("openai_compatible", "openai", "anthropic", "google") else
+                               if option in ("openai_compatible", "openai", "anthropic", "google", "inspect") else
                                [f"model={option}", "task=click_bell"])
 
 

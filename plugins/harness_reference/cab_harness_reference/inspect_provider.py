@@ -368,7 +368,8 @@ _MARKUP = re.compile(r"\[/?[a-z ]+\]")  # rich markup in Inspect's PrerequisiteE
 
 
 def _plain(message: Any) -> str:
-    return " ".join(_MARKUP.sub("", str(message)).replace("ERROR:", "").split())
+    text = _MARKUP.sub("", str(message)).replace("ERROR:", "").strip()
+    return " ".join(re.sub(r"\s*\n\s*\n\s*", ": ", text).split())
 
 
 class _Slot:
