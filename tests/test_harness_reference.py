@@ -391,7 +391,7 @@ def test_loop_context_length_error_forces_one_compaction():
 
 
 def test_plugin_registers_lazily():
-    assert set(plugin.cab_model_providers()) == {"anthropic", "openai", "google", "openai_compatible"}
+    assert set(plugin.cab_model_providers()) == {"anthropic", "openai", "google", "openai_compatible", "inspect"}
     assert "reference" in plugin.cab_harnesses() and "reference" in plugin.cab_context_policies()
 
 
