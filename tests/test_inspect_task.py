@@ -189,6 +189,36 @@ def test_oracle_calls_through_inspect_succeed_and_images_reach_the_model(tmp_pat
     assert [type(c) for c in transcript_tool.content] == [ContentText, ContentText, ContentImage]
 
 
+def test_reference_agent_plays_the_paper_harness_on_the_eval_model(tmp_path, monkeypatch, oracle_calls):
+    """agent=reference: cab's reference harness in the attempt's process, its provider Inspect's
+    mockllm (the model string of the eval), scripted with the oracle's calls: a success scored as
+    under the react agent, the record the reference harness's, named by the model string."""
+    offline_tokens(monkeypatch)
+    from cab._registry import codeaction
+
+    outputs = []
+    for call in oracle_calls:
+        out = ModelOutput.for_tool_call("mockllm/model", call["tool"], call["args"])
+        out.usage = ModelUsage(input_tokens=10, output_tokens=2, total_tokens=12)
+        outputs.append(out.model_dump(mode="json"))
+    script = tmp_path / "outputs.json"
+    script.write_text(json.dumps(outputs))
+    [log] = inspect_eval(codeaction(tasks=TASK, sim="mujoco", agent="reference", attempts=1, video=False,
+                                    records=str(tmp_path / "records"),
+                                    cab_args=f"+model.model_args.custom_outputs={script}"),
+                         model="mockllm/model", log_dir=str(tmp_path / "logs"), display="none")
+    assert log.status == "success", log.error
+    [sample] = log.samples
+    score = sample.scores["verdict"]
+    assert score.value == "C" and score.explanation == "done: the agent called done"
+    folder = Path(sample.metadata["cab_attempt_dir"])
+    assert folder == tmp_path / "records" / TASK / "mockllm_model" / "mujoco" / "seed-0" / "attempt-1"
+    record = read_result(folder)
+    assert (record["harness"], record["model"], record["agent"]["kind"]) == ("reference", "mockllm_model", "model_api")
+    assert record["agent"]["usage"]["input_tokens"] == 10 * len(oracle_calls)  # every turn through Inspect's model API
+    assert sample.output.completion == oracle_calls[-1]["args"]["report"]  # the completion claim
+
+
 def test_a_simulator_that_cannot_start_is_a_sample_error_not_a_score(tmp_path, monkeypatch):
     """cab exits without a record (here: an unknown simulator): the sample errors, unscored, so
     Inspect's retries (--retry-on-error, eval-set) run it again."""

@@ -185,8 +185,9 @@ def cab_attempt(sim: str, overrides: list[str], agent: str = "react", records: s
                                       ChatMessageUser(content=served.first_user)]
                     state = await run_react(state, served, generate)
         except Exception:
-            read_result(folder)  # cab died or hung up (the connection lost): AttemptFailed, with cab's last words
-            raise                # the attempt was recorded: the error is Inspect's (a limit, the provider)
+            if folder.is_dir():      # cab was started
+                read_result(folder)  # it died or hung up (the connection lost): AttemptFailed, with cab's last words
+            raise                    # the attempt was recorded, or never started: the error is Inspect's or ours
         read_result(folder)  # no record, or an excluded one: a sample error, never a score
         return state
 
