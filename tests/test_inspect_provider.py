@@ -250,6 +250,26 @@ def test_a_rate_limit_with_retry_after_and_a_server_error_recover():
     assert (r.usage.input_tokens, r.usage.output_tokens) == (10, 5)
 
 
+def test_shared_limits_take_the_real_usage_and_a_retry_after_pauses_the_credential(tmp_path):
+    from cab_core.kits.harness.limits import Limiter, LimitSettings
+    from cab_harness_reference.loop import limited_complete
+
+    t = [1000.0]
+    lim = Limiter("k", LimitSettings(tokens_per_minute=20, window_s=10, margin_s=0), tmp_path,
+                  clock=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s))
+    rate = (429, _error("Rate limit reached", "requests", "rate_limit_exceeded"), {"retry-after": "1"})
+    with Scripted([rate, (200, _completion(), {})]) as s:
+        p = provider(s.url)
+        p.retry.limiter = lim  # as the loop's limiter_for sets it
+        resp, _ = limited_complete(p, lim, "sys", USER, TOOLS, estimated_tokens=1)
+        p.close()
+    assert resp.stop_reason == "tool_calls" and len(s.requests) == 2
+    assert json.loads(next(tmp_path.rglob("*.json")).read_text())["paused_until"] == 1001.0  # every worker waits
+    with lim.request(10):  # the answer's 15 tokens (not the estimate of 1) and 10 more exceed 20 a minute
+        pass
+    assert t[0] == pytest.approx(1010.0)
+
+
 @pytest.mark.parametrize("reply,kind,requests", [
     ((500, _error("The server had an error"), {}), "server", 3),
     ((529, _error("Overloaded", "overloaded_error"), {}), "overloaded", 3),

@@ -404,9 +404,10 @@ class InspectProvider(Provider):
             raise ConfigError(f"model.model_id={self.model or 'null'}: the inspect provider needs an Inspect "
                               "model string <provider>/<model> (e.g. openai/gpt-4o, anthropic/claude-sonnet-4-5, "
                               "openai-api/<service>/<model>, mockllm/model)")
-        self.key_env = self.cfg.get("api_key_env") or None
-        self._key_vars: tuple[str, ...] | None = (self.key_env,) if self.key_env else None
-        self.base_url = self.cfg.get("base_url") or None
+        self._api_key_env = self.cfg.get("api_key_env") or None
+        self._key_vars: tuple[str, ...] | None = (self._api_key_env,) if self._api_key_env else None
+        self._base_url = self.cfg.get("base_url") or None
+        self._api_base_url: str | None = None  # the base URL Inspect's provider resolved (its variable or default)
         self.timeout_s = self.cfg.get("timeout_s")
         self.retry = RetryPolicy.from_cfg(self.cfg.get("retry"), sleep=sleep or time.sleep, rng=rng or random.Random())
         model_args = self.cfg.get("model_args") or {}
@@ -462,13 +463,13 @@ class InspectProvider(Provider):
         from inspect_ai._util.error import PrerequisiteError
 
         key = None
-        if self.key_env:
-            key = os.environ.get(self.key_env)
+        if self._api_key_env:
+            key = os.environ.get(self._api_key_env)
             if not key:
-                raise ConfigError(f"{self.key_env} is not set: export it with the API key for model "
+                raise ConfigError(f"{self._api_key_env} is not set: export it with the API key for model "
                                   f"{self.model!r} (provider inspect)")
         try:
-            model = im.get_model(self.model, config=self.config(), base_url=self.base_url, api_key=key,
+            model = im.get_model(self.model, config=self.config(), base_url=self._base_url, api_key=key,
                                  memoize=False, **self._model_args())
         except PrerequisiteError as e:  # its message names the variables, marked up: [blue]OPENAI_API_KEY[/blue]
             named = tuple(v for v in re.findall(r"\[blue\]([A-Za-z0-9_]+)\[/blue\]", str(e.message))
@@ -480,6 +481,8 @@ class InspectProvider(Provider):
                               f"({type(e).__name__}: {' '.join(str(e).split())[:300]})") from None
         if self._key_vars is None:
             self._key_vars = tuple(getattr(model.api, "api_key_vars", None) or ())
+        base = getattr(model.api, "base_url", None)
+        self._api_base_url = str(base).rstrip("/") if base else None
         if self._forced_images is None:
             self.capabilities = Capabilities(images_in_tool_results=bool(model.api.tool_result_images()),
                                              parallel_tool_calls=True, reasoning=True)
@@ -556,10 +559,21 @@ class InspectProvider(Provider):
         provider, raises ``ConfigError`` naming what Inspect's provider needs."""
         self._slot()
 
+    @property
+    def key_env(self) -> str | None:  # type: ignore[override]
+        """The variable the key comes from: ``model.api_key_env``, else the first of Inspect's
+        provider's variables that is set (what shared limits key a credential by)."""
+        envs = self.key_envs
+        return next((e for e in envs if os.environ.get(e)), envs[0] if envs else None)
+
+    @property
+    def base_url(self) -> str | None:
+        """``model.base_url``, else the one Inspect's provider resolved, else ``inspect:<provider>``
+        (what shared limits key an endpoint by, and what a failure names)."""
+        return self._base_url or self._api_base_url or f"inspect:{self.model.split('/', 1)[0]}"
+
     def endpoint(self) -> str | None:
-        slot = getattr(self._local, "slot", None)
-        base = self.base_url or (getattr(slot.model.api, "base_url", None) if slot is not None else None)
-        return str(base).rstrip("/") if base else None
+        return (self._base_url or self._api_base_url or "").rstrip("/") or None
 
     # -- one request -----------------------------------------------------------------------------
     def complete(self, system: str, messages: list[Message], tools: list[ToolSpec]) -> Response:
@@ -585,7 +599,7 @@ class InspectProvider(Provider):
             err.retryable = False  # Inspect has retried it
             err.attempts = slot.tries  # type: ignore[attr-defined]
             err.waited_s = slot.waited  # type: ignore[attr-defined]
-            raise err.at(self.endpoint()) from e
+            raise err.at(self.endpoint())  # noqa: B904 - its cause is the provider's own exception
         # waited: Inspect's sleeps between tries (the SDK's own retries, where on, are not seen and count
         # as the model's time); latency: the rest, Inspect's own work included
         resp.waited_s = slot.waited
