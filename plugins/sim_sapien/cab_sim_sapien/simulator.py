@@ -309,7 +309,7 @@ class SapienSimulator(ss.CameraAccessors, ss.LastStepContacts, Simulator):
         if self._rs is not None and self._shader not in _WARMED_SHADERS and self._cameras:
             # the first picture of a process compiles the shader pipelines (about 3 s on lavapipe):
             # pay it while building, not inside the first observation tool call
-            self.render(next(iter(self._cameras)))
+            self._warm_up()
             _WARMED_SHADERS.add(self._shader)
 
     # -- building helpers ---------------------------------------------------------------------
@@ -518,6 +518,20 @@ class SapienSimulator(ss.CameraAccessors, ss.LastStepContacts, Simulator):
         self._targets = np.zeros(len(order))
         self._vtargets = np.zeros(len(order))
         self._apply_targets(start)
+
+    def _warm_up(self) -> None:
+        """Take the process's first picture with a throwaway 8x8 camera of this shader, removed
+        afterwards: the pipelines are compiled as a real camera's first picture would compile them,
+        and no camera of the world holds its pictures (about 190 bytes a pixel, 14 MiB for a 320x240
+        camera) before it is pictured, such as the video's camera, pictured after the attempt."""
+        world = self._cameras
+        self._build_cameras([CameraSpec("cab_warm_up", 8, 8, 45.0)])
+        warm, self._cameras = self._cameras["cab_warm_up"], world
+        try:
+            self._scene.update_render()
+            self._picture(warm)
+        finally:
+            self._scene.remove_entity(warm.component.entity)
 
     def _build_cameras(self, specs: list[CameraSpec]) -> None:
         """The cameras; with SAPIEN's default shader pack, their unread pictures in 8 bits

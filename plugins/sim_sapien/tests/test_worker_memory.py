@@ -76,3 +76,21 @@ def test_the_fork_servers_hook_loads_the_vulkan_libraries_and_starts_nothing():
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout.splitlines()[-1])
     assert out == {"threads": 1, "loader": True, "lavapipe": True, "rendered": True}
+
+
+def test_the_warm_up_picture_leaves_the_worlds_cameras_unpictured(monkeypatch):
+    """The process's first picture (pipelines compiled while building) is taken by a throwaway camera:
+    no camera of the world holds pictures until it is pictured, and none is left behind."""
+    checks.require_renderer("sapien")
+    monkeypatch.setattr(sapien_sim, "_WARMED_SHADERS", set())
+    sim = sc.build(rendering)
+    try:
+        assert sapien_sim._WARMED_SHADERS == {"default"}
+        assert sorted(sim.camera_names()) == sorted([sc.HEAD_CAMERA, sc.WRIST_CAMERA])
+        assert "cab_warm_up" not in [e.name for e in sim._scene.entities]
+        for name in sim.camera_names():
+            with pytest.raises(IndexError):  # SAPIEN: no picture taken, nothing allocated
+                sim._cameras[name].component.get_picture("Color")
+        assert sim.render(sc.HEAD_CAMERA).std() > 2
+    finally:
+        sim.close()
