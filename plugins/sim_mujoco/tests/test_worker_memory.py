@@ -37,8 +37,9 @@ def _crowd() -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(xml)
 
 
-def test_the_scene_holds_every_geom_of_a_crowded_model_and_pictures_do_not_change():
+def test_the_scene_holds_every_geom_of_a_crowded_model_and_pictures_do_not_change(tmp_path, monkeypatch):
     checks.require_renderer("mujoco")
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs the full scene's warning to MUJOCO_LOG.TXT here
     model = _crowd()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -55,6 +56,7 @@ def test_the_scene_holds_every_geom_of_a_crowded_model_and_pictures_do_not_chang
         r.scene = mujoco.MjvScene(model, maxgeom=100)
         again = r.render(model, data, 0, W, H)
         assert r.scene.ngeom == N and r.scene.maxgeom > N
+        assert "geom buffer is full" in (tmp_path / "MUJOCO_LOG.TXT").read_text()  # the overflow was real
         assert np.array_equal(again, image)
     finally:
         r.free()
