@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import shutil
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -54,6 +56,17 @@ main()
 """]
 
 
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
 def offline_tokens(monkeypatch) -> None:
     try:
         import tiktoken
@@ -84,14 +97,22 @@ def oracle_calls(tmp_path_factory) -> list[dict]:
     return calls
 
 
-def test_acceptance_command_writes_a_scored_failure_with_cab_verdict(tmp_path):
-    """The issue's command, no key: the default mockllm never calls a tool; each epoch's attempt is
-    a failure scored by cab's verifier, its record in the sweep layout beside the log."""
-    logs = tmp_path / "logs"
+@pytest.fixture(scope="module")
+def acceptance_run(tmp_path_factory) -> Path:
+    """The issue's command, no key, run once: its working directory (the log in logs/)."""
+    cwd = tmp_path_factory.mktemp("acceptance")
     r = subprocess.run([*INSPECT, "eval", "cab/codeaction", "-T", f"tasks={TASK}", "-T", "sim=mujoco",
-                        "--model", "mockllm/model", "--limit", "1", "--log-dir", str(logs), "--display", "none"],
-                       capture_output=True, text=True, timeout=600, cwd=tmp_path)
+                        "--model", "mockllm/model", "--limit", "1", "--log-dir", str(cwd / "logs"), "--display", "none"],
+                       capture_output=True, text=True, timeout=600, cwd=cwd)
     assert r.returncode == 0, r.stderr[-3000:]
+    return cwd
+
+
+def test_acceptance_command_writes_a_scored_failure_with_cab_verdict(acceptance_run):
+    """The default mockllm never calls a tool; each epoch's attempt is a failure scored by cab's
+    verifier, its record in the sweep layout beside the log."""
+    tmp_path = acceptance_run
+    logs = tmp_path / "logs"
     log = one_log(logs)
     assert log.status == "success" and log.eval.task == "cab/codeaction"
     assert [(s.id, s.epoch) for s in log.samples] == [(f"{TASK}/seed-0", e) for e in (1, 2, 3)]  # 3 attempts: epochs
@@ -135,6 +156,42 @@ def test_acceptance_command_writes_a_scored_failure_with_cab_verdict(tmp_path):
     assert rescored.returncode == 0, rescored.stderr[-2000:]
     again = one_log(logs)
     assert [s.scores["verdict"].metadata for s in again.samples] == [s.scores["verdict"].metadata for s in log.samples]
+
+
+def test_inspect_view_shows_the_sample_score(acceptance_run, tmp_path):
+    """`inspect view` serves the log; headless Chromium opens it and shows the task's metrics and
+    the sample's score in each epoch."""
+    from browser import chromium
+
+    port = free_port()
+    server = subprocess.Popen(["inspect", "view", "--log-dir", str(acceptance_run / "logs"), "--port", str(port)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not port_open(port):
+            assert server.poll() is None and time.monotonic() < deadline, "inspect view did not come up"
+            time.sleep(0.2)
+        driver = chromium(tmp_path)
+        try:
+            driver.get(f"http://127.0.0.1:{port}/")
+            text = ""
+            deadline = time.monotonic() + 60
+            while "3 Samples" not in text and time.monotonic() < deadline:
+                time.sleep(0.5)
+                text = driver.find_element("tag name", "body").text
+        finally:
+            driver.quit()
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+    lines = text.splitlines()
+    assert "cab/codeaction" in lines and "mockllm/model" in lines
+    assert "verdict (mean) 0.0 0.0 0.0 0.793" in lines  # accuracy, stderr, the Wilson interval
+    # the sample list: one row per epoch, ID ... SCORE, each scored I (cab's failure)
+    rows = lines[lines.index("SCORE") + 1:lines.index("3 Samples")]
+    starts = [i for i, line in enumerate(rows) if line == f"{TASK}/seed-0"]
+    assert [rows[i + 1] for i in starts] == ["1", "2", "3"]
+    assert [rows[j - 1] for j in [*starts[1:], len(rows)]] == ["I", "I", "I"]
 
 
 def test_oracle_calls_through_inspect_succeed_and_images_reach_the_model(tmp_path, monkeypatch, oracle_calls):
