@@ -37,7 +37,7 @@ ALLOWED: dict[str, set[str]] = {
     "plugins/inspect_cab/inspect_cab/attempt.py": {"cab_core.analysis.attempts", "cab_core.attempt.records.result_format"},
     "plugins/inspect_cab/inspect_cab/scoring.py": {"cab_core.analysis.attempts", "cab_core.analysis.failure",
                                                    "cab_core.analysis.measures"},
-    "plugins/inspect_cab/inspect_cab/task.py": {"cab_core.plugins", "cab_core.sweep.layout"},
+    "plugins/inspect_cab/inspect_cab/task.py": {"cab_core.config", "cab_core.plugins", "cab_core.sweep.layout"},
 }
 
 

@@ -52,7 +52,7 @@ def verdict() -> Scorer:
 
 
 @task
-def codeaction(tasks: str | Iterable[str] = "click_bell", sim: str = "mujoco", seeds: str | int | None = None,
+def codeaction(tasks: str | Iterable[str] = "codeaction", sim: str | None = None, seeds: str | int | None = None,
                seed_set: str | None = None, randomize: str | None = None, tool_calls: int | None = None,
                sim_seconds: float | None = None, agent: str = "react", attempts: int = 3,
                records: str | None = None, video: bool = True, cab_args: str | None = None) -> Task:
@@ -60,8 +60,9 @@ def codeaction(tasks: str | Iterable[str] = "click_bell", sim: str = "mujoco", s
     per sample and epoch (``attempts`` epochs, the paper's three), scored by cab's verifier.
 
     Args:
-        tasks: task or suite names, comma-separated (a suite stands for its tasks).
-        sim: the simulator (cab's ``sim=``: mujoco, sapien, pybullet).
+        tasks: task or suite names, comma-separated (a suite stands for its tasks; default: the
+            paper's suite, ``codeaction``).
+        sim: the simulator (cab's ``sim=``: sapien, mujoco, pybullet; default: cab's default, SAPIEN).
         seeds: seeds, comma-separated; default: each task's catalog seed.
         seed_set: a named seed set of each task instead (e.g. ``heldout``).
         randomize: cab's appearance randomisation (none, lighting, textures, camera, distractors, all).
@@ -74,6 +75,7 @@ def codeaction(tasks: str | Iterable[str] = "click_bell", sim: str = "mujoco", s
         cab_args: further cab settings for every attempt (space-separated ``key=value``).
     """
     names = cab_task.resolve_tasks(tasks)
+    sim = sim or cab_task.default_sim()
     overrides = cab_task.cab_overrides(randomize, tool_calls, sim_seconds, video, cab_args)
     reducers = ["mean", pass_at(1)] + ([pass_at(3)] if attempts >= 3 else [])
     return Task(

@@ -56,6 +56,13 @@ def resolve_tasks(tasks: str | Iterable[str] | None) -> list[str]:
     return list(dict.fromkeys(out))
 
 
+def default_sim() -> str:
+    """The simulator plain ``cab`` composes."""
+    from cab_core.config import default_selection
+
+    return default_selection(("sim",))["sim"]
+
+
 def resolve_seeds(task: str, seeds: str | int | Iterable[int] | None, seed_set: str | None) -> list[int]:
     """The seeds of ``task``: the given ones, its named seed set, or its catalog seed."""
     from cab_core.plugins import all_tasks
