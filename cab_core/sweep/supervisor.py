@@ -141,9 +141,11 @@ def _pipe(stream: IO[bytes] | None) -> IO[bytes]:
 
 
 def _plugin_packages(config: dict) -> list[str]:
-    """The plugin packages an attempt of ``config`` uses (its simulator, robot, planner and harness),
-    which a forked worker's server imports before it forks (``cab_core.sweep.zygote``)."""
-    from cab_core.plugins import registry
+    """The plugin packages an attempt of ``config`` uses (its simulator, robot, planner, harness and
+    the suite of its task), which a forked worker's server imports before it forks
+    (``cab_core.sweep.zygote``): a package left out is imported by every worker, privately (a task
+    suite's mesh and graph libraries: hundreds of modules)."""
+    from cab_core.plugins import all_tasks, registry
 
     model = config.get("model") or {}
     picks = {"simulators": (config.get("sim") or {}).get("name"),
@@ -159,6 +161,13 @@ def _plugin_packages(config: dict) -> list[str]:
         top = str(getattr(factory, "__module__", "") or "").split(".")[0]
         if top and top != "cab_core" and top not in out:
             out.append(top)
+    task = (config.get("task") or {}).get("name")
+    try:
+        suite = type(all_tasks().get(task)).__module__.split(".")[0] if isinstance(task, str) else ""
+    except Exception:  # noqa: BLE001 (a broken suite: the attempt reports it)
+        suite = ""
+    if suite and suite not in ("cab_core", "builtins") and suite not in out:
+        out.append(suite)
     return out
 
 
