@@ -291,6 +291,37 @@ def test_a_simulator_that_cannot_start_is_a_sample_error_not_a_score(tmp_path, m
     assert "cab: unknown sim 'no_such_sim'" in sample.error.message  # cab's own line, from its log beside the folder
 
 
+def test_a_provider_failure_mid_attempt_is_a_sample_error_and_the_record_says_so(tmp_path, monkeypatch):
+    """The model fails after one call: Inspect records a sample error (no score), and the attempt's
+    record, which cab wrote as ended by its client, is marked as an infrastructure failure, so
+    cab-report leaves it out as the log does."""
+    offline_tokens(monkeypatch)
+    from cab._registry import codeaction
+
+    turns = iter([ModelOutput.for_tool_call("mockllm/model", "capture_head", {})])
+
+    def model(input, tools, tool_choice, config) -> ModelOutput:
+        out = next(turns, None)
+        if out is None:
+            raise ConnectionError("the provider is out")
+        out.usage = ModelUsage(input_tokens=1, output_tokens=1, total_tokens=2)
+        return out
+
+    [log] = inspect_eval(codeaction(tasks=TASK, sim="mujoco", attempts=1, records=str(tmp_path / "records"), video=False),
+                         model=get_model("mockllm/model", custom_outputs=model), log_dir=str(tmp_path / "logs"),
+                         display="none")
+    assert log.status == "error"
+    [sample] = log.samples
+    assert not sample.scores and "the provider is out" in sample.error.message
+    folder = Path(sample.metadata["cab_attempt_dir"])
+    record = json.loads((folder / "result.json").read_text())
+    assert record["termination"]["reason"] == "client_disconnected" and record["budget"]["tool_calls_used"] == 1
+    assert record["infrastructure"]["failed"] is True
+    assert record["infrastructure"]["failures"][0]["kind"] == "inspect_sample_error"
+    with pytest.raises(AttemptFailed, match="not scored"):
+        read_result(folder)
+
+
 def test_an_excluded_record_is_never_a_score(tmp_path):
     """A record whose termination is not the agent's (a provider outage, an interruption) raises,
     as does a folder without a record."""

@@ -31,7 +31,7 @@ from anyio.streams.text import TextReceiveStream
 from mcp.shared.message import SessionMessage
 
 from cab_core.analysis.attempts import read_record
-from cab_core.attempt.records.result_format import RESULT_FILE
+from cab_core.attempt.records.result_format import RESULT_FILE, Infrastructure, write_record
 
 log = logging.getLogger(__name__)
 
@@ -218,3 +218,17 @@ def read_result(folder: Path) -> dict:
         raise AttemptFailed(f"attempt {folder} not scored ({record.excluded_reason}): "
                             f"{record.termination.reason}: {record.termination.detail}")
     return record.dump()
+
+
+def set_unscored(folder: Path, kind: str, detail: str) -> None:
+    """Mark the attempt's record as not the agent's to score: the sample failed on Inspect's side
+    (the provider, the agent loop) after cab had recorded the attempt as ended by its client. As
+    a sweep marks an attempt whose tries all failed: ``infrastructure.failed``, so that
+    ``cab-report`` excludes it as the Inspect log does (a sample error, no score)."""
+    path = folder / RESULT_FILE
+    record = read_record(path)
+    if record.excluded:
+        return
+    record.infrastructure = Infrastructure.model_validate(
+        {"failed": True, "failures": [{"kind": kind, "detail": detail[:2000], "records": str(folder)}]})
+    write_record(path, record)

@@ -17,11 +17,12 @@ from inspect_ai.agent import AgentSubmit, as_solver, react
 from inspect_ai.dataset import Sample
 from inspect_ai.model import ChatMessageSystem, ChatMessageUser
 from inspect_ai.solver import Generate, Solver, TaskState, solver
+from inspect_ai.util import LimitExceededError
 
 from cab_core.errors import ConfigError
 from cab_core.sweep.layout import folder_safe
 
-from .attempt import cab_command, read_result, serve_attempt
+from .attempt import cab_command, read_result, serve_attempt, set_unscored
 from .tools import attempt_tools
 
 AGENTS = ("react", "reference")
@@ -191,10 +192,13 @@ def cab_attempt(sim: str, overrides: list[str], agent: str = "react", records: s
                     state.messages = [ChatMessageSystem(content=served.system),
                                       ChatMessageUser(content=served.first_user)]
                     state = await run_react(state, served, generate)
-        except Exception:
+        except LimitExceededError:
+            raise                    # a limit of the sample (time, tokens, messages): Inspect scores it, as cab recorded it
+        except Exception as e:
             if folder.is_dir():      # cab was started
                 read_result(folder)  # it died or hung up (the connection lost): AttemptFailed, with cab's last words
-            raise                    # the attempt was recorded, or never started: the error is Inspect's or ours
+                set_unscored(folder, "inspect_sample_error", f"{type(e).__name__}: {e}")
+            raise                    # the provider, the agent loop: a sample error, and the record says so
         read_result(folder)  # no record, or an excluded one: a sample error, never a score
         return state
 
