@@ -378,3 +378,33 @@ def test_schema_references_are_inlined():
         "a": {"type": "object", "properties": {"x": {"type": "number"}}, "required": ["x"], "description": "first"},
         "b": {"type": "array", "items": {"type": "object", "properties": {"x": {"type": "number"}}, "required": ["x"]}}}}
     assert Outcome({}, [], [], False).images == []
+
+
+def test_task_arguments_make_the_samples_and_cab_settings():
+    """-T arguments: a suite stands for its tasks, seeds or a named seed set make one sample per
+    task and seed, the budgets and randomisation become cab settings, the attempts the epochs;
+    a mistake is one line."""
+    from cab._registry import codeaction
+    from inspect_ai.scorer._reducer.registry import reducer_log_names
+    from inspect_cab.task import cab_overrides, resolve_tasks
+
+    from cab_core.errors import ConfigError
+    from cab_core.plugins import all_tasks
+
+    assert resolve_tasks("codeaction") == list(all_tasks())[:25] and len(resolve_tasks("codeaction")) == 25
+    assert resolve_tasks("click_bell, codeaction")[0] == "click_bell" and len(resolve_tasks("click_bell,codeaction")) == 25
+    with pytest.raises(ConfigError, match="unknown task or suite 'no_such_task'; suites: codeaction"):
+        resolve_tasks("no_such_task")
+    t = codeaction(tasks="click_bell", sim="mujoco", seeds="3,4", attempts=2)
+    assert [(s.id, s.metadata["seed"]) for s in t.dataset] == [("click_bell/seed-3", 3), ("click_bell/seed-4", 4)]
+    assert t.epochs == 2 and reducer_log_names(t.epochs_reducer) == ["mean", "pass_at_1"]
+    heldout = all_tasks()["click_bell"].seeds("heldout")
+    t = codeaction(tasks="click_bell", sim="mujoco", seed_set="heldout")
+    assert [s.metadata["seed"] for s in t.dataset] == list(heldout) and t.epochs == 3
+    with pytest.raises(ConfigError, match="not both"):
+        codeaction(tasks="click_bell", sim="mujoco", seeds="1", seed_set="heldout")
+    with pytest.raises(ConfigError, match="-T agent must be one of react, reference"):
+        codeaction(tasks="click_bell", sim="mujoco", agent="claude")
+    assert cab_overrides("all", 12, 30, False, "sandbox.mode=off planner.x=1") == [
+        "randomize=all", "budget.tool_calls=12", "budget.sim_seconds=30.0", "record.video=false",
+        "sandbox.mode=off", "planner.x=1"]
