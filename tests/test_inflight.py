@@ -47,16 +47,16 @@ def _launcher_jobs(*overrides: str) -> int:
 
 
 def test_the_launcher_takes_its_n_jobs_from_the_resolver(monkeypatch):
-    monkeypatch.setattr("cab_core.conf.in_flight.available_memory_mb", lambda: 2048 + 10 * 240 + 100)
+    monkeypatch.setattr("cab_core.conf.in_flight.available_memory_mb", lambda: 2048 + 10 * 160 + 100)
     monkeypatch.setattr("cab_core.conf.in_flight.cores", lambda: 3)
-    assert _launcher_jobs("model=qwen_local", "sim=mujoco") == 10  # mujoco.yaml: slot_memory_mb 240
+    assert _launcher_jobs("model=qwen_local", "sim=mujoco") == 10  # mujoco.yaml: slot_memory_mb 160
     assert _launcher_jobs("model=idle", "sim=mujoco") == 3  # model-free: one per core
     assert _launcher_jobs("model=qwen_local", "sim=mujoco", "sweep.max_in_flight=5") == 5
     assert _launcher_jobs("model=qwen_local", "sim=mujoco", "sweep.memory_reserve_mb=0",
                           "sweep.in_flight_cap=4") == 4
     # the paper sweeps nine model configurations (hydra.sweeper.params) on the default simulator
-    monkeypatch.setattr("cab_core.conf.in_flight.available_memory_mb", lambda: 2048 + 10 * 280 + 100)
-    assert _launcher_jobs("experiment=paper", "sim=sapien") == 10  # sapien.yaml: 280
+    monkeypatch.setattr("cab_core.conf.in_flight.available_memory_mb", lambda: 2048 + 10 * 210 + 100)
+    assert _launcher_jobs("experiment=paper", "sim=sapien") == 10  # sapien.yaml: 210
 
 
 def test_swept_options_are_read_from_the_overrides_and_the_sweepers_params():
@@ -80,7 +80,7 @@ def test_a_sweep_of_model_free_agents_keeps_one_per_core_and_one_with_a_model_fi
     assert resolver(None, _root_=root("idle,oracle")) == 2
     assert resolver(None, _root_=root("idle,qwen_local")) == 6 * 280 // 200
     # the largest slot of the simulators swept; one without a figure counts DEFAULT_SLOT_MEMORY_MB
-    assert resolver(None, _root_=root("qwen_local", "mujoco,sapien")) == 6  # sapien.yaml: slot_memory_mb 280
+    assert resolver(None, _root_=root("qwen_local", "mujoco,sapien")) == 6 * 280 // 210  # sapien.yaml: slot_memory_mb 210
     assert resolver(None, _root_=root("qwen_local", "mujoco,pybullet")) == 6 * 280 // DEFAULT_SLOT_MEMORY_MB
 
 
