@@ -24,7 +24,9 @@ timelines
 ``robot/<arm>/gripper_cmd``                gripper command (1 open, 0 closed), per snapshot
 ``robot/<arm>/finger_gap_m``               distance between the fingers, per snapshot
 ``world/objects/<object>``                 each object's pose, per snapshot
+``world/objects/<object>/shape_<i>``       its shapes' geometry, in its frame (static; :mod:`.scene`)
 ``world/object_links/<object>/<link>``     an articulated object's link poses, per snapshot
+``world/object_links/<object>/<link>/visual_<i>``   the link's URDF visuals (static)
 ``objects/<object>/qpos``                  an articulated object's joint positions, per snapshot
 ``robot/<arm>/joints/<joint>``             an arm's joint positions (rad or m), wherever a call's result
                                            reports them (``get_robot_state``): the snapshots hold no
@@ -36,6 +38,7 @@ timelines
 ``log/verdict``                            the verdict, termination and claim, at the end
 ``programs/<prog_NNN>``                    each ``run_code`` program, as a document, at its call
 ``attempt/result``, ``attempt/instruction``, ``attempt/scene_info``   documents (static)
+``log/scene``                              why the scene's geometry is missing, when it is (static)
 """
 from __future__ import annotations
 
@@ -47,7 +50,10 @@ from typing import Any
 
 import numpy as np
 
+from cab_core.errors import CabError
 from cab_core.kits.jsonfiles import read_json_object, read_jsonl
+
+from .scene import log_scene
 
 FILE = "attempt.rrd"
 APP_ID = "cab"
@@ -282,9 +288,14 @@ def _write(w: _Writer, root: Path, result: dict, events: list[dict], snapshots: 
     if result.get("instruction"):
         w.log("attempt/instruction", rr.TextDocument(str(result["instruction"])), static=True)
     scene = root / "privileged" / "scene_info.json"
-    if scene.exists():
-        w.log("attempt/scene_info", rr.TextDocument(_document("scene info (privileged)", json.loads(scene.read_text())),
+    scene_info = read_json_object(scene) if scene.exists() else {}
+    if scene_info:
+        w.log("attempt/scene_info", rr.TextDocument(_document("scene info (privileged)", scene_info),
                                                     media_type=rr.MediaType.MARKDOWN), static=True)
+    try:
+        log_scene(w, result, scene_info, snapshots)
+    except (CabError, ValueError) as e:  # the task's plugin not installed, a record that names no task...
+        w.log("log/scene", rr.TextLog(f"the scene's geometry is not drawn: {e}", level="ERROR"), static=True)
 
     summaries: dict[str, dict] = {}
     shown: set[str] = set()
