@@ -19,7 +19,7 @@ python -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || tr
 # the root distribution as a link tree (strict editable mode): Hydra finds its search path plugin
 # (hydra_plugins/) only in a real directory; a file added to cab_core/ or conf/ needs this script again
 python -m pip install -q -e ".[test,ray,slurm,export]" --config-settings editable_mode=strict 2>&1 | grep -v '^WARNING: Location' || true
-python -m pip install -q -e plugins/embodiment_aloha -e plugins/planner_mplib \
+python -m pip install -q -e plugins/embodiment_aloha -e plugins/planner_mplib -e plugins/planner_pin \
   -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all,inspect]" \
   -e plugins/harness_mcp -e plugins/export_rerun -e plugins/inspect_cab 2>&1 | grep -v '^WARNING: Location' || true
 python -c "import cab_core, sapien, mplib" || { echo "install check failed" >&2; exit 1; }

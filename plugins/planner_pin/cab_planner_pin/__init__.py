@@ -1,0 +1,1 @@
+"""Pinocchio + OMPL + TOPP-RA planner plugin."""
