@@ -136,9 +136,10 @@ class _Arm:
         mine = set(a.links)
         others = {link for name, o in spec.arms.items() if name != arm for link in o.links} - mine
         link_of = [model.frames[g.parentFrame].name for g in self.geom.geometryObjects]
-        for cp in list(self.geom.collisionPairs):
-            if link_of[cp.first] in others or link_of[cp.second] in others:
-                self.geom.removeCollisionPair(cp)
+        drop = [(cp.first, cp.second) for cp in self.geom.collisionPairs
+                if link_of[cp.first] in others or link_of[cp.second] in others]
+        for i, j in drop:  # by value: the bound vector's items are views that shift as pairs go
+            self.geom.removeCollisionPair(pin.CollisionPair(i, j))
         self.link_of = link_of
         self.gdata = pin.GeometryData(self.geom)
 
