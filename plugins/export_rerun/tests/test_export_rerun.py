@@ -161,6 +161,35 @@ def test_a_scene_that_cannot_be_rebuilt_is_one_error_line(attempt, tmp_path):
     assert "click_bell" in line and "\n" not in line
 
 
+@pytest.mark.sim
+def test_an_articulated_object_is_drawn_link_by_link(tmp_path):
+    """open_microwave ended at once (a scripted ``done``): each link of the microwave's URDF has its
+    visuals under the link's recorded pose."""
+    import xml.etree.ElementTree as ET
+
+    from attempt_records import run_one
+
+    from cab_core.kits.registry import task_instance
+
+    script = tmp_path / "script.json"
+    script.write_text(json.dumps([{"tool": "done", "args": {"report": "nothing done", "success_claim": False}}]))
+    d = tmp_path / "attempt"
+    run_one(d, "open_microwave", "scripted", 1, "sim=mujoco", f"model.script={script}")
+    rec = rr.dataframe.load_recording(str(convert(d, video=False)))
+    comps = _components(rec)
+    [art] = task_instance("open_microwave", 0, "aloha_agilex").scene.articulations
+    visuals = {link.get("name"): len(link.findall("visual")) for link in ET.parse(art.urdf).getroot().findall("link")}
+    recorded = _jsonl(d / "privileged" / "snapshots.jsonl")[0]["objects"][art.name]["links"]
+    assert set(visuals) == set(recorded) == {"base", "door"}
+    for link, n in visuals.items():
+        entity = f"/world/object_links/{art.name}/{link}"
+        drawn = sorted(e for e in comps if e.startswith(entity + "/visual_"))
+        assert len(drawn) == n > 0
+        assert all({"Boxes3DIndicator", "Mesh3DIndicator"} & comps[e] for e in drawn)  # boxes; cylinders as meshes
+        assert len(rec.view(index="snapshot", contents={entity: ["Translation3D"]}).select().read_all()) == \
+            len(_jsonl(d / "privileged" / "snapshots.jsonl"))
+
+
 URDF = """<robot name="lamp">
   <material name="brass"><color rgba="0.8 0.6 0.2 1"/></material>
   <link name="foot">
