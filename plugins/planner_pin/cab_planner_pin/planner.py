@@ -18,6 +18,7 @@ set-point for time ``k * dt``, the first row is the start and the last row is th
 """
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -423,12 +424,20 @@ class PinPlanner(Planner):
         planner = og.RRTConnect(si)
         planner.setRange(float(self.cfg.rrt_range))
         ss.setPlanner(planner)
-        solved = ss.solve(float(self.cfg.planning_time))
-        if not solved or "Exact" not in str(solved):
-            return None
-        ss.simplifySolution()
-        path = ss.getSolutionPath()
-        pts = np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])
+        try:
+            solved = ss.solve(float(self.cfg.planning_time))
+            if not solved or "Exact" not in str(solved):
+                return None
+            ss.simplifySolution()
+            path = ss.getSolutionPath()
+            pts = np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])
+            del path, solved
+        finally:
+            # OMPL's bindings (nanobind) keep these alive through reference cycles: released here, or
+            # every process that planned prints "leaked instance" warnings at exit
+            ss.clear()
+            del ss, goal, planner, si
+            gc.collect()
         # dense enough for the spline of TOPP-RA to stay near the checked straight segments
         dense = [pts[0]]
         for a, b in zip(pts[:-1], pts[1:]):
