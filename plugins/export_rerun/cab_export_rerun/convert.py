@@ -294,7 +294,7 @@ def _write(w: _Writer, root: Path, result: dict, events: list[dict], snapshots: 
                                                     media_type=rr.MediaType.MARKDOWN), static=True)
     try:
         log_scene(w, result, scene_info, snapshots)
-    except (CabError, ValueError) as e:  # the task's plugin not installed, a record that names no task...
+    except CabError as e:  # the task's plugin not installed, a record that names no task or embodiment
         w.log("log/scene", rr.TextLog(f"the scene's geometry is not drawn: {e}", level="ERROR"), static=True)
 
     summaries: dict[str, dict] = {}

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from cab_core.contracts.scene import Body, Box, Capsule, Cylinder, Material, Mesh, Shape, Sphere
+from cab_core.errors import RecordError
 from cab_core.geometry import euler_quat
 from cab_core.kits.assets import trimesh_module
 from cab_core.kits.registry import task_instance
@@ -185,8 +186,8 @@ def log_scene(w, result: dict, scene_info: dict, snapshots: list[dict]) -> dict[
     task, seed = scene_info.get("task") or result.get("task"), scene_info.get("seed", result.get("seed"))
     embodiment = result.get("embodiment")
     if not task or seed is None or not embodiment:
-        raise ValueError("the record does not name its task, seed and embodiment (result.json, "
-                         "privileged/scene_info.json): the scene cannot be rebuilt")
+        raise RecordError("the record does not name its task, seed and embodiment (result.json, "
+                          "privileged/scene_info.json): the scene cannot be rebuilt")
     scene = task_instance(str(task), int(seed), str(embodiment)).scene
     posed = {n for s in snapshots for n in (s.get("objects") or {})}
     posed_links = {(n, link) for s in snapshots for n, o in (s.get("objects") or {}).items() for link in o.get("links") or {}}

@@ -148,17 +148,20 @@ def test_rrd_print_lists_the_shapes(attempt):
 
 
 @pytest.mark.sim
-def test_a_scene_that_cannot_be_rebuilt_is_one_error_line(attempt, tmp_path):
+@pytest.mark.parametrize("file, change, says", [
+    ("privileged/scene_info.json", {"task": "no_such_task"}, "unknown task 'no_such_task'; choices: "),
+    ("result.json", {"embodiment": None}, "the record does not name its task, seed and embodiment"),
+])
+def test_a_scene_that_cannot_be_rebuilt_is_one_error_line(attempt, tmp_path, file, change, says):
     d = tmp_path / "attempt"
     shutil.copytree(attempt, d, ignore=shutil.ignore_patterns("*.rrd", "*.mp4", "observations"))
-    info = json.loads((d / "privileged" / "scene_info.json").read_text())
-    (d / "privileged" / "scene_info.json").write_text(json.dumps({**info, "task": "no_such_task"}))
+    (d / file).write_text(json.dumps({**json.loads((d / file).read_text()), **change}))
     rec = rr.dataframe.load_recording(str(convert(d, video=False)))
     assert not any(SHAPE.fullmatch(c.entity_path) for c in rec.schema().component_columns())
+    assert "/world/objects/bell" in {c.entity_path for c in rec.schema().component_columns()}  # the rest is there
     [[line]] = rec.view(index="snapshot", contents={"/log/scene": ["Text"]}).select_static().read_all() \
         .column("/log/scene:Text").to_pylist()
-    assert line.startswith("the scene's geometry is not drawn: unknown task 'no_such_task'; choices: ")
-    assert "click_bell" in line and "\n" not in line
+    assert line.startswith(f"the scene's geometry is not drawn: {says}") and "\n" not in line
 
 
 @pytest.mark.sim
