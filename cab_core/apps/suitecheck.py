@@ -203,6 +203,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--sim", default=None,
                     help="comma-separated simulators (default: the default configuration's); several add a "
                          "cross-simulator table")
+    ap.add_argument("--planner", default=None, metavar="NAME",
+                    help="every attempt with this motion planner (default: the default configuration's)")
     ap.add_argument("--cold", action="store_true",
                     help="a fresh process per attempt and no cache folder (start-up as before warm workers)")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
@@ -235,6 +237,8 @@ def _selection(a: argparse.Namespace) -> tuple[list[str], list[str], list[int] |
             composed([f"randomize={a.randomize}"])
         except Exception:
             _usage_error(f"unknown --randomize option {a.randomize!r}")
+    if a.planner is not None and a.planner not in registry("planners"):
+        _usage_error(f"unknown planner {a.planner!r}; installed: {', '.join(registry('planners'))}")
     if a.sim is None:
         a.sim = default_selection(("sim",))["sim"]
     sims = [s.strip() for s in a.sim.split(",") if s.strip()]
@@ -292,13 +296,14 @@ def main() -> None:
     timings = {}
     if a.compare:
         t0 = time.monotonic()
-        cold_rows = run_batch(tasks, seeds, max(1, a.jobs), out / "cold", agents, tuple(sims), cold=True)
+        cold_rows = run_batch(tasks, seeds, max(1, a.jobs), out / "cold", agents, tuple(sims), cold=True,
+                              planner=a.planner)
         timings["cold_s"] = round(time.monotonic() - t0, 1)
         print(f"cold (a fresh process per attempt, no BRDF cache): {timings['cold_s']:.0f} s; "
               f"verdict {verdict(cold_rows)}", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     rows = run_batch(tasks, seeds, max(1, a.jobs), out / "warm" if a.compare else out, agents, tuple(sims),
-                     cold=a.cold, perturb=a.perturb, randomize=a.randomize)
+                     cold=a.cold, perturb=a.perturb, randomize=a.randomize, planner=a.planner)
     timings["cold_s" if a.cold else "warm_s"] = round(time.monotonic() - t0, 1)
     print_table(rows)
     table = cross_sim(rows)

@@ -492,7 +492,8 @@ def _as_dict(plain: object) -> dict:
     return plain
 
 
-def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None) -> list[dict]:
+def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None,
+                    planner: str | None = None) -> list[dict]:
     """The composed configuration of each ``(task, seed, agent, out, sim)``, as ``cab task=T
     seed=S model=A sim=X`` composes it (in this thread: Hydra's composition is not thread-safe).
     ``cold``: a renderer generates its tables in each process (no cache folder), as before the cache."""
@@ -507,6 +508,8 @@ def attempt_configs(jobs: list[tuple], cold: bool, randomize: str | None = None)
                 overrides.append(f"perturb.seed={perturb[0]}")
             if randomize is not None:
                 overrides.append(f"randomize={randomize}")
+            if planner is not None:
+                overrides.append(f"planner={planner}")
             cfg = compose(config_name="config", overrides=normalise_overrides(overrides))
             plain = _as_dict(OmegaConf.to_container(cfg, resolve=True))
             if cold and "brdf_cache" in plain["sim"]:
@@ -557,14 +560,15 @@ def run_one(config: dict, out: str, settings) -> dict:
 
 def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | None, jobs: int, out: Path,
           agents=("oracle", "idle"), sims: tuple[str, ...] | None = None, cold: bool = False,
-          perturb: int = 0, randomize: str | None = None) -> list[dict]:
+          perturb: int = 0, randomize: str | None = None, planner: str | None = None) -> list[dict]:
     """Every attempt, ``jobs`` at a time. Warm (the default): each of the ``jobs`` threads keeps one
     worker process that runs its attempts one after another (``sweep.warm_workers``), renderer
     tables read from the cache folder. ``cold``: a fresh process per attempt and no cache folder, as a
     ``cab -m`` sweep ran attempts before warm workers, for comparison. ``randomize``: the appearance
     randomisation option of every attempt (``cab_core.attempt.variation.randomize``). ``perturb``: each attempt
     ``perturb`` times instead, with ``perturb.seed`` 1..N (``cab_core.attempt.variation.perturb``). ``seeds``: one
-    list for every task, or each task's own (a seed set), or None: each task's catalog seed."""
+    list for every task, or each task's own (a seed set), or None: each task's catalog seed. ``planner``:
+    the motion planner option of every attempt (None: the default configuration's)."""
     if sims is None:
         sims = (default_selection(("sim",))["sim"],)
 
@@ -578,7 +582,7 @@ def run_batch(tasks: list[str], seeds: list[int] | dict[str, tuple[int, ...]] | 
                     for k in (range(1, perturb + 1) if perturb else [None]):
                         where = out / sim / t / f"seed-{s}" / a / (f"perturb-{k}" if k else "")
                         jobs_list.append((t, s, a, str(where), sim, k))
-    configs = attempt_configs(jobs_list, cold, randomize)
+    configs = attempt_configs(jobs_list, cold, randomize, planner)
     return run_configs(configs, [j[3] for j in jobs_list], jobs, cold)
 
 
