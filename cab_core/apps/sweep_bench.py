@@ -37,12 +37,18 @@ ASTRA_MEDIAN_S = 477.0  # Astra's median attempt length
 PROJECTED_N = (1, 8, 32, 64)
 
 
-def _sample_pss(pid: int, every_s: float, peak: list[float], stop: threading.Event) -> None:
-    """The largest PSS of the sweep's process tree, sampled every ``every_s`` until ``stop``."""
-    from cab_core.sweep.memory import tree_pss_mb
+def _sample_tree(pid: int, every_s: float, peak: list[float], cpu: dict[int, float], stop: threading.Event) -> None:
+    """The largest PSS of the sweep's process tree, and the CPU seconds of each of its processes as
+    last seen, sampled every ``every_s`` until ``stop``. The attempt processes a fork server forked
+    are not children of ``cab -m`` (whose reaped children the kernel accounts): they are counted
+    here, from the tree, a process's last ``every_s`` before it ends excepted."""
+    from cab_core.sweep.memory import cpu_seconds, descendants, pss_mb
 
     while not stop.wait(every_s):
-        peak[0] = max(peak[0], tree_pss_mb(pid))
+        procs = descendants(pid)
+        peak[0] = max(peak[0], sum(pss_mb(p) for p in procs))
+        for p in procs:
+            cpu[p] = max(cpu.get(p, 0.0), cpu_seconds(p))
 
 
 def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, video: bool, rnd: int = 1,
@@ -66,15 +72,16 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
     log = out / f"round-{rnd}-{model}-{mode}-workers-{workers}.log"
     with open(log, "w") as err:
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, cwd=out)
-        peak, stop = [0.0], threading.Event()
-        sampler = threading.Thread(target=_sample_pss, args=(proc.pid, 5.0, peak, stop), daemon=True)
+        peak, tree_cpu, stop = [0.0], {}, threading.Event()
+        sampler = threading.Thread(target=_sample_tree, args=(proc.pid, 2.0, peak, tree_cpu, stop), daemon=True)
         sampler.start()
         proc.wait()
         stop.set()
         sampler.join()
     wall = time.monotonic() - t0
     cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu_s = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+    reaped = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)  # cab -m and what it reaped
+    cpu_s = max(reaped, sum(tree_cpu.values()))  # the tree as sampled: forked attempt processes too
     if proc.returncode != 0:
         raise RuntimeError(f"sweep with {workers} worker(s) failed ({proc.returncode}):\n{log.read_text()[-3000:]}")
     results = [json.loads(p.read_text()) for p in completed_results(sweep_dir)]

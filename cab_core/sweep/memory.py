@@ -67,3 +67,12 @@ def descendants(pid: int) -> list[int]:
 def tree_pss_mb(pid: int) -> float:
     """The PSS of ``pid`` and every process below it, in MiB: the memory the tree holds."""
     return sum(pss_mb(p) for p in descendants(pid))
+
+
+def cpu_seconds(pid: int) -> float:
+    """The CPU time (user and system) a process has used so far, in seconds (0 when it cannot be read)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
