@@ -36,6 +36,7 @@ SHORT_MOVE_RAD = 0.05
 SEED_IK_MAX_RAD = 0.25  # ik(): the solution continued from the seed, if this near it (joint norm)
 UNIQUE_RAD = 0.1  # two IK solutions nearer than this (joint norm) are the same solution
 CONVERGED = 1e-6  # IK iterates until its twist error is this small (then ``ik_threshold`` decides)
+STALL_ITERATIONS = 10  # IK gives a restart up when its error has not halved in this many iterations
 LINE_STEP_RAD = 0.01  # collision-check resolution of a straight joint-space line (max joint change)
 
 
@@ -176,14 +177,20 @@ class _Arm:
         q = q0.copy()
         lo, hi = self.limits[:, 0], self.limits[:, 1]
         eye = np.eye(6)
-        for _ in range(iterations):
+        history: list[float] = []
+        for it in range(iterations):
             full = self.full(q)
             pin.computeJointJacobians(self.model, self.data, full)  # forward kinematics included
             pin.updateFramePlacements(self.model, self.data)
             err_m = self.data.oMf[self.tcp].actInv(goal)
             err = pin.log6(err_m).vector
-            if np.linalg.norm(err) < CONVERGED:
+            norm = float(np.linalg.norm(err))
+            if norm < CONVERGED:
                 break
+            history.append(norm)
+            # a restart stuck against joint limits or in a local minimum: given up early
+            if it >= STALL_ITERATIONS and norm > 0.5 * history[it - STALL_ITERATIONS] and norm > 1e-3:
+                return None
             jac = pin.getFrameJacobian(self.model, self.data, self.tcp, pin.LOCAL)[:, self.q_idx]
             jac = pin.Jlog6(err_m) @ jac
             dq = jac.T @ np.linalg.solve(jac @ jac.T + damping * eye, err)
