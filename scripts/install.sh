@@ -22,5 +22,5 @@ python -m pip install -q -e ".[test,ray,slurm,export]" --config-settings editabl
 python -m pip install -q -e plugins/embodiment_aloha -e plugins/planner_mplib -e plugins/planner_pin \
   -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all,inspect]" \
   -e plugins/harness_mcp -e plugins/export_rerun -e plugins/inspect_cab 2>&1 | grep -v '^WARNING: Location' || true
-python -c "import cab_core, sapien, mplib" || { echo "install check failed" >&2; exit 1; }
+python -c "import cab_core, sapien, mplib, pinocchio, ompl, toppra" || { echo "install check failed" >&2; exit 1; }
 echo "cab installed in $(pwd)/.venv"
