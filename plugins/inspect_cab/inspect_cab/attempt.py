@@ -188,6 +188,9 @@ async def serve_attempt(command: list[str], folder: Path, *, exit_grace_s: float
     folder.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     env.setdefault("PYTHONUNBUFFERED", "1")
+    # the samples in flight (--max-samples) share one CPU slot per core while they compute, as a cab
+    # sweep's attempts do (cab_core.attempt.engine.cpu_slots: the pool is on where this names its size)
+    env.setdefault("CAB_CPU_SLOTS", str(os.cpu_count() or 1))
     async with stdio_transport(command, env, folder.parent, folder.parent / f"{folder.name}.cab.log",
                                exit_grace_s) as (read, write, _process):
         info = Implementation(name=client_name, version=inspect_version)
