@@ -22,7 +22,7 @@ pytest.importorskip("mujoco")
 
 from inspect_ai import eval as inspect_eval  # noqa: E402
 from inspect_ai._util.content import ContentImage, ContentText  # noqa: E402
-from inspect_ai.log import read_eval_log  # noqa: E402
+from inspect_ai.log import read_eval_log, resolve_sample_attachments  # noqa: E402
 from inspect_ai.model import (  # noqa: E402
     ChatMessageTool,
     ChatMessageUser,
@@ -247,9 +247,11 @@ def test_oracle_calls_through_inspect_succeed_and_images_reach_the_model(tmp_pat
 
 
 def test_reference_agent_plays_the_paper_harness_on_the_eval_model(tmp_path, monkeypatch, oracle_calls):
-    """agent=reference: cab's reference harness in the attempt's process, its provider Inspect's
-    mockllm (the model string of the eval), scripted with the oracle's calls: a success scored as
-    under the react agent, the record the reference harness's, named by the model string."""
+    """agent=reference: cab's reference harness in the attempt's process, its requests served by
+    Inspect's model bridge with the eval's own model (mockllm, scripted with the oracle's calls):
+    each is a model event of the sample's transcript, counted in the log's model usage, generated
+    with the eval's settings; a success scored as under the react agent, the record the reference
+    harness's, named by the model string."""
     offline_tokens(monkeypatch)
     from cab._registry import codeaction
 
@@ -257,13 +259,11 @@ def test_reference_agent_plays_the_paper_harness_on_the_eval_model(tmp_path, mon
     for call in oracle_calls:
         out = ModelOutput.for_tool_call("mockllm/model", call["tool"], call["args"])
         out.usage = ModelUsage(input_tokens=10, output_tokens=2, total_tokens=12)
-        outputs.append(out.model_dump(mode="json"))
-    script = tmp_path / "outputs.json"
-    script.write_text(json.dumps(outputs))
+        outputs.append(out)
+    model = get_model("mockllm/model", custom_outputs=outputs)
     [log] = inspect_eval(codeaction(tasks=TASK, sim="mujoco", agent="reference", attempts=1, video=False,
-                                    records=str(tmp_path / "records"),
-                                    cab_args=f"+model.model_args.custom_outputs={script}"),
-                         model="mockllm/model", log_dir=str(tmp_path / "logs"), display="none")
+                                    records=str(tmp_path / "records")),
+                         model=model, temperature=0.25, log_dir=str(tmp_path / "logs"), display="none")
     assert log.status == "success", log.error
     [sample] = log.samples
     score = sample.scores["verdict"]
@@ -272,8 +272,35 @@ def test_reference_agent_plays_the_paper_harness_on_the_eval_model(tmp_path, mon
     assert folder == tmp_path / "records" / TASK / "mockllm_model" / "mujoco" / "seed-0" / "attempt-1"
     record = read_result(folder)
     assert (record["harness"], record["model"], record["agent"]["kind"]) == ("reference", "mockllm_model", "model_api")
-    assert record["agent"]["usage"]["input_tokens"] == 10 * len(oracle_calls)  # every turn through Inspect's model API
+    model_cfg = next(json.loads(line) for line in (folder / "events.jsonl").open())["config"]["model_cfg"]
+    # the bridge's port (one per sample) is no setting of the configuration: cab-report keeps the samples together
+    assert (model_cfg["provider"], model_cfg["model_id"], model_cfg["base_url"]) == ("openai_compatible", "inspect", None)
+    n = len(oracle_calls)
+    assert record["agent"]["usage"]["input_tokens"] == 10 * n  # every turn answered by the eval's model
     assert sample.output.completion == oracle_calls[-1]["args"]["report"]  # the completion claim
+    # the eval's model saw every request: one model event a turn, in the sample's transcript
+    events = [e for e in sample.events if e.event == "model"]
+    assert len(events) == n and {e.model for e in events} == {"mockllm/model"}
+    assert [e.output.message.tool_calls[0].function for e in events] == [c["tool"] for c in oracle_calls]
+    first = events[0]
+    sample = resolve_sample_attachments(sample)
+    first = next(e for e in sample.events if e.event == "model")
+    assert first.input[0].role == "system" and first.input[0].text.startswith("# Role\nYou control")  # cab's prompt
+    assert first.input[1].role == "user" and first.input[1].text == sample.input  # the task's instruction
+    assert "done" in {t.name for t in first.tools} and len(first.tools) == len(events[-1].tools) > 20
+    assert all(e.config.temperature == 0.25 for e in events)  # the eval's generation settings apply
+    # images after a tool result reach the model (the harness's rule for this API: one user message)
+    assert any(isinstance(c, ContentImage) for e in events[1:] for m in e.input if m.role == "user"
+               and not isinstance(m.content, str) for c in m.content)
+    # and the log's model usage counts them
+    usage = log.stats.model_usage["mockllm/model"]
+    assert (usage.input_tokens, usage.output_tokens) == (10 * n, 2 * n)
+    # the configuration is named by the Inspect model string in cab's report
+    from cab_core.analysis.attempts import label_configurations, scan
+
+    attempts = scan(tmp_path / "records").attempts
+    label_configurations(attempts)
+    assert [a.config for a in attempts] == ["mockllm/model (reference, mujoco)"]
 
 
 def test_a_simulator_that_cannot_start_is_a_sample_error_not_a_score(tmp_path, monkeypatch):

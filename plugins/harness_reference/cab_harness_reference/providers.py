@@ -26,9 +26,10 @@ CONFIG_KEYS: dict[str, frozenset[str]] = {
     "google": frozenset(_CONNECTION | {"model", "key_env", "api_version", "reasoning", "thinking_budget",
                                        "include_thoughts", "temperature", "images_in_function_response",
                                        "max_images_per_request"}),
-    # probe*: the capability probe of an OpenAI-compatible endpoint (.probe)
+    # probe*: the capability probe of an OpenAI-compatible endpoint (.probe); label: as for inspect (an
+    # Inspect eval's model bridge is such an endpoint, the configuration named by the eval's model string)
     "openai_compatible": frozenset(_OPENAI | {"max_tokens_param", "replay_reasoning", "cache_control",
-                                              "probe", "probe_timeout_s", "probe_needle_tokens"}),
+                                              "probe", "probe_timeout_s", "probe_needle_tokens", "label"}),
     # model_args: Inspect's -M model arguments; generate_config: further GenerateConfig fields;
     # label: how reports name the configuration (the Inspect model string, which is no folder name)
     "inspect": frozenset({"model_id", "base_url", "api_key_env", "timeout_s", "retry", "max_output_tokens",

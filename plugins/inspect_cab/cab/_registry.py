@@ -86,6 +86,8 @@ def codeaction(tasks: str | Iterable[str] = "codeaction", sim: str | None = None
         solver=cab_task.cab_attempt(sim, overrides, agent=agent, records=records),
         scorer=verdict(),
         epochs=Epochs(int(attempts), reducers),
+        # agent=reference: Inspect's model bridge serves the harness from the sample's sandbox (this host)
+        sandbox="local" if agent == "reference" else None,
     )
 
 
