@@ -72,7 +72,7 @@ def run_sweep(out: Path, workers: int, task: str, model: str, attempts: int, vid
     log = out / f"round-{rnd}-{model}-{mode}-workers-{workers}.log"
     with open(log, "w") as err:
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, cwd=out)
-        peak, tree_cpu, stop = [0.0], {}, threading.Event()
+        peak, tree_cpu, stop = [0.0], dict[int, float](), threading.Event()
         sampler = threading.Thread(target=_sample_tree, args=(proc.pid, 2.0, peak, tree_cpu, stop), daemon=True)
         sampler.start()
         proc.wait()
