@@ -159,3 +159,15 @@ def test_a_model_sweep_runs_in_threads_and_stops_at_once(tmp_path, sig):
     while any(_running(p) for p in tree["attempt worker"]) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not [p for p in tree["attempt worker"] if _running(p)]  # they die with the sweep's process
+
+
+def test_chdir_is_refused_in_one_line_before_anything_runs(tmp_path):
+    """Jobs in threads share one working directory: hydra.job.chdir=true cannot be honoured."""
+    sweep = tmp_path / "sweep"
+    r = subprocess.run([CAB, "-m", "task=click_bell", "sim=mujoco", "attempt=1,2", "hydra.job.chdir=true",
+                        f"hydra.sweep.dir={sweep}"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        "cab: hydra.job.chdir=true cannot work with cab's launcher (its jobs are threads of one process, which has "
+        "one working directory): leave it false, or use hydra/launcher=joblib"]
+    assert not sweep.exists()

@@ -450,9 +450,14 @@ class SweepManifestCallback(Callback):
     exceptions into warnings, so a refusal ends the process here, with the reason on stderr."""
 
     def on_multirun_start(self, config, **kwargs) -> None:
+        from omegaconf import OmegaConf
+
         from cab_core.sweep.manifest import SweepConfigChanged, SweepManifest  # 0.55 s: see _sweep_job
 
         global _SWEEP_DIR
+        if OmegaConf.select(config, "hydra.job.chdir") and "cab_launcher" in str(config.hydra.launcher._target_):
+            _refuse("hydra.job.chdir=true cannot work with cab's launcher (its jobs are threads of one process, "
+                    "which has one working directory): leave it false, or use hydra/launcher=joblib")
         _plan_or_preflight(config, multirun=True)
         try:
             SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)

@@ -182,6 +182,9 @@ class LocalLauncher(Launcher):
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
         assert self.config is not None and self.task_function is not None and self.hydra_context is not None
+        if self.config.hydra.job.get("chdir"):  # one working directory per process, not per thread
+            raise ValueError("hydra.job.chdir=true cannot work with cab's launcher (its jobs are threads of one "
+                             "process); leave it false, or use hydra/launcher=joblib")
         setup_globals()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         sweep_dir = str(self.config.hydra.sweep.dir)
