@@ -20,7 +20,7 @@ from cab_harness_reference import loop
 CORE = Path(cab_core.__file__).parent
 
 # Registered names that are also ordinary words or a protocol's name: not searched for as such.
-AMBIGUOUS = {"reference", "mcp", "google", "openai", "anthropic"}
+AMBIGUOUS = {"reference", "mcp", "google", "openai", "anthropic", "pin", "inspect"}
 
 
 def _project_names() -> tuple[set[str], set[str]]:

@@ -38,6 +38,8 @@ ALLOWED: dict[str, set[str]] = {
     "plugins/inspect_cab/inspect_cab/scoring.py": {"cab_core.analysis.attempts", "cab_core.analysis.failure",
                                                    "cab_core.analysis.measures"},
     "plugins/inspect_cab/inspect_cab/task.py": {"cab_core.config", "cab_core.plugins", "cab_core.sweep.layout"},
+    # the reference agent names its model configuration as a folder, as the sweep's layout does
+    "plugins/inspect_cab/inspect_cab/reference.py": {"cab_core.sweep.layout"},
 }
 
 

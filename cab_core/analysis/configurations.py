@@ -11,7 +11,7 @@ pricing, the key's variable, the published usage) never splits a configuration, 
 a setting that follows the task (one value per task: a scripted agent's script for each task), as a
 configuration is what is compared across tasks; ``model.name`` names a configuration outright (two
 names are two configurations whatever their settings). Where the name must be a folder name and the
-model's own name is not one (an Inspect model string ``openai/gpt-4o``), ``model.label`` is what the
+model's own name is not one (a provider/model string such as ``openai/gpt-4o``), ``model.label`` is what the
 label shows in its place.
 
 One rule for every reader: cab-report and the analyses (through
