@@ -1,6 +1,7 @@
 """A fork server for a sweep's warm workers: their imported libraries shared copy-on-write.
 
-Each slot of a sweep (a joblib worker, or a thread of ``cab-suite-check``) keeps a warm worker
+Each slot of a sweep (a thread of ``cab -m`` under cab's launcher, a joblib worker, or a thread of
+``cab-suite-check``) keeps a warm worker
 (``cab_core.sweep.worker``). Started as fresh interpreters, N workers each import the engine, the
 simulator and the model's client library and hold N private copies of them (about 130 MiB each with
 a physics engine and a provider's SDK). Forked from one process that has imported them (this module's
@@ -9,10 +10,10 @@ server freezes its objects out of the garbage collector's reach (``gc.freeze``) 
 worker do not write to them.
 
 The server listens on an abstract Unix socket named from what must be equal for two workers to share
-it: the interpreter, the process group (one command line: a ``cab -m`` sweep and its joblib workers)
+it: the interpreter, the process group (one command line: a ``cab -m`` sweep and any launcher processes)
 and the environment (thread counts and the renderer's variables are read at import). The first
 supervisor that wants a worker starts it; the others connect. A request names the plugin packages to
-import (the simulator's and the harness's, every submodule: their heavy imports sit in submodules,
+import (the simulator's, robot's, planner's, harness's and the task suite's, every submodule: their heavy imports sit in submodules,
 never in the package's ``__init__``) and hands over the worker's standard input, output and error;
 the server imports, forks, and tells the requester the worker's process id, later its exit status.
 No renderer, physics world or thread exists in the server when it forks: plugins create them when an
