@@ -47,20 +47,11 @@ def attempts(tmp_path_factory):
     return root
 
 
-class Rrd:
-    """A recording read back through rerun.dataframe: rows per entity and component on a timeline."""
+def _rrd(path: Path):
+    """A recording read back with rerun-sdk's reader (``cab_export_rerun.readback``, on ``rerun.chunk``)."""
+    from cab_export_rerun.readback import Recording
 
-    def __init__(self, path: Path):
-        import rerun as rr
-
-        self.rec = rr.dataframe.load_recording(str(path))
-        self.entities = {c.entity_path for c in self.rec.schema().component_columns()}
-
-    def rows(self, entity: str, component: str, index: str) -> list:
-        """The values of ``entity:component``, one per value of ``index`` where it was logged."""
-        table = self.rec.view(index=index, contents={entity: [component]}).select().read_all()
-        col = f"{entity}:{component}"
-        return [v for v in table.column(col).to_pylist() if v is not None] if col in table.column_names else []
+    return Recording(path)
 
 
 def _expected_paths(d: Path) -> set[str]:
@@ -87,48 +78,48 @@ def test_an_attempt_as_a_rerun_recording(attempts, name, tmp_path):
     # the same converter through cab-export, into another folder
     ex.main(["rerun", str(d), "--out", str(tmp_path)])
     for rrd in (d / "attempt.rrd", tmp_path / "attempt.rrd"):
-        r = Rrd(rrd)
+        r = _rrd(rrd)
         assert _expected_paths(d) <= r.entities
         # every image the agent saw, once, under its camera, each at the event that took it
         cams = sorted(p for p in r.entities if re.fullmatch(r"/world/cameras/[^/]+/(image|annotated)", p))
-        shown = sum(len(r.rows(p, "Blob", "event")) for p in cams)
+        shown = sum(len(r.rows(p, "EncodedImage:blob", "event")) for p in cams)
         assert shown == len(pngs) == result["counts"]["observations"]
         took = {o for e in ev if e["kind"] in ("call", "internal_call") for o in e.get("obs_ids") or []}
         assert took == set(pngs)
         # one log entry per call and per internal call, in the events' order
         calls = [e for e in ev if e["kind"] == "call"]
-        texts = [t[0] for t in r.rows("/log/calls", "Text", "event")]
+        texts = [t[0] for t in r.rows("/log/calls", "TextLog:text", "event")]
         assert len(texts) == len(calls) and all(t.startswith(f"#{e['seq']} {e['tool']}(") for t, e in zip(texts, calls))
         internal = [e for e in ev if e["kind"] == "internal_call"]
-        assert len(r.rows("/log/internal_calls", "Text", "event")) == len(internal)
+        assert len(r.rows("/log/internal_calls", "TextLog:text", "event")) == len(internal)
         others = [e for e in ev if e["kind"] not in ("call", "internal_call")]
-        assert len(r.rows("/log/events", "Text", "event")) == len(others)
+        assert len(r.rows("/log/events", "TextLog:text", "event")) == len(others)
         # a TCP transform per arm and snapshot; object poses and gripper state too
         for arm in snaps[0]["arms"]:
-            tcp = r.rows(f"/world/robot/{arm}/tcp", "Translation3D", "snapshot")
+            tcp = r.rows(f"/world/robot/{arm}/tcp", "Transform3D:translation", "snapshot")
             assert len(tcp) == len(snaps)
             assert [round(v, 5) for v in tcp[-1][0]] == [round(v, 5) for v in snaps[-1]["arms"][arm]["tcp_pose"][:3]]
-            assert len(r.rows(f"/robot/{arm}/gripper_cmd", "Scalar", "snapshot")) == len(snaps)
+            assert len(r.rows(f"/robot/{arm}/gripper_cmd", "Scalars:scalars", "snapshot")) == len(snaps)
         for obj in snaps[0]["objects"]:
-            assert len(r.rows(f"/world/objects/{obj}", "Translation3D", "snapshot")) == len(snaps)
+            assert len(r.rows(f"/world/objects/{obj}", "Transform3D:translation", "snapshot")) == len(snaps)
         # the recording camera's frames, on simulated time
-        assert len(r.rows("/video", "VideoTimestamp", "sim_time")) == result["video"]["frames"]
+        assert len(r.rows("/video", "VideoFrameReference:timestamp", "sim_time")) == result["video"]["frames"]
         # checkpoints, programs, verdict
         ck = result["checkpoints"]
-        assert len(r.rows("/log/checkpoints", "Text", "checkpoint")) == len(ck["subgoals"]) + len(ck["spatial"])
+        assert len(r.rows("/log/checkpoints", "TextLog:text", "checkpoint")) == len(ck["subgoals"]) + len(ck["spatial"])
         assert sorted(p.rsplit("/", 1)[1] for p in r.entities if p.startswith("/programs/")) == programs
-        assert len(r.rows("/log/verdict", "Text", "sim_time")) == 1
+        assert len(r.rows("/log/verdict", "TextLog:text", "sim_time")) == 1
     cli = Path(sys.executable).parent / "rerun"  # the SDK's own command line: the file loads in its viewer
     if cli.exists():
         out = subprocess.run([str(cli), "rrd", "verify", str(d / "attempt.rrd")], capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
     if name == "scripted":
-        r = Rrd(d / "attempt.rrd")
+        r = _rrd(d / "attempt.rrd")
         assert programs == ["prog_001", "prog_002"] and internal
         assert {"/world/cameras/left_camera/image", "/world/cameras/right_camera/image",
                 "/world/cameras/head_camera/annotated"} <= r.entities
         assert any(p.startswith("/robot/left/joints/") for p in r.entities)  # get_robot_state's joint positions
-        levels = [t[0] for t in r.rows("/log/calls", "TextLogLevel", "event")]
+        levels = [t[0] for t in r.rows("/log/calls", "TextLog:level", "event")]
         assert "ERROR" in levels and "WARN" in levels  # the bad argument, the refused reach
 
 

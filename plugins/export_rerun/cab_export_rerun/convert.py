@@ -58,6 +58,7 @@ from .scene import log_scene
 FILE = "attempt.rrd"
 APP_ID = "cab"
 ARG_TEXT_LIMIT = 2000  # characters of a call's arguments shown in its log entry
+TCP_AXES_M, OBJECT_AXES_M, LINK_AXES_M = 0.1, 0.05, 0.03  # length of the axes drawn at each pose (TransformAxes3D)
 
 CALL_KINDS = {"call": "log/calls", "internal_call": "log/internal_calls"}
 
@@ -200,21 +201,21 @@ def _log_snapshot(w: _Writer, i: int, snap: dict, dt: float) -> None:
     for arm, a in sorted((snap.get("arms") or {}).items()):
         if a.get("tcp_pose"):
             p = a["tcp_pose"]
-            w.log(f"world/robot/{arm}/tcp", rr.Transform3D(translation=np.asarray(p[:3], float),
-                                                            quaternion=_xyzw(p), axis_length=0.1))
+            w.log(f"world/robot/{arm}/tcp", rr.Transform3D(translation=np.asarray(p[:3], float), quaternion=_xyzw(p)),
+                  rr.TransformAxes3D(TCP_AXES_M))
         for k in ("gripper_cmd", "finger_gap_m"):
             if isinstance(a.get(k), (int, float)):
                 w.log(f"robot/{arm}/{k}", rr.Scalars(np.array([float(a[k])])))
     for name, o in sorted((snap.get("objects") or {}).items()):
         p = o.get("pose")
         if p:
-            w.log(f"world/objects/{name}", rr.Transform3D(translation=np.asarray(p[:3], float),
-                                                           quaternion=_xyzw(p), axis_length=0.05))
+            w.log(f"world/objects/{name}", rr.Transform3D(translation=np.asarray(p[:3], float), quaternion=_xyzw(p)),
+                  rr.TransformAxes3D(OBJECT_AXES_M))
         if o.get("qpos"):
             w.log(f"objects/{name}/qpos", rr.Scalars(np.asarray(o["qpos"], float)))
         for link, lp in sorted((o.get("links") or {}).items()):
-            w.log(f"world/object_links/{name}/{link}", rr.Transform3D(translation=np.asarray(lp[:3], float),
-                                                                      quaternion=_xyzw(lp), axis_length=0.03))
+            w.log(f"world/object_links/{name}/{link}",
+                  rr.Transform3D(translation=np.asarray(lp[:3], float), quaternion=_xyzw(lp)), rr.TransformAxes3D(LINK_AXES_M))
 
 
 def _log_joint_states(w: _Writer, result: Any) -> None:
@@ -269,7 +270,7 @@ def convert(attempt_dir: str | os.PathLike, out: str | os.PathLike | None = None
     rec.save(tmp)
     try:
         _write(_Writer(rec), root, result, events, snapshots, dt, video)
-        rec.flush(blocking=True)
+        rec.flush()
     except BaseException:
         rec.disconnect()
         tmp.unlink(missing_ok=True)

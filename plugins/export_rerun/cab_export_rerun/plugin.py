@@ -15,7 +15,7 @@ from typing import Any
 from cab_core.contracts.hookspecs import hookimpl
 from cab_core.errors import ConfigError, MissingDependency
 
-INSTALL = "pip install 'rerun-sdk>=0.23.1,<0.23.2' 'pyarrow>=14,<26'"
+INSTALL = "pip install 'rerun-sdk>=0.41' 'pyarrow>=18'"
 
 
 def _require_sdk() -> None:

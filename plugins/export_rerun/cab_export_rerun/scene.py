@@ -16,8 +16,8 @@ Entity paths::
     world/objects/<object>/<root link>/visual_<i>  the root link's visuals (a root link has no recorded pose
                                                    of its own: it is the object's)
 
-Shapes: a box as ``Boxes3D``, a sphere as ``Ellipsoids3D``, a capsule as ``Capsules3D``, a cylinder
-and a mesh as ``Mesh3D`` (Rerun 0.23 has no cylinder archetype), all solid, in the shape's colour.
+Shapes: a box as ``Boxes3D``, a sphere as ``Ellipsoids3D``, a capsule as ``Capsules3D``, a cylinder as
+``Cylinders3D`` and a mesh (an OBJ file, read with trimesh) as ``Mesh3D``, all solid, in the shape's colour.
 """
 from __future__ import annotations
 
@@ -35,10 +35,9 @@ from cab_core.geometry import euler_quat
 from cab_core.kits.assets import trimesh_module
 from cab_core.kits.registry import task_instance
 
-#: the rotation that takes +z to +x: Rerun's capsules (and the cylinders made here) lie along z, the
-#: scene description's along x. (x, y, z, w): 90 degrees about +y
+#: the rotation that takes +z to +x: Rerun's capsules and cylinders lie along z, the scene description's
+#: along x. (x, y, z, w): 90 degrees about +y
 Z_TO_X = np.array([0.0, math.sin(math.pi / 4), 0.0, math.cos(math.pi / 4)])
-CYLINDER_SECTIONS = 32
 DEFAULT_RGBA = (0.7, 0.7, 0.7, 1.0)
 
 
@@ -139,13 +138,6 @@ def urdf_links(urdf: str) -> tuple[str | None, dict[str, list[Part]]]:
 
 
 # -- logging -----------------------------------------------------------------------------------
-def _cylinder_mesh(radius: float, half_length: float, axis: str):
-    m = trimesh_module().creation.cylinder(radius=radius, height=2 * half_length, sections=CYLINDER_SECTIONS)
-    if axis == "x":
-        m.apply_transform(trimesh_module().transformations.rotation_matrix(math.pi / 2, [0, 1, 0]))
-    return m
-
-
 def _mesh(path: str, scale) -> Any:
     m = trimesh_module().load(path, force="mesh")
     m.apply_scale(np.asarray(scale, float))
@@ -159,11 +151,15 @@ def part_archetype(rr, p: Part):
         return rr.Boxes3D(half_sizes=[p.size], colors=color, fill_mode="solid")
     if p.kind == "sphere":
         return rr.Ellipsoids3D(half_sizes=[[p.size[0]] * 3], colors=color, fill_mode="solid")
-    if p.kind == "capsule":
+    if p.kind == "capsule":  # from its origin along +z: moved back by half its length
         r, hl = p.size
         return rr.Capsules3D(lengths=[2 * hl], radii=[r], translations=[[-hl, 0.0, 0.0]], quaternions=[Z_TO_X],
-                             colors=color)
-    m = _cylinder_mesh(p.size[0], p.size[1], p.axis) if p.kind == "cylinder" else _mesh(str(p.mesh), p.size)
+                             colors=color, fill_mode="solid")
+    if p.kind == "cylinder":  # centred on its origin, along +z
+        r, hl = p.size
+        return rr.Cylinders3D(lengths=[2 * hl], radii=[r], colors=color, fill_mode="solid",
+                              **({"quaternions": [Z_TO_X]} if p.axis == "x" else {}))
+    m = _mesh(str(p.mesh), p.size)
     return rr.Mesh3D(vertex_positions=np.asarray(m.vertices, np.float32),
                      triangle_indices=np.asarray(m.faces, np.uint32),
                      vertex_normals=np.asarray(m.vertex_normals, np.float32), albedo_factor=color[0])
