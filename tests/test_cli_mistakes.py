@@ -52,7 +52,7 @@ def cab_refuses(tmp_path, overrides, line, sweep=False):
     (["sim=isaac"], "cab: unknown sim 'isaac'; valid: mujoco, pybullet, sapien"),
     (["+sim=isaac"], "cab: unknown sim 'isaac'; valid: mujoco, pybullet, sapien"),
     (["model=opus"], "cab: unknown model 'opus'; did you mean opus5?"),
-    (["planner=mplb"], "cab: unknown planner 'mplb'; did you mean mplib?"),
+    (["planner=pinn"], "cab: unknown planner 'pinn'; did you mean pin?"),
     (["embodiment=aloha_agilx"], "cab: unknown embodiment 'aloha_agilx'; did you mean aloha_agilex?"),
 ])
 def test_unknown_option_is_one_line_with_the_closest_names(tmp_path, overrides, line):

@@ -99,15 +99,15 @@ def test_plain_cab_composes_todays_defaults(tmp_path):
     cfg = _compose(hydra=True)
     choices = cfg.hydra.runtime.choices
     assert {g: choices[g] for g in ("sim", "embodiment", "planner", "model", "harness", "task")} == {
-        "sim": "sapien", "embodiment": "aloha_agilex", "planner": "mplib", "model": "oracle", "harness": "auto",
+        "sim": "sapien", "embodiment": "aloha_agilex", "planner": "pin", "model": "oracle", "harness": "auto",
         "task": "beat_block_hammer"}
     assert choices["hydra/launcher"] == "local" and choices["experiment"] is None
     assert cfg.hydra.mode is None  # a single run
     assert (cfg.sim.name, cfg.embodiment.name, cfg.planner.name, cfg.task.name) == (
-        "sapien", "aloha_agilex", "mplib", "beat_block_hammer")
+        "sapien", "aloha_agilex", "pin", "beat_block_hammer")
     spec = attempt_spec(_compose(), tmp_path)
     assert (spec.sim, spec.embodiment, spec.planner, spec.model, spec.harness, spec.task, spec.seed) == (
-        "sapien", "aloha_agilex", "mplib", "oracle", "direct", "beat_block_hammer", 0)
+        "sapien", "aloha_agilex", "pin", "oracle", "direct", "beat_block_hammer", 0)
     sources = [(s.provider, s.path) for s in cfg.hydra.runtime.config_sources]
     assert sources.index(("cab-project", "cab_conf")) < sources.index(("main", "cab_core.conf"))
 
@@ -143,7 +143,7 @@ def test_experiment_paper_is_nine_configurations_by_25_tasks_by_3_attempts():
 def test_the_cores_config_names_no_plugin_of_the_project():
     core_conf = Path(cab_core.__file__).parent / "conf"
     names = {p.stem for p in ROOT.glob("plugins/*/*/conf/*/*.yaml")} | set(plugins.task_names())
-    assert {"sapien", "mujoco", "aloha_agilex", "mplib", "opus5", "mcp"} <= names
+    assert {"sapien", "mujoco", "aloha_agilex", "pin", "opus5", "mcp"} <= names
     for f in core_conf.rglob("*.yaml"):
         text = f.read_text()
         words = set(text.replace(":", " ").replace(",", " ").split())
@@ -163,7 +163,7 @@ def test_the_cores_primary_config_alone_needs_each_plugin_group_chosen(tmp_path,
         attempt_spec(cfg, tmp_path)
     with pytest.raises(ConfigError, match=r"^no sim selected: add sim=<option> \(installed: mujoco, pybullet, sapien\)$"):
         attempt_spec(_compose(["task=lift_pot"]), tmp_path)
-    cfg = _compose(["sim=mujoco", "+embodiment=aloha_agilex", "planner=mplib", "task=lift_pot"])
+    cfg = _compose(["sim=mujoco", "+embodiment=aloha_agilex", "planner=pin", "task=lift_pot"])
     spec = attempt_spec(cfg, tmp_path)
     assert (spec.sim, spec.task, spec.budget_tool_calls) == ("mujoco", "lift_pot", plugins.task_info("lift_pot").budget_tool_calls)
 
@@ -181,7 +181,7 @@ def test_other_hydra_apps_search_paths_are_left_alone():
 
 
 def test_default_selection_is_the_composed_defaults():
-    assert default_selection() == {"sim": "sapien", "embodiment": "aloha_agilex", "planner": "mplib"}
+    assert default_selection() == {"sim": "sapien", "embodiment": "aloha_agilex", "planner": "pin"}
     assert default_selection(("task",)) == {"task": "beat_block_hammer"}
 
 

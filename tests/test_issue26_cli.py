@@ -145,7 +145,7 @@ def test_a_refused_attempt_removes_only_what_hydra_created(tmp_path):
 
 def _torn_parent(d, last: str):
     d.mkdir()
-    config = {"task": "click_bell", "seed": 0, "sim": "mujoco", "embodiment": "aloha_agilex", "planner": "mplib"}
+    config = {"task": "click_bell", "seed": 0, "sim": "mujoco", "embodiment": "aloha_agilex", "planner": "pin"}
     events = [{"seq": 1, "kind": "attempt_start", "t_wall": 0.0, "config": config},
               {"seq": 2, "kind": "call", "t_wall": 1.0, "tool": "capture_head", "arguments": {}, "status": None},
               {"seq": 3, "kind": "call", "t_wall": 2.0, "tool": "capture_head", "arguments": {}, "status": None}]

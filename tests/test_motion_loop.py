@@ -201,13 +201,13 @@ def _attempt(sim_name: str, out: Path, video: str, monkeypatch) -> dict:
 def _scripted(sim_name: str, out: Path, video: str, frames: list) -> dict:
     task = "beat_block_hammer"
     spec = AttemptSpec(task=task, seed=task_info(task).seed, attempt=1, sim=sim_name, embodiment="aloha_agilex",
-                       planner="mplib", harness="direct", model="scripted", output_dir=out,
+                       planner="pin", harness="direct", model="scripted", output_dir=out,
                        budget_tool_calls=100, budget_sim_seconds=100.0, budget_wall_seconds=1e4,
                        record={"video": video != "off", "video_every_steps": 25, "video_size": [160, 120]})
     sim = create("simulators", sim_name, {"name": sim_name})
     if video == "loop":
         sim.render_sample = lambda: None
-    ep = Episode(spec, all_tasks()[task], sim, create("planners", "mplib", {}), create("embodiments", "aloha_agilex", {}))
+    ep = Episode(spec, all_tasks()[task], sim, create("planners", "pin", {}), create("embodiments", "aloha_agilex", {}))
     try:
         payloads = [ep.call(name, args).payload for name, args in SCRIPT]
         for p in payloads:

@@ -48,7 +48,7 @@ def test_misspelled_hook_fails_at_startup():
 def test_installed_entry_points_provide_the_core_plugins():
     pm = build_plugin_manager()
     assert {"sapien"} <= set(registry("simulators", pm))
-    assert {"mplib"} <= set(registry("planners", pm))
+    assert {"pin"} <= set(registry("planners", pm))
     assert {"aloha_agilex"} <= set(registry("embodiments", pm))
     assert {"codeaction"} <= set(registry("task_suites", pm))
     assert {"direct"} <= set(registry("harnesses", pm))
@@ -60,7 +60,7 @@ def test_core_imports_no_simulator_sdk_or_mcp():
     import sys
 
     code = ("import sys, cab_core, cab_core.plugins, cab_core.attempt.engine.episode, cab_core.attempt.runner, cab_core.tools;"
-            "bad=[m for m in ('sapien','mplib','pybullet','mujoco','mcp','anthropic','openai') if m in sys.modules];"
+            "bad=[m for m in ('sapien','mplib','pinocchio','ompl','pybullet','mujoco','mcp','anthropic','openai') if m in sys.modules];"
             "print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
@@ -73,5 +73,5 @@ def test_cab_plugins_command_lists_plugins():
     r = subprocess.run([sys.executable, "-c", "from cab_core.apps.cli import plugins_main; plugins_main()"],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    for name in ("sim_sapien", "planner_mplib", "suite_codeaction", "embodiment_aloha", "core"):
+    for name in ("sim_sapien", "planner_pin", "suite_codeaction", "embodiment_aloha", "core"):
         assert name in r.stdout

@@ -71,11 +71,11 @@ def test_no_ffmpeg_runs_while_an_attempt_waits_and_its_video_is_complete(tmp_pat
 
     task = "click_bell"
     spec = AttemptSpec(task=task, seed=task_info(task).seed, attempt=1, sim="mujoco", embodiment="aloha_agilex",
-                       planner="mplib", harness="direct", model="scripted", output_dir=tmp_path,
+                       planner="pin", harness="direct", model="scripted", output_dir=tmp_path,
                        budget_tool_calls=100, budget_sim_seconds=100.0, budget_wall_seconds=1e4,
                        record={"video": True, "video_every_steps": 25, "video_size": [160, 120]})
     ep = Episode(spec, all_tasks()[task], create("simulators", "mujoco", {"name": "mujoco"}),
-                 create("planners", "mplib", {}), create("embodiments", "aloha_agilex", {}))
+                 create("planners", "pin", {}), create("embodiments", "aloha_agilex", {}))
     try:
         assert ep.recorder.video is not None and not ep.recorder.video.started and _ffmpegs() == []
         for name, args in [("move_delta", {"arm": "left", "dx": 0.0, "dy": 0.0, "dz": 0.03}),

@@ -495,6 +495,16 @@ def plugins_main() -> None:
     except CabError as e:  # a broken plugin: one line naming it and the fix
         print(f"cab-plugins: {e}", file=sys.stderr)
         sys.exit(1)
+    # what plain `cab` composes: each row marks the simulator, embodiment and planner it selects
+    try:
+        from cab_core.config import default_selection
+
+        chosen = default_selection()
+    except Exception:  # noqa: BLE001 - a composition that fails is cab's to report; the listing stays
+        chosen = {}
+    kinds = {"simulators": "sim", "embodiments": "embodiment", "planners": "planner"}
+    for r in rows:
+        r["defaults"] = {k: chosen[g] for k, g in kinds.items() if chosen.get(g) in (r["provides"].get(k) or ())}
     if a.json:
         print(json.dumps(rows, indent=2))
         return
@@ -505,7 +515,8 @@ def plugins_main() -> None:
         print(f"{r['plugin']:<22} {r['distribution']} {r['version']}" + ("  (disabled)" if r["disabled"] else ""))
         for kind, names in r["provides"].items():
             if names:
-                print(f"    {kind:<18} {', '.join(names)}")
+                marked = [f"{n} (default)" if r["defaults"].get(kind) == n else n for n in names]
+                print(f"    {kind:<18} {', '.join(marked)}")
         for suite, tasks in (r.get("tasks") or {}).items():  # each suite's tasks; a name two suites define: disabled
             conflicts.update(r.get("task_conflicts") or {})
             listed = [f"{t} (disabled)" if t in conflicts else t for t in tasks]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -77,8 +77,10 @@ def pack_state(backend: str, layout: str, arrays: dict[str, np.ndarray], contact
     import io
 
     buf = io.BytesIO()
-    np.savez(buf, layout=np.array(layout), keys=np.array(json.dumps(sorted(arrays))),
-             contacts=np.array(json.dumps([[c.a, c.b, c.impulse, c.point] for c in contacts])), **arrays)
+    members: dict[str, Any] = {"layout": np.array(layout), "keys": np.array(json.dumps(sorted(arrays))),
+                               "contacts": np.array(json.dumps([[c.a, c.b, c.impulse, c.point] for c in contacts])),
+                               **arrays}
+    np.savez(buf, **members)
     return SimState(backend=backend, data=buf.getvalue())
 
 
