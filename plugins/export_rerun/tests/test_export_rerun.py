@@ -262,3 +262,37 @@ def test_urdf_visuals_are_read_with_their_poses_sizes_and_colours(tmp_path):
     assert np.allclose(box.pose[3:], [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])  # 90 degrees about y
     assert (mesh.kind, mesh.size, mesh.mesh) == ("mesh", (2.0, 2.0, 2.0), str(tmp_path / "shade.obj"))
     assert (ball.kind, ball.size) == ("sphere", (0.01,))
+
+
+def test_readback_orders_rows_by_their_timeline_and_keeps_static_values_apart(tmp_path):
+    path = tmp_path / "r.rrd"
+    rec = rr.RecordingStream("cab", recording_id="readback", send_properties=False)
+    rec.save(path)
+    rec.log("thing/shape", rr.Boxes3D(half_sizes=[[0.1, 0.2, 0.3]]), static=True)
+    for seq, x in ((2, 0.2), (0, 0.0), (1, 0.1)):  # logged out of order
+        rec.set_time("snapshot", sequence=seq)
+        rec.set_time("sim_time", duration=seq * 0.5)
+        rec.log("thing", rr.Transform3D(translation=[x, 0.0, 0.0]))
+    rec.flush()
+    rec.disconnect()
+    r = Recording(path)
+    assert (r.application_id, r.recording_id) == ("cab", "readback")
+    assert r.entities == {"/thing", "/thing/shape"}
+    assert r.archetypes("/thing/shape") == {"Boxes3D"} and r.is_static("/thing/shape", "Boxes3D:half_sizes")
+    assert r.static("/thing/shape", "Boxes3D:half_sizes") == [pytest.approx([0.1, 0.2, 0.3])]
+    assert not r.is_static("/thing", "Transform3D:translation") and r.static("/thing", "Transform3D:translation") is None
+    assert [v[0][0] for v in r.rows("/thing", "Transform3D:translation", "snapshot")] == pytest.approx([0.0, 0.1, 0.2])
+    assert r.times("/thing", "Transform3D:translation", "snapshot") == [0, 1, 2]
+    assert [t.total_seconds() for t in r.times("/thing", "Transform3D:translation", "sim_time")] == [0.0, 0.5, 1.0]
+    assert r.rows("/thing", "Transform3D:translation", "event") == []  # a timeline it was not logged on
+
+
+def test_readback_of_a_file_without_a_recording_is_one_error_line(tmp_path):
+    import rerun.blueprint as rrb
+
+    from cab_core.errors import RecordError
+
+    path = tmp_path / "layout.rbl"  # a blueprint: a store, but no recording
+    rrb.Blueprint(rrb.Spatial3DView(origin="/world")).save("cab", path)
+    with pytest.raises(RecordError, match=r"layout\.rbl: 0 recordings in the file, expected one$"):
+        Recording(path)
