@@ -309,10 +309,13 @@ def _check_fork(choices: dict[str, list[str]], keys: list) -> None:
         raise ConfigError(str(e)) from None
     kept = {g: parent.get(g) for g in _FORK_KEPT_GROUPS}
     kept["randomize"] = (parent.get("randomize") or {}).get("name", "none")
+    if any(o.key_or_group == "fork.planner" and o.value() == "own" for o in keys):
+        del kept["planner"]  # fork.planner=own: the command's planner makes the prefix again
     for g, theirs in kept.items():
         for v in choices.get(g, []):
             if v != theirs:
-                raise ConfigError(f"a fork keeps its parent's {g} ({theirs}); drop {g}={v}")
+                raise ConfigError(f"a fork keeps its parent's {g} ({theirs}); drop {g}={v}"
+                                  + (" or add fork.planner=own" if g == "planner" else ""))
     for o in keys:
         top = o.key_or_group.split(".")[0]
         if o.key_or_group == "seed" and not o.is_sweep_override() and o.value() not in (None, parent.get("seed")):

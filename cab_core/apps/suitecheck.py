@@ -141,9 +141,11 @@ def fork_parents(dirs: list[Path]) -> list[Path]:
     return found
 
 
-def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int) -> dict:
+def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int, planner: str | None = None) -> dict:
     """Fork each oracle attempt of ``rows`` and each attempt under ``extra`` at every charged call;
-    the stage-aware oracle finishes each. Prints a table per task and returns the figures."""
+    the stage-aware oracle finishes each. Prints a table per task and returns the figures. Every
+    fork makes its prefix again with ``planner`` (default: the default configuration's), also for a
+    recorded parent planned by another one: its prefix must still reproduce the parent's world."""
     own = [Path(r["dir"]) for r in rows if r["agent"] == "oracle" and "dir" in r]
     parents = own + fork_parents(extra)
     points, outs, origin = [], [], []
@@ -154,7 +156,7 @@ def fork_check(rows: list[dict], extra: list[Path], out: Path, jobs: int) -> dic
             outs.append(str(out / f"{i:03d}-{p.name}" / f"at-{k}"))
             origin.append("oracle" if i < len(own) else "recorded")
     print(f"\nforks: {len(points)} from {len(parents)} attempts", file=sys.stderr, flush=True)
-    fork_rows = run_configs(fork_configs(points), outs, jobs)
+    fork_rows = run_configs(fork_configs(points, planner=planner or default_selection(("planner",))["planner"]), outs, jobs)
     for r, o in zip(fork_rows, origin):
         r["origin"] = o
     fresh_equal = all(r.get("success") for r in fork_rows if r.get("fork_at") == 0 and r["origin"] == "oracle")
@@ -327,7 +329,7 @@ def main() -> None:
                                                                      for s in sims}}, indent=2))
     forks = None
     if a.forks:
-        forks = fork_check(rows, [Path(d) for d in a.fork_from], out / "forks", max(1, a.jobs))
+        forks = fork_check(rows, [Path(d) for d in a.fork_from], out / "forks", max(1, a.jobs), a.planner)
         (out / "summary.json").write_text(json.dumps({**json.loads((out / "summary.json").read_text()),
                                                       "forks": forks}, indent=2))
     print(f"records and summary.json in {out}")

@@ -126,8 +126,20 @@ def forked(spec: AttemptSpec, fork: dict) -> AttemptSpec:
     if fork.get("at") is None:
         raise ConfigError("fork.from needs fork.at=<K>: the charged call of the parent after which the fork starts")
     point = ForkPoint.load(fork["from"], fork["at"])
+    which = fork.get("planner") or "parent"
+    if which not in ("parent", "own"):
+        raise ConfigError(f"fork.planner must be parent (the parent's planner) or own (this command's), got {which!r}")
     out = AttemptSpec(**fork_config(asdict(spec), point))
     if out.task not in task_names():
         raise ConfigError(f"fork.from: the parent's task {out.task!r} is not installed")
     out.fork = point.as_record(out.output_dir)
+    if which == "parent" and out.planner not in registry("planners"):
+        raise ConfigError(f"fork.from: the parent's planner {out.planner!r} is not installed (installed: "
+                          f"{', '.join(sorted(registry('planners')))}); fork.planner=own makes the prefix again "
+                          f"with this command's planner ({spec.planner})")
+    if which == "own" and spec.planner != out.planner:
+        # the prefix is made again by another planner: compared with the parent's snapshots like any
+        # prefix (ForkDiverged where the paths differ by more than the tolerance)
+        out.fork["planner"] = {"parent": out.planner, "fork": spec.planner}
+        out.planner, out.planner_cfg = spec.planner, spec.planner_cfg
     return out

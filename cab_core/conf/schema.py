@@ -138,12 +138,20 @@ class PerturbConfig(Section):
     physics_fraction: float = setting(0.02, "a number (the fraction physical parameters are scaled by, at most)")
 
 
+class ForkPlanner(Enum):
+    parent = "parent"
+    own = "own"
+
+
 @dataclass
 class ForkConfig(Section):
     """``fork.*``: start where an earlier attempt stood after its charged call ``at``."""
     SECTION: ClassVar[str] = "fork"
     # ``from`` is a Python keyword: the dataclass cannot name its field so, and the key stays open
     at: int | None = setting(None, "an integer (the charged call of the parent after which the fork starts), or null")
+    planner: ForkPlanner = setting(ForkPlanner.parent, "parent (the parent's planner makes the prefix again) or own "
+                                                       "(this command's planner=..., e.g. for a parent whose planner is "
+                                                       "not installed)")
 
 
 @dataclass

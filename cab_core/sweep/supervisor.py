@@ -607,13 +607,15 @@ def run_configs(configs: list[dict], outs: list[str], jobs: int, cold: bool = Fa
     return [r for r in rows if r is not None]
 
 
-def fork_configs(points: list[tuple[str, int]], agent: str | None = "oracle", video: bool = False) -> list[dict]:
+def fork_configs(points: list[tuple[str, int]], agent: str | None = "oracle", video: bool = False,
+                 planner: str | None = None) -> list[dict]:
     """The composed configuration of a fork of each ``(parent folder, K)`` played by ``agent``, as
     ``cab fork.from=<parent> fork.at=K model=<agent>`` composes it (the parent's task and simulator
     named too, so the supervisor's identity of the attempt is the fork's). ``agent=None``: each fork
     is played by its parent's own model, as the parent's records hold it (``attempt_start.config``:
     ``model_cfg`` and ``harness_cfg``, e.g. a scripted agent with its script, a reference-harness
-    model with its settings), not by a model config of that name composed afresh."""
+    model with its settings), not by a model config of that name composed afresh. ``planner``: every
+    prefix made again with that planner (``fork.planner=own``) instead of each parent's."""
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
@@ -627,6 +629,8 @@ def fork_configs(points: list[tuple[str, int]], agent: str | None = "oracle", vi
             overrides = [f"fork.from='{Path(parent).resolve()}'", f"fork.at={int(at)}", f"model={agent or 'oracle'}",
                          f"task={cfg['task']}", f"sim={cfg['sim']}", f"seed={cfg['seed']}",
                          f"record.video={'true' if video else 'false'}"]
+            if planner is not None:
+                overrides += [f"planner={planner}", "fork.planner=own"]
             c = _as_dict(OmegaConf.to_container(compose(config_name="config", overrides=overrides), resolve=True))
             if agent is None:  # the parent's model and harness as recorded (a composed placeholder replaced)
                 c["model"], c["harness"] = dict(cfg["model_cfg"]), dict(cfg["harness_cfg"])

@@ -69,6 +69,8 @@ class Episode:
             made = self.replay_prefix(ForkPoint.load(self.out / spec.fork["parent"], spec.fork["at"]))
             self._fork_record = {k: made[k] for k in ("parent", "at", "calls_made_again", "exact", "max_tcp_error_m",
                                                       "max_object_error_m", "lineage")}
+            if spec.fork.get("planner"):  # fork.planner=own: another planner made the prefix again
+                self._fork_record["planner"] = dict(spec.fork["planner"])
 
     @classmethod
     def open(cls, spec: AttemptSpec, observers=None) -> Episode:

@@ -359,6 +359,8 @@ class Fork(Block):
     max_tcp_error_m: Num | None = None
     max_object_error_m: Num | None = None
     lineage: list[dict[str, Any]] = Field(default_factory=list)
+    #: ``{"parent": ..., "fork": ...}`` where ``fork.planner=own`` made the prefix again with another planner
+    planner: dict[str, str] | None = None
 
 
 class InfrastructureFailure(Block):
