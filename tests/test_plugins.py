@@ -1,3 +1,4 @@
+import json
 import types
 
 import pytest
@@ -75,3 +76,11 @@ def test_cab_plugins_command_lists_plugins():
     assert r.returncode == 0, r.stderr
     for name in ("sim_sapien", "planner_pin", "suite_codeaction", "embodiment_aloha", "core"):
         assert name in r.stdout
+    # what plain `cab` composes is marked: one simulator, embodiment and planner
+    marked = [line.split() for line in r.stdout.splitlines() if "(default)" in line]
+    assert sorted((m[0], m[m.index("(default)") - 1].rstrip(",")) for m in marked) == [
+        ("embodiments", "aloha_agilex"), ("planners", "pin"), ("simulators", "sapien")], marked
+    r = subprocess.run([sys.executable, "-c", "import sys; sys.argv[1:] = ['--json'];"
+                        "from cab_core.apps.cli import plugins_main; plugins_main()"], capture_output=True, text=True)
+    rows = {row["plugin"]: row for row in json.loads(r.stdout)}
+    assert rows["planner_pin"]["defaults"] == {"planners": "pin"} and rows["core"]["defaults"] == {}
