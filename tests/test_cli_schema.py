@@ -33,6 +33,7 @@ def test_the_schema_declares_the_core_settings_keys_and_defaults():
     assert list(settings) == list(OWN_KEYS)
     typed = OmegaConf.to_container(checked_view({}), resolve=False)
     typed["sandbox"]["mode"] = typed["sandbox"]["mode"].value
+    typed["fork"]["planner"] = typed["fork"]["planner"].value
     assert typed == settings
 
 

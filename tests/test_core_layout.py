@@ -96,16 +96,20 @@ def test_no_import_loop(graph):
         pytest.fail(f"import loop: {' -> '.join(e.args[1])}")
 
 
-def test_no_import_loop_in_any_package_of_the_tree():
-    """The plugins of this repository too (each package on its own graph; cab_core's own is above)."""
+def test_no_import_loop_in_any_package_of_the_tree(monkeypatch):
+    """The plugins of this repository too (each package on its own graph; cab_core's own is above).
+    A plugin the set-up does not install (planner_mplib: numpy<2 only) is read from its folder."""
     import importlib.util
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    names = sorted({p.name for p in (root / "plugins").glob("*/cab_*") if (p / "__init__.py").is_file()}
-                   | {"hydra_plugins", "cab_conf"})
+    packages = {p.name: p.parent for p in (root / "plugins").glob("*/cab_*") if (p / "__init__.py").is_file()}
+    names = sorted(set(packages) | {"hydra_plugins", "cab_conf"})
+    for n in names:
+        if importlib.util.find_spec(n) is None and n in packages:
+            monkeypatch.syspath_prepend(str(packages[n]))  # grimp reads the source; nothing is imported
     missing = [n for n in names if importlib.util.find_spec(n) is None]
-    assert not missing, f"not installed: {missing}"
+    assert not missing, f"not found: {missing}"
     assert len(names) >= 10
     for name in names:
         g = grimp.build_graph(name, exclude_type_checking_imports=False, cache_dir=None)

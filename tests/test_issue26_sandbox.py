@@ -64,6 +64,7 @@ def strict_loads(text: str):
 
 
 # ---------------------------------------------------------------------------- item 2: raw memory
+NUMPY_1 = np.__version__.startswith("1.")
 RAW = [
     # the reproduction of the issue: 4096 bytes below an 8-byte buffer
     ("b = np.zeros(8, np.uint8)\nprint(np.ndarray((8,), np.uint8, buffer=b, offset=-4096))",
@@ -77,7 +78,14 @@ RAW = [
     ("b = np.zeros(8, np.uint8)\nr = np.recarray((8,), np.uint8, b, -64)",
      "SandboxPolicyError: np.recarray(buf=, offset=, strides=) is not allowed in run_code"),
     ("b = np.zeros(8, np.uint8)\nr = np.chararray((8,), 1, buffer=b, offset=-64)",
-     "SandboxPolicyError: np.chararray(buffer=, offset=, strides=) is not allowed in run_code"),
+     "SandboxPolicyError: np.chararray(buffer=, offset=, strides=) is not allowed in run_code" if NUMPY_1 else
+     # numpy 2 deprecates np.chararray: a lazy name, not among the public names a program is offered
+     "AttributeError: module 'numpy' has no attribute 'chararray'"),
+    # numpy's submodules with the same constructors are not offered either
+    ("b = np.zeros(8, np.uint8)\nr = np.char.chararray((8,), 1, buffer=b, offset=-64)",
+     "AttributeError: module 'numpy' has no attribute 'char'"),
+    ("b = np.zeros(8, np.uint8)\nr = np.rec.recarray((8,), np.uint8, b, -64)",
+     "AttributeError: module 'numpy' has no attribute 'rec'"),
     ("r = np.frombuffer(np.zeros(8, np.uint8), np.uint8, 4, -4)",
      "ValueError: offset must be non-negative and no greater than buffer length"),
     # resize without the reference check frees the memory a view still points at

@@ -62,7 +62,8 @@ def test_a_disabled_plugin_is_not_loaded_and_listed_as_disabled(broken, name):
     r = _run(CAB_PLUGINS + ["--json"], broken, CAB_DISABLE_PLUGINS=name)
     by_name = {row["plugin"]: row for row in json.loads(r.stdout)}
     assert by_name["broken_fixture"] == {"plugin": "broken_fixture", "distribution": "cab-broken-fixture",
-                                         "version": "0.3", "provides": {}, "hooks": [], "disabled": True}
+                                         "version": "0.3", "provides": {}, "hooks": [], "disabled": True,
+                                         "defaults": {}}
     assert by_name["core"]["disabled"] is False and "direct" in by_name["core"]["provides"]["harnesses"]
 
 

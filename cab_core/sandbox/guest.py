@@ -488,7 +488,9 @@ def _object_bytes_refused(real):
 def _raw_memory(np) -> dict:
     """numpy's names that take a raw buffer, an offset or strides, or hand out uninitialised memory,
     replaced by checked versions: no array a program makes can see outside the bytes it was given."""
-    real_nd, real_frombuffer, real_rec, real_char = np.ndarray, np.frombuffer, np.recarray, np.chararray
+    # np.char.chararray: numpy 2 deprecates the top-level np.chararray (a lazy name, so not among the
+    # module's public names: a program is offered the checked version under numpy 1 only)
+    real_nd, real_frombuffer, real_rec, real_char = np.ndarray, np.frombuffer, np.recarray, np.char.chararray
 
     def frombuffer(buffer, dtype=float, count=-1, offset=0, **kwargs):
         if isinstance(buffer, real_nd) and buffer.dtype.hasobject:
