@@ -23,7 +23,8 @@ from cab_core.errors import CabError, ConfigError, PluginError, closest
 
 GROUP = "cab"
 KINDS = ("simulators", "planners", "embodiments", "task_suites", "harnesses", "agents",
-         "model_providers", "context_policies", "record_observers", "record_exporters")
+         "model_providers", "context_policies", "record_observers", "record_exporters", "published_figures",
+         "sweep_exporters")
 
 
 def build_plugin_manager(extra: list[Any] | None = None, autoload: bool | None = None) -> pluggy.PluginManager:

@@ -59,6 +59,17 @@ def cab_task_suites() -> dict[str, Callable[[], dict[str, Task]]]:
     Task names are unique across suites. Called once per process."""
 
 
+@hookspec
+def cab_published_figures() -> dict[str, Callable[[], dict]]:
+    """A paper's published figures, for comparing a cab run with them (``cab-report <dir> --against
+    <name>``): ``{"my_paper": loader}``; ``loader()`` returns the figures as plain data, a mapping with
+    ``configurations``: a list of rows, each ``{"name": "<the paper's name>", "cab": {"model": ...,
+    "harness": ...}, ...}`` and the measures the paper gives it (the keys
+    :mod:`cab_core.analysis.against` reads: ``consistency``, ``resource_use``, ``termination``,
+    ``programs``, ``actions``, ``tool_use``; any may be absent), and optionally ``tables`` (where each
+    block comes from) and ``source``. A task suite ships its paper's figures this way. Called once per process."""
+
+
 # --- agents -----------------------------------------------------------------------------------
 
 
@@ -137,6 +148,16 @@ def cab_record_exporters() -> dict[str, Callable[[Any, Any], list]]:
     folder unless ``--out`` is given; created), returning the paths written. It raises
     ``MissingDependency`` (the install command) when a library it needs is missing. Called once per
     process. All results are merged."""
+
+
+@hookspec
+def cab_sweep_exporters() -> dict[str, Callable[[Any, Any], list]]:
+    """Formats a whole sweep can be exported to with ``cab-export <name> <sweep folder>``, for
+    records that summarise many attempts (an aggregate with its instances): ``{"my_format": export}``.
+    ``export(sweep_dir, out_dir)`` reads the sweep's finished attempts (``cab_core.analysis``) and
+    writes its files below ``out_dir`` (created), returning the paths written; called once per
+    export. It raises ``MissingDependency`` when a library it needs is missing. A name is either a
+    record exporter's or a sweep exporter's, not both. Called once per process. All results are merged."""
 
 
 # --- configuration ----------------------------------------------------------------------------

@@ -9,3 +9,10 @@ from .tasks import load_tasks
 @hookimpl
 def cab_task_suites():
     return {"codeaction": load_tasks}
+
+
+@hookimpl
+def cab_published_figures():
+    from .paper_figures import published_figures
+
+    return {"paper": published_figures}
