@@ -31,7 +31,7 @@ def seed() -> str:
 
 def table(text: str, label: str) -> str:
     """The LaTeX of the table labelled ``label``, from its label to its ``\\bottomrule``."""
-    start = text.index(r"\label{%s}" % label)
+    start = text.index("\\label{" + label + "}")
     return text[start:text.index(r"\bottomrule", start)]
 
 
@@ -68,7 +68,7 @@ def test_every_configuration_of_the_paper_is_transcribed_once(seed):
     assert names == NAMES
     for block in paper_figures.BLOCKS:
         label = FIGURES["tables"][block]["label"]
-        assert FIGURES["tables"][block]["caption"] in seed[:seed.index(r"\label{%s}" % label) + 1][-3000:], block
+        assert FIGURES["tables"][block]["caption"] in seed[:seed.index("\\label{" + label + "}") + 1][-3000:], block
 
 
 @pytest.mark.parametrize("name", NAMES)
