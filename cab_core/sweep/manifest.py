@@ -4,7 +4,8 @@ A sweep directory holds ``sweep.json``: the resolved configuration (without Hydr
 and the ``sweep.*`` infrastructure settings, which may legitimately differ between sessions: the
 launcher, its worker count, output directories, retries), the list of jobs the sweep expands to,
 and a fingerprint of both, the keys the attempt folders name besides task, model, simulator, seed
-and attempt (``path_keys``, read back by each job: ``cab_core.sweep.layout``) and each job's folder.
+and attempt (``path_keys``, read back by each job: ``cab_core.sweep.layout``) and each job's folder, and the comparison contract of each configuration (``contracts``, by the label
+cab-report gives it: :func:`sweep_contracts`, :mod:`cab_core.analysis.contract`).
 A sweep two of whose jobs would write to the same folder is refused before anything runs. Running a
 sweep into a directory that already has a manifest resumes it, provided the fingerprint is the same;
 otherwise it is refused, naming what changed. A directory written with the first layout
@@ -24,7 +25,7 @@ import os
 import socket
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +216,47 @@ def _jobs_diff(old: list[list[str]], new: list[list[str]]) -> list[str]:
     return out
 
 
+#: the keys of a composed config an attempt's spec is made of (:func:`cab_core.attempt.spec.attempt_spec`)
+_SPEC_KEYS = ("task", "sim", "embodiment", "planner", "harness", "model", "seed", "attempt", "budget", "sandbox",
+              "record", "perturb", "randomize", "fork")
+
+
+def sweep_contracts(cfg: Any, jobs: list[list[str]]) -> dict[str, dict]:
+    """The comparison contract of each configuration of the sweep (:mod:`cab_core.analysis.contract`),
+    by the label cab-report gives it: each job's attempt contract from its spec (one composition per
+    job without its seed and attempt), combined over the configuration's jobs."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.types import RunMode
+
+    from cab_core.analysis.configurations import configuration_labels
+    from cab_core.analysis.contract import attempt_contract, combined
+    from cab_core.sweep.layout import _fixed_overrides, _parsed, _strings
+
+    fixed = _fixed_overrides(cfg)
+    hydra_overrides = _strings(cfg.hydra.overrides.hydra)
+    loader = GlobalHydra.instance().config_loader()
+    composed: dict[tuple[str, ...], dict] = {}
+    specs = []
+    for job in jobs:
+        key = tuple(o for o in job if o.split("=", 1)[0] not in ("seed", "attempt"))
+        if key not in composed:
+            c = loader.load_configuration(config_name=cfg.hydra.job.config_name,
+                                          overrides=[*hydra_overrides, *fixed, *key], run_mode=RunMode.RUN)
+            composed[key] = {k: _plain(c[k]) for k in _SPEC_KEYS if k in c}
+        plain = dict(composed[key])
+        for o in job:
+            k, v = o.split("=", 1)
+            if k in ("seed", "attempt"):
+                plain[k] = _parsed(v)
+        specs.append(attempt_spec(plain, "."))
+    labels = configuration_labels([{"model": s.model, "harness": s.harness, "sim": s.sim, "model_cfg": s.model_cfg,
+                                    "task": s.task} for s in specs])
+    by: dict[str, list[dict]] = {}
+    for label, s in zip(labels, specs):
+        by.setdefault(label, []).append(attempt_contract(s))
+    return {label: combined(cs) for label, cs in sorted(by.items())}
+
+
 @dataclass
 class SweepManifest:
     """The pinned configuration of one sweep directory, and where each of its jobs writes."""
@@ -222,6 +264,7 @@ class SweepManifest:
     jobs: list[list[str]]
     path_keys: list[str]
     folders: list[str]
+    hydra_cfg: Any = field(default=None, repr=False, compare=False)  # what the contracts are composed from
 
     @classmethod
     def from_hydra(cls, cfg: Any) -> SweepManifest:
@@ -231,7 +274,7 @@ class SweepManifest:
         keys = varying_keys(jobs)
         folders = attempt_folders(cfg, jobs, keys)
         check_distinct(folders, jobs)
-        return cls(_stable_config(cfg), jobs, keys, folders)
+        return cls(_stable_config(cfg), jobs, keys, folders, cfg)
 
     @property
     def fingerprint(self) -> str:
@@ -272,6 +315,8 @@ class SweepManifest:
             manifest = {"manifest_version": MANIFEST_VERSION, "fingerprint": self.fingerprint, "created": now,
                         "n_jobs": len(self.jobs), "jobs": self.jobs, "path_keys": self.path_keys,
                         "folders": self.folders, "config": self.config, "sessions": []}
+        if "contracts" not in manifest and self.hydra_cfg is not None:  # a new sweep, or one begun before cab kept them
+            manifest["contracts"] = sweep_contracts(self.hydra_cfg, self.jobs)
         manifest["sessions"].append({"started": now, "launcher": launcher,
                                      "complete_at_start": len(completed_results(Path(sweep_dir)))})
         write_json_atomic(path, manifest)

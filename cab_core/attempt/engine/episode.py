@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cab_core.analysis.contract import attempt_contract
 from cab_core.attempt.budget import BudgetLedger
 from cab_core.attempt.engine.finishing import VerdictTracker, attempt_checkpoints, versions
 from cab_core.attempt.engine.serving import CallServer, StepClock, ToolResponse
@@ -284,6 +285,7 @@ class Episode:
             versions=self.versions(),
             checkpoints=checkpoints,
             video=self._video_block(self._video_error),
+            contract=self._contract(),
         )
         try:
             self.record = AttemptRecord.build(**fields)
@@ -294,6 +296,17 @@ class Episode:
         self.recorder.event("attempt_end", termination=self.termination, claim=self.claim)
         self.recorder.write_result(self.result)
         return self.result
+
+    def _contract(self) -> dict | None:
+        """The attempt's comparison contract (:mod:`cab_core.analysis.contract`): from its spec and,
+        where the harness learnt it, the serving engine; None (the key left out) if it cannot be
+        computed, which the attempt's events say."""
+        serving = (self.agent or {}).get("serving") if isinstance(self.agent, dict) else None
+        try:
+            return attempt_contract(self.spec, serving if isinstance(serving, dict) else None)
+        except Exception as e:  # noqa: BLE001  (never lose the attempt for its contract)
+            self.recorder.event("contract_error", error=f"{type(e).__name__}: {e}")
+            return None
 
     def _close_video(self, video: VideoWriter, error: str | None = None) -> None:
         try:

@@ -381,11 +381,19 @@ class Infrastructure(Block):
     failures: list[InfrastructureFailure] = Field(default_factory=list)
 
 
+class Contract(Block):
+    """The comparison contract (:mod:`cab_core.analysis.contract`): the digest over the parts, and
+    each part's digest by name (``tools``, ``task``, ``seeds``, ``budget``, ``embodiment``,
+    ``planner``, ``simulator``, ``variation``, ``harness``, ``sandbox``, ``serving`` where known)."""
+    digest: str
+    parts: dict[str, str]
+
+
 class AttemptRecord(Block):
     """``result.json``: one attempt's identity, verdict, termination, claim, budgets, timings,
     counts, sandbox, versions, checkpoints, video and, where they apply, who played, what was
-    perturbed and the infrastructure failures. Fields in the order they are written."""
-    omit_if_none = ("agent", "perturbation", "randomization", "fork")
+    perturbed and the infrastructure failures, and the comparison contract. Fields in the order they are written."""
+    omit_if_none = ("agent", "perturbation", "randomization", "fork", "contract")
     record_version: str
     task: str
     seed: int
@@ -412,6 +420,7 @@ class AttemptRecord(Block):
     checkpoints: Checkpoints | None = None
     video: Video | None = None
     infrastructure: Infrastructure | None = None
+    contract: Contract | None = None  # absent in records written before cab kept one
 
     @field_validator("record_version")
     @classmethod
