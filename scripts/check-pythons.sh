@@ -10,12 +10,13 @@ set -uo pipefail
 cd "$(dirname "$0")/.."
 PYTHONS="${CAB_PYTHONS:-3.11 3.12 3.13}"
 SIMS="${CAB_CHECK_SIMS:-sapien pybullet mujoco}"
-# the core's unit tests that run no simulator or a short one: configuration and the command line
-# (Hydra, plugins, schemas), the run_code sandbox, the robot tools, statistics, budgets, records, the
-# import layering; a few minutes with one worker per core
-TESTS="${CAB_CHECK_TESTS:-tests/test_config.py tests/test_config_plugins.py tests/test_cli.py tests/test_cli_mistakes.py
-  tests/test_cli_schema.py tests/test_plugin_loading.py tests/test_plugins.py tests/test_sandbox.py tests/test_sandbox_policy.py
-  tests/test_tools.py tests/test_stats.py tests/test_margins.py tests/test_budget.py tests/test_record.py tests/test_core_layout.py}"
+# the core's unit tests that start no cab process: configuration (Hydra's composition, the config
+# schema, plugins' options), plugin loading, the run_code sandbox, the robot tools, statistics, margins,
+# budgets, records, the import layering; about 2 min with 2 workers. The command line itself is the
+# attempts below (test_cli*.py and test_plugin_loading.py start a cab per test: 6 min more)
+TESTS="${CAB_CHECK_TESTS:-tests/test_config.py tests/test_config_plugins.py tests/test_cli_schema.py tests/test_plugins.py
+  tests/test_sandbox.py tests/test_sandbox_policy.py tests/test_tools.py tests/test_stats.py tests/test_margins.py
+  tests/test_budget.py tests/test_record.py tests/test_core_layout.py tests/test_pythons.py}"
 WORKERS="${CAB_TEST_WORKERS:-$(nproc)}"
 
 rows=()
