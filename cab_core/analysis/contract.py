@@ -33,7 +33,8 @@ harness is reached (:data:`NOT_MEASURED`).
 
 Public API: :func:`attempt_contract`, :func:`of_result` (a result's contract, None for records
 written before it existed), :func:`differing` (the parts two contracts differ in, by name),
-:func:`combined`, and :func:`report_check` (the parts a set of attempts put in one table disagree on).
+:func:`combined`, :func:`report_check` (the parts a set of attempts put in one table disagree on) and
+:func:`table_contracts` (what cab-report says of them, or :class:`ContractsDiffer`: its refusal).
 """
 from __future__ import annotations
 
@@ -266,5 +267,37 @@ def report_check(rows: Iterable[Mapping]) -> list[str]:
     return [p for p in PARTS if p in bad] + sorted(bad - set(PARTS))
 
 
-__all__ = ["NOT_MEASURED", "PARTS", "attempt_contract", "attempt_parts", "canonical_json", "combined", "differing",
+class ContractsDiffer(RecordError):
+    """Attempts put in one table ran under different comparison contracts; ``parts`` names what differs."""
+
+    def __init__(self, parts: list[str], where: str):
+        self.parts = parts
+        super().__init__(f"the attempts under {where} ran under different comparison contracts (they differ in: "
+                         f"{', '.join(parts)}); not put in one table: report them apart, or pass --mix-contracts "
+                         "for an exploratory table")
+
+
+def table_contracts(rows: list[Mapping], mix: bool, where: str) -> dict:
+    """What a report says of the contracts of the attempts ``rows`` it puts in one table (see
+    :func:`report_check`): ``differing`` (part names), ``exploratory`` (they differ and ``mix``
+    allowed it), ``by_config`` (each configuration's :func:`combined` digest, None where none of its
+    records has a contract) and ``without`` (records written before cab kept one). Raises
+    :class:`ContractsDiffer` when they differ and ``mix`` is false."""
+    bad = report_check(rows)
+    if bad and not mix:
+        raise ContractsDiffer(bad, where)
+    by: dict[str, list] = {}
+    for r in rows:
+        by.setdefault(r["config"], []).append(r.get("contract"))
+    return {"exploratory": bool(bad), "differing": bad, "without": sum(1 for r in rows if not r.get("contract")),
+            "by_config": {c: (combined([x for x in cs if x])["digest"] if any(cs) else None)
+                          for c, cs in sorted(by.items())}}
+
+
+def exploratory_note(parts: list[str]) -> str:
+    """The words that mark a table whose attempts' contracts differ."""
+    return f"EXPLORATORY: comparison contracts differ in {', '.join(parts)}"
+
+
+__all__ = ["ContractsDiffer", "exploratory_note", "table_contracts", "NOT_MEASURED", "PARTS", "attempt_contract", "attempt_parts", "canonical_json", "combined", "differing",
            "digest", "of_result", "report_check", "task_part", "tools_part"]

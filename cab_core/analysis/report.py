@@ -35,7 +35,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from cab_core.analysis import instances, recoverability, stats
+from cab_core.analysis import contract, instances, recoverability, stats
 from cab_core.analysis.attempts import FORKS_FOLDER, Scan, read_json, scan
 from cab_core.analysis.failure import LABELS, STAGES, Classifier
 from cab_core.analysis.measures import (
@@ -78,13 +78,18 @@ def measure(s: Scan) -> list[AttemptMeasures]:
 
 
 def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None = None,
-          bootstrap: dict | None = None) -> dict:
+          bootstrap: dict | None = None, mix_contracts: bool = False) -> dict:
     """Everything the report shows, as plain data. ``compare``: two configurations (as the report
     names them, or a unique prefix) to compare on shared instances; ``plan``: the keyword
     arguments of :func:`stats.plan` (``tasks`` defaults to the tasks the sweep holds);
-    ``bootstrap``: ``resamples``, ``confidence``, ``seed`` of the paired bootstrap."""
+    ``bootstrap``: ``resamples``, ``confidence``, ``seed`` of the paired bootstrap; ``mix_contracts``:
+    put attempts whose comparison contracts differ in one table, marked exploratory
+    (:func:`contract.table_contracts`; else :class:`contract.ContractsDiffer`)."""
     s = scan(Path(root))
     ms = measure(s)
+    crows = _contract_rows(s, ms)
+    ms = [m for m in ms if m.rel in crows]
+    contracts = contract.table_contracts(list(crows.values()), mix_contracts, str(root))
     max_calls = max([int(a.result["budget"].get("tool_calls_limit") or 0) for a in s.attempts] + [0])
     configs = sorted({m.config for m in ms})
     summaries = [ConfigSummary.of(c, [m for m in ms if m.config == c], max_calls) for c in configs]
@@ -98,15 +103,35 @@ def build(root: Path, compare: tuple[str, str] | None = None, plan: dict | None 
          "excluded": [{"dir": d, "why": w} for d, w in s.excluded], "sweep": sweep,
          "configs": [c.as_dict() for c in summaries], "matrix": matrix(ms),
          "attempt_rows": [vars(m) for m in sorted(ms, key=lambda m: (m.config, m.task, m.attempt, m.rel))],
-         "comparison": None, "plan": None, "recoverability": None}
+         "comparison": None, "plan": None, "recoverability": None, "contracts": contracts}
     rows = r["attempt_rows"]
     r["instances"] = instances.by_instance_kind(rows, instances.seed_kinds({m["task"] for m in rows}))
     r["randomization"] = instances.by_randomization(rows)
     if compare:
         r["comparison"] = comparison(r, *compare, **(bootstrap or {}))
+        pair = (r["comparison"]["a"], r["comparison"]["b"])
+        r["comparison"]["contracts_differ"] = contract.report_check([c for c in crows.values() if c["config"] in pair])
     if plan:
         r["plan"] = stats.plan(**{"tasks": len(r["matrix"]) or 25, **plan})
     return r
+
+
+def _contract_rows(s: Scan, ms: list[AttemptMeasures]) -> dict[str, dict]:
+    """Per measured attempt (by folder), what :func:`contract.report_check` reads; an attempt whose
+    contract is malformed moves to ``s.problems``."""
+    by_rel = {a.rel: a for a in s.attempts}
+    out = {}
+    for m in ms:
+        a = by_rel[m.rel]
+        try:
+            c = contract.of_result(a.result)
+        except RecordError as e:
+            s.problems.append((a.rel, str(e)))
+            continue
+        out[m.rel] = {"config": m.config, "task": m.task, "sim": a.result.get("sim"),
+                      "harness": a.result.get("harness"), "contract": c}
+    s.attempts = [a for a in s.attempts if a.rel in out]
+    return out
 
 
 def config_named(r: dict, name: str) -> str:
@@ -170,7 +195,7 @@ def tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
     # the MCP clients that played each configuration, when any attempt was served over MCP
     with_clients = any(c.get("clients") for c in cs)
     client_col = (lambda c: [", ".join(c.get("clients") or []) or "–"]) if with_clients else (lambda c: [])  # noqa: E731
-    out = [("Success and task coverage",
+    out = [("Success and task coverage" + _marked(r.get("contracts")),
             ["Configuration", *(["MCP client"] if with_clients else []), "Success", "Rate", "Wilson 95%", "Coverage", *ks],
             [[c["config"], *client_col(c), f"{c['successes']}/{c['attempts']}", pct(c["success_rate"]),
               f"{pct(c['wilson95'][0])}–{pct(c['wilson95'][1])}", f"{c['coverage']}/{c['tasks']}",
@@ -250,7 +275,8 @@ def uncertainty_tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
         ci = "–" if boot["ci"] is None else f"{100 * boot['ci'][0]:+.1f} to {100 * boot['ci'][1]:+.1f} points"
         diff = "–" if boot["difference"] is None else f"{100 * boot['difference']:+.1f} points"
         ins = cmp["instances"]
-        out.append((f"Paired comparison: A = {cmp['a']}, B = {cmp['b']}", ["Measure", "Value"],
+        out.append((f"Paired comparison: A = {cmp['a']}, B = {cmp['b']}"
+                    + _marked({"differing": cmp.get("contracts_differ") or []}), ["Measure", "Value"],
                     [["Shared task instances (task, seed)", f"{ins['shared']} (only A: {ins['only_a']}, only B: {ins['only_b']})"],
                      ["Attempt pairs (attempt i of A with attempt i of B)", str(cmp["pairs"])],
                      ["Both succeeded / only A / only B / neither",
@@ -275,6 +301,12 @@ def uncertainty_tables(r: dict) -> list[tuple[str, list[str], list[list[str]]]]:
     return out
 
 
+def _marked(contracts: dict | None) -> str:
+    """`` (EXPLORATORY: ...)`` after the title of a table whose attempts' contracts differ, else ``""``."""
+    parts = (contracts or {}).get("differing") or []
+    return f" ({contract.exploratory_note(parts)})" if parts else ""
+
+
 def md_table(header: list[str], rows: list[list[str]]) -> str:
     esc = lambda s: str(s).replace("|", "\\|")  # noqa: E731
     lines = ["| " + " | ".join(map(esc, header)) + " |", "|" + "---|" * len(header)]
@@ -284,6 +316,14 @@ def md_table(header: list[str], rows: list[list[str]]) -> str:
 def notes(r: dict) -> list[str]:
     """Plain-text lines on what the report does not count, and on the sweep."""
     out = [f"{r['attempts']} attempts, {len(r['configs'])} configurations."]
+    ct = r.get("contracts") or {}
+    if ct.get("differing"):
+        out.append(f"{contract.exploratory_note(ct['differing'])}: these attempts did not all run the same "
+                   "benchmark (cab-report --mix-contracts put them in one table); their differences are not "
+                   "only the configurations'.")
+    if ct.get("without"):
+        out.append(f"Records without a comparison contract (written before cab kept one): {ct['without']}; "
+                   "not checked.")
     if r["sweep"]:
         sw = r["sweep"]
         out.append(f"Sweep manifest: {sw['jobs']} jobs ({sw.get('not_started', '?')} not started), "

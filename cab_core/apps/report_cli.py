@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from cab_core.analysis import recoverability, stats
+from cab_core.analysis import contract, recoverability, stats
 from cab_core.analysis.report import FIGURES_FOLDER, md_table, tables, uncertainty_tables, write
 from cab_core.errors import CabError
 
@@ -17,8 +17,9 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="cab-report", description="The paper's measures for every attempt below a directory.",
         epilog="Exit status: 0 report written; 1 written, but no finished attempt to measure (only unfinished "
-               "or unreadable ones); 2 nothing written: the directory does not exist or holds no attempt, or a "
-               "configuration given to --compare is not in it. The statistics: docs/statistics.md.")
+               "or unreadable ones); 2 nothing written: the directory does not exist or holds no attempt, a "
+               "configuration given to --compare is not in it, or its attempts' comparison contracts differ "
+               "(without --mix-contracts). The statistics: docs/statistics.md.")
     ap.add_argument("dir", nargs="?", help="a sweep directory (or any tree of attempt directories); "
                                            "may be left out with --plan-difference (the plan alone)")
     ap.add_argument("--out", help="where report.md/.html/.json go (default: the directory itself)")
@@ -29,6 +30,18 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"),
                     help="compare two configurations on their shared task instances (names as the report writes "
                          "them, or a prefix of exactly one: 'oracle')")
+    ap.add_argument("--mix-contracts", action="store_true",
+                    help="put attempts whose comparison contracts differ (another budget, simulator version, task "
+                         "code...) in one table, marked exploratory with the differing parts named; without it "
+                         "such a directory is refused, naming them (docs/comparing.md)")
+    ap.add_argument("--against", metavar="SOURCE",
+                    help="put each configuration beside the same one elsewhere: 'paper' (the published figures a "
+                         "plugin offers, e.g. the suite's paper) or an earlier sweep's folder; Wilson intervals, "
+                         "exact binomial and Fisher tests, a forest plot and a verdict per configuration, written "
+                         "to against.md/.json (docs/comparing.md)")
+    ap.add_argument("--as", dest="labels", action="append", metavar="CONFIG=NAME",
+                    help="with --against: compare configuration CONFIG (or a prefix of exactly one) with NAME of the "
+                         "other side (a paper configuration's name, or 'model (harness)'); repeatable")
     ap.add_argument("--resamples", type=int, default=10_000, help="paired bootstrap resamples (default 10000)")
     ap.add_argument("--confidence", type=float, default=0.95, help="bootstrap interval (default 0.95)")
     ap.add_argument("--bootstrap-seed", type=int, default=0, help="seed of the bootstrap's RNG (default 0)")
@@ -90,6 +103,9 @@ def _print_summary(a: argparse.Namespace, r: dict) -> None:
     when asked for, the recoverability table when run; then on stderr what was skipped, what was
     written, and (exit status 1) that no finished attempt was measured."""
     title, header, rows = tables(r)[0]
+    if (r.get("contracts") or {}).get("differing"):
+        print(f"cab-report: {contract.exploratory_note(r['contracts']['differing'])}", file=sys.stderr)
+        print(title)
     print(md_table(header, rows))
     for title, header, rows in uncertainty_tables(r)[1:]:  # the comparison and the plan, when asked for
         print(f"\n{title}\n\n{md_table(header, rows)}")
@@ -111,6 +127,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = _parser()
     a = ap.parse_args(argv)
     plan, alone = _plan(ap, a)
+    if a.labels and not a.against:
+        ap.error("--as CONFIG=NAME goes with --against")
     if a.dir is None and alone is not None:
         title, header, rows = uncertainty_tables({"configs": [], "plan": alone})[-1]
         print(f"{title}\n\n{md_table(header, rows)}")
@@ -120,7 +138,7 @@ def main(argv: list[str] | None = None) -> None:
     if not Path(a.dir).exists():
         print(f"cab-report: {a.dir} does not exist", file=sys.stderr)
         sys.exit(2)
-    extra = {"compare": a.compare, "plan": plan,
+    extra = {"compare": a.compare, "plan": plan, "mix_contracts": a.mix_contracts,
              "bootstrap": {"resamples": a.resamples, "confidence": a.confidence, "seed": a.bootstrap_seed}}
     recover = None
     if a.recoverability:
@@ -133,3 +151,26 @@ def main(argv: list[str] | None = None) -> None:
         print(f"cab-report: {e}", file=sys.stderr)
         sys.exit(2)
     _print_summary(a, r)
+    if a.against:
+        _against(a, r)
+
+
+def _against(a: argparse.Namespace, r: dict) -> None:
+    """``--against``: the comparison printed (tables, notes) and written beside the report; exit 2
+    with one line when the source or a label names nothing."""
+    from cab_core.analysis import against
+
+    try:
+        cmp = against.against(Path(a.dir), r, a.against, against.parse_labels(a.labels),
+                              bootstrap_cfg={"resamples": a.resamples, "confidence": a.confidence,
+                                             "seed": a.bootstrap_seed})
+        against.write(cmp, Path(a.out or a.dir), figure_files=not a.no_figure_files)
+    except CabError as e:
+        print(f"cab-report: {e}", file=sys.stderr)
+        sys.exit(2)
+    for title, header, rows in against.tables(cmp):
+        print(f"\n{title}\n\n{md_table(header, rows)}")
+    print()
+    for line in against.notes(cmp):
+        print(line)
+    print(f"cab-report: wrote against.md, against.json to {a.out or a.dir}", file=sys.stderr)
