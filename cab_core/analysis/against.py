@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from cab_core.analysis import contract
 from cab_core.analysis.attempts import read_json
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, wilson
 from cab_core.errors import ConfigError, RecordError
@@ -253,16 +254,18 @@ def compare_sides(cab: Mapping, other: Mapping, other_is_cab: bool, alpha: float
 # matching configurations
 # ---------------------------------------------------------------------------------------------
 def _config_facts(root: Path, r: Mapping) -> dict[str, dict]:
-    """Per configuration of report ``r`` (of ``root``): its model, harness, simulator and the
-    comparison contracts its records carry (``result.json`` ``contract``; digests)."""
+    """Per configuration of report ``r`` (of ``root``): its model, harness and simulator, and the
+    comparison contracts its records carry (``result.json`` ``contract``,
+    :func:`cab_core.analysis.contract.of_result`), by attempt instance ``(task, seed, attempt)``."""
     out: dict[str, dict] = {}
     for m in r["attempt_rows"]:
+        where = f"{m['rel']}/result.json"
         res = read_json(Path(root) / m["rel"] / "result.json")
         f = out.setdefault(m["config"], {"model": res.get("model"), "harness": res.get("harness"),
                                          "sim": res.get("sim"), "contracts": {}})
-        contract = res.get("contract")
-        if isinstance(contract, Mapping) and isinstance(contract.get("digest"), str):
-            f["contracts"][contract["digest"]] = dict(contract.get("parts") or {})
+        c = contract.of_result(res, where)
+        if c is not None:
+            f["contracts"][(m["task"], m["seed"], m["attempt"])] = c
     return out
 
 
@@ -286,25 +289,33 @@ def parse_labels(items: list[str] | None) -> dict[str, str]:
     return out
 
 
-def differing_parts(a: Mapping[str, Mapping], b: Mapping[str, Mapping]) -> list[str]:
-    """The contract parts two configurations' records differ in (each side: ``{digest: parts}``);
-    [] when they share one contract or either side has none."""
-    if not a or not b or set(a) & set(b):
+def differing_parts(a: Mapping[tuple, Mapping], b: Mapping[tuple, Mapping]) -> list[str]:
+    """The contract parts two configurations' records differ in (each side: ``{(task, seed,
+    attempt): contract}``): on each attempt instance both ran, the parts its two contracts differ in
+    (:func:`cab_core.analysis.contract.differing`); and any part that does not follow the instance
+    (tools, simulator, planner, harness...) whose digests are not the same on both sides. [] when
+    either side has no contract (records written before cab kept one)."""
+    if not a or not b:
         return []
     names: set[str] = set()
-    for pa in a.values():
-        for pb in b.values():
-            names |= {k for k in set(pa) | set(pb) if pa.get(k) != pb.get(k)}
-    return sorted(names)
+    for key in set(a) & set(b):
+        names |= set(contract.differing(a[key], b[key]))
+    per_instance = {"task", "seeds", "budget"}
+    for part in {p for c in [*a.values(), *b.values()] for p in c["parts"]} - per_instance:
+        if {c["parts"].get(part) for c in a.values()} != {c["parts"].get(part) for c in b.values()}:
+            names.add(part)
+    order = list(contract.PARTS)
+    return sorted(names, key=lambda p: (order.index(p) if p in order else len(order), p))
 
 
 # ---------------------------------------------------------------------------------------------
 # the comparison
 # ---------------------------------------------------------------------------------------------
 def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | None = None, alpha: float = ALPHA,
-            bootstrap_cfg: Mapping | None = None) -> dict:
+            bootstrap_cfg: Mapping | None = None, mix_contracts: bool = False) -> dict:
     """Compare report ``r`` (of the sweep ``root``, :func:`cab_core.analysis.report.build`) with
-    ``source``: the name of published figures (``paper``) or an earlier run's folder."""
+    ``source``: the name of published figures (``paper``) or an earlier run's folder (read as
+    cab-report reads one; ``mix_contracts``: as its option, for that folder's own attempts)."""
     from cab_core.analysis import report as rp
 
     boot = {"resamples": 10_000, "confidence": 0.95, "seed": 0, **(bootstrap_cfg or {})}
@@ -317,7 +328,7 @@ def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | Non
     other_dir = Path(source)
     out: dict[str, Any] = {"against_version": AGAINST_VERSION, "alpha": alpha, "rows": [], "unmatched": []}
     if other_dir.is_dir():
-        other = rp.build(other_dir)
+        other = rp.build(other_dir, mix_contracts=mix_contracts)
         if not other["attempts"]:
             raise RecordError(f"no finished attempt under {other_dir} to compare with")
         ofacts = _config_facts(other_dir, other)
@@ -340,7 +351,7 @@ def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | Non
             oside = _cab_side(oc, [m for m in other["attempt_rows"] if m["config"] == match], other["matrix"], boot)
             row = {"config": c, "other": match, **compare_sides(cab_sides[c], oside, True, alpha)}
             parts = differing_parts(facts[c]["contracts"], ofacts[match]["contracts"])
-            row["contract"] = {"cab": sorted(facts[c]["contracts"]), "other": sorted(ofacts[match]["contracts"]),
+            row["contract"] = {"cab": len(facts[c]["contracts"]), "other": len(ofacts[match]["contracts"]),
                                "differs_in": parts, "exploratory": bool(parts)}
             out["rows"].append(row)
         return out
@@ -363,8 +374,8 @@ def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | Non
             out["unmatched"].append(c)
             continue
         row = {"config": c, "other": paper["name"], **compare_sides(cab_sides[c], _paper_side(paper), False, alpha)}
-        digests = sorted(facts[c]["contracts"])
-        row["contract"] = {"cab": digests, "on_what_the_paper_fixed": bool(digests), "paper_fixed": list(PAPER_FIXED)}
+        held = len(facts[c]["contracts"])
+        row["contract"] = {"cab": held, "on_what_the_paper_fixed": bool(held), "paper_fixed": list(PAPER_FIXED)}
         out["rows"].append(row)
     return out
 
@@ -421,15 +432,18 @@ def notes(a: Mapping) -> list[str]:
     if a["kind"] == "paper":
         out.append(a["note"] + ".")
         for row in a["rows"]:
-            if row["contract"]["cab"]:
-                out.append(f"{row['config']}: contract {', '.join(d[:12] for d in row['contract']['cab'])}; "
-                           "compared on what the paper fixed only.")
+            if row["contract"]["on_what_the_paper_fixed"]:
+                out.append(f"{row['config']}: {row['contract']['cab']} attempt(s) hold a comparison contract; the "
+                           f"paper fixes only its parts {', '.join(PAPER_FIXED)}: compared on what the paper fixed.")
         out.append("The paper gives per-task success only as a figure: per-task success is not compared.")
     else:
         for row in a["rows"]:
             if row["contract"]["exploratory"]:
                 out.append(f"{row['config']}: EXPLORATORY, the two runs' contracts differ in "
                            f"{', '.join(row['contract']['differs_in'])}.")
+            elif not (row["contract"]["cab"] and row["contract"]["other"]):
+                out.append(f"{row['config']}: not checked for comparability: records without a comparison contract "
+                           "(written before cab kept one).")
     if a["unmatched"]:
         out.append("Not compared (no counterpart; name one with --as CONFIG=NAME): " + "; ".join(a["unmatched"]) + ".")
     return out

@@ -163,7 +163,7 @@ def _against(a: argparse.Namespace, r: dict) -> None:
     try:
         cmp = against.against(Path(a.dir), r, a.against, against.parse_labels(a.labels),
                               bootstrap_cfg={"resamples": a.resamples, "confidence": a.confidence,
-                                             "seed": a.bootstrap_seed})
+                                             "seed": a.bootstrap_seed}, mix_contracts=a.mix_contracts)
         against.write(cmp, Path(a.out or a.dir), figure_files=not a.no_figure_files)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
