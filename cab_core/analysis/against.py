@@ -51,6 +51,7 @@ from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, 
 from cab_core.errors import ConfigError, RecordError
 
 AGAINST_VERSION = "cab-against/1"
+FIGURES_FOLDER = "figures"  # beside the report's own figures (cab_core.analysis.report.FIGURES_FOLDER)
 ALPHA = 0.05
 _REL = 1 + 1e-7  # outcomes this close to the observed one's probability count as no more likely (scipy's rule)
 PAPER_FIXED = ("tools", "task", "seeds", "budget")  # contract parts a paper fixes; cab's world is its own
@@ -312,12 +313,10 @@ def differing_parts(a: Mapping[tuple, Mapping], b: Mapping[tuple, Mapping]) -> l
 # the comparison
 # ---------------------------------------------------------------------------------------------
 def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | None = None, alpha: float = ALPHA,
-            bootstrap_cfg: Mapping | None = None, mix_contracts: bool = False) -> dict:
+            bootstrap_cfg: Mapping | None = None, earlier: Mapping | None = None) -> dict:
     """Compare report ``r`` (of the sweep ``root``, :func:`cab_core.analysis.report.build`) with
-    ``source``: the name of published figures (``paper``) or an earlier run's folder (read as
-    cab-report reads one; ``mix_contracts``: as its option, for that folder's own attempts)."""
-    from cab_core.analysis import report as rp
-
+    ``source``: the name of published figures (``paper``), or an earlier run's folder whose report
+    (the same function's) is ``earlier``."""
     boot = {"resamples": 10_000, "confidence": 0.95, "seed": 0, **(bootstrap_cfg or {})}
     labels = dict(labels or {})
     facts = _config_facts(root, r)
@@ -327,8 +326,8 @@ def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | Non
     cab_sides = {c["config"]: _cab_side(c, rows_of[c["config"]], r["matrix"], boot) for c in r["configs"]}
     other_dir = Path(source)
     out: dict[str, Any] = {"against_version": AGAINST_VERSION, "alpha": alpha, "rows": [], "unmatched": []}
-    if other_dir.is_dir():
-        other = rp.build(other_dir, mix_contracts=mix_contracts)
+    if earlier is not None:
+        other = earlier
         if not other["attempts"]:
             raise RecordError(f"no finished attempt under {other_dir} to compare with")
         ofacts = _config_facts(other_dir, other)
@@ -441,7 +440,10 @@ def notes(a: Mapping) -> list[str]:
             if row["contract"]["exploratory"]:
                 out.append(f"{row['config']}: EXPLORATORY, the two runs' contracts differ in "
                            f"{', '.join(row['contract']['differs_in'])}.")
-            elif not (row["contract"]["cab"] and row["contract"]["other"]):
+            elif row["contract"]["cab"] and row["contract"]["other"]:
+                out.append(f"{row['config']}: the two runs' comparison contracts agree ({row['contract']['cab']} and "
+                           f"{row['contract']['other']} attempts).")
+            else:
                 out.append(f"{row['config']}: not checked for comparability: records without a comparison contract "
                            "(written before cab kept one).")
     if a["unmatched"]:
@@ -485,11 +487,16 @@ def forest(a: Mapping):
     return fig
 
 
+def md_table(header: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table (as the report writes its own)."""
+    cell = lambda s: str(s).replace("|", "\\|")  # noqa: E731
+    return "\n".join(["| " + " | ".join(map(cell, header)) + " |", "|" + "---|" * len(header),
+                      *("| " + " | ".join(map(cell, row)) + " |" for row in rows)])
+
+
 def markdown(a: Mapping, figure: str | None) -> str:
     parts = [f"# Against {'the paper' if a['kind'] == 'paper' else a['source']}", ""]
     for title, header, rows in tables(a):
-        from cab_core.analysis.report import md_table
-
         parts += [f"## {title}", "", md_table(header, rows), ""]
     parts += [f"- {n}" for n in notes(a)]
     if figure:
@@ -501,7 +508,6 @@ def write(a: Mapping, out: Path, figure_files: bool = True) -> list[Path]:
     """``against.json``, ``against.md`` and (``figure_files``) ``figures/against_forest.{pdf,svg,png}``
     in ``out``; the paths written."""
     from cab_core.analysis import figures as fg
-    from cab_core.analysis.report import FIGURES_FOLDER
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

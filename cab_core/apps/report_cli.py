@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from cab_core.analysis import contract, recoverability, stats
-from cab_core.analysis.report import FIGURES_FOLDER, md_table, tables, uncertainty_tables, write
+from cab_core.analysis.report import FIGURES_FOLDER, build, md_table, tables, uncertainty_tables, write
 from cab_core.errors import CabError
 
 
@@ -161,9 +161,10 @@ def _against(a: argparse.Namespace, r: dict) -> None:
     from cab_core.analysis import against
 
     try:
+        earlier = build(Path(a.against), mix_contracts=a.mix_contracts) if Path(a.against).is_dir() else None
         cmp = against.against(Path(a.dir), r, a.against, against.parse_labels(a.labels),
                               bootstrap_cfg={"resamples": a.resamples, "confidence": a.confidence,
-                                             "seed": a.bootstrap_seed}, mix_contracts=a.mix_contracts)
+                                             "seed": a.bootstrap_seed}, earlier=earlier)
         against.write(cmp, Path(a.out or a.dir), figure_files=not a.no_figure_files)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
