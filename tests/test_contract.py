@@ -208,3 +208,19 @@ def test_report_mixes_contracts_when_asked_and_marks_the_tables(two_sweeps, tmp_
     same = build(two_sweeps, compare=("oracle", "idle ("), mix_contracts=True)
     assert same["comparison"]["contracts_differ"] == []
 
+
+
+@pytest.mark.parametrize("overrides", [[], ["budget.tool_calls=7", "seed=5", "attempt=2"], ["budget.sim_seconds=12.5"]])
+def test_the_manifests_spec_per_task_is_the_attempts(tmp_path, overrides):
+    """sweep_contracts validates one spec per composition and takes each task's budgets and seed as
+    attempt_spec does: the same spec, task by task."""
+    from cab_core.sweep.manifest import _with_task
+
+    first = spec_here(tmp_path, "task=click_bell", "sim=mujoco", "model=idle", *overrides)
+    for task in ("beat_block_hammer", "stack_blocks_three", "open_microwave"):
+        own = spec_here(tmp_path, f"task={task}", "sim=mujoco", "model=idle", *overrides)
+        plain = {"task": {"name": task}, "budget": {k.split(".")[1]: float(v) if "." in v else int(v)
+                                                    for k, v in (o.split("=") for o in overrides)
+                                                    if k.startswith("budget.")}}
+        plain.update({k: int(v) for k, v in (o.split("=") for o in overrides) if k in ("seed", "attempt")})
+        assert _with_task(first, plain) == own

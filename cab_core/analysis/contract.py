@@ -105,10 +105,16 @@ def _measured(cfg: Mapping | None) -> dict:
 
 
 @cache
+def _plugin_distributions() -> dict[str, str]:
+    """``{top-level module: distribution}`` of the distributions that provide cab's entry points."""
+    from cab_core.plugins import GROUP
+
+    return {ep.module.split(".")[0]: ep.dist.name for ep in metadata.entry_points(group=GROUP)
+            if getattr(ep, "dist", None) is not None}
+
+
 def _distribution_of(module: str) -> str | None:
-    top = module.split(".")[0]
-    dists = metadata.packages_distributions().get(top) or []
-    return dists[0] if dists else None
+    return _plugin_distributions().get(module.split(".")[0])
 
 
 @cache
@@ -131,12 +137,14 @@ def _versions(dist: str) -> tuple[tuple[str, str], ...]:
 
 def _option_versions(kind: str, name: str) -> dict[str, str]:
     """The versions behind an installed option (:func:`_versions` of its plugin's distribution); ``{}``
-    where it is not installed (a record read back elsewhere) or comes from no distribution."""
+    for an option of the core itself, and where it is not installed (a record read back elsewhere)."""
     from cab_core.plugins import registry
 
     factory = registry(kind).get(name)
     dist = _distribution_of(getattr(factory, "__module__", "") or "") if factory is not None else None
-    return dict(_versions(dist)) if dist else {}
+    if not dist or dist == _distribution_of("cab_core"):  # the core's own options: its code, not its version
+        return {}
+    return dict(_versions(dist))
 
 
 def _class_sources(cls: type) -> list[str]:
