@@ -109,8 +109,12 @@ def _plugin_distributions() -> dict[str, str]:
     """``{top-level module: distribution}`` of the distributions that provide cab's entry points."""
     from cab_core.plugins import GROUP
 
-    return {ep.module.split(".")[0]: ep.dist.name for ep in metadata.entry_points(group=GROUP)
-            if getattr(ep, "dist", None) is not None}
+    out = {}
+    for ep in metadata.entry_points(group=GROUP):
+        dist = getattr(ep, "dist", None)
+        if dist is not None:
+            out[ep.module.split(".")[0]] = dist.name
+    return out
 
 
 def _distribution_of(module: str) -> str | None:
