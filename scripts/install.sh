@@ -55,6 +55,11 @@ python -m pip install -q "numpy>=2" -e ".[test,ray,slurm,export]" --config-setti
 python -m pip install -q --find-links "$WHEELS" -e plugins/embodiment_aloha -e plugins/planner_pin \
   -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all,inspect]" \
   -e plugins/harness_mcp -e plugins/export_rerun -e plugins/inspect_cab 2>&1 | grep -v '^WARNING: Location' || true
+# cab-export eee (plugins/export_eee): every-eval-ever declares Requires-Python >=3.12, so the plugin is
+# installed on 3.12 and newer only (on 3.11, cab-export eee says in one line which Python it needs)
+if python -c 'import sys; sys.exit(sys.version_info < (3, 12))'; then
+  python -m pip install -q -e plugins/export_eee 2>&1 | grep -v '^WARNING: Location' || true
+fi
 python -c "import cab_core, sapien, pinocchio, ompl, toppra" || { echo "install check failed" >&2; exit 1; }
 # Inspect's keyless mockllm counts tokens with tiktoken's o200k_base, which tiktoken downloads from
 # outside the package registries: taken from npm instead (plugins/inspect_cab/inspect_cab/offline.py)

@@ -142,10 +142,11 @@ def test_an_exporter_that_is_not_installed_is_one_line(capsys, monkeypatch):
     assert "install it with: pip install" in err[0]
     # a format the checkout ships as a plugin, not installed: the command that installs it
     monkeypatch.setattr(ex, "exporters", lambda: {})
+    monkeypatch.setattr(ex, "sweep_exporters", lambda: {})
     with pytest.raises(SystemExit):
         ex.main(["rerun", str(ROOT)])
     err = capsys.readouterr().err.strip()
-    assert err == f"cab-export: no exporter 'rerun' is installed (installed: parquet); install it with: " \
+    assert err == f"cab-export: no exporter 'rerun' is installed (installed: parquet, leaderboard); install it with: " \
                   f"pip install -e {ROOT / 'plugins' / 'export_rerun'}"
 
 

@@ -1,30 +1,37 @@
 """``cab-export``: records written elsewhere, for other tools.
 
     cab-export parquet <sweep dir> [--out DIR]        attempts.parquet and calls.parquet (the sweep as a dataset)
+    cab-export leaderboard <sweep dir> [--out DIR]    leaderboard.jsonl: one row per configuration, with provenance
     cab-export <format> <attempt or sweep dir> [--out DIR]   one export per attempt, by an exporter plugin
 
 ``parquet`` is the core's own: one row per finished attempt (:data:`ATTEMPT_COLUMNS`) and one per
 call event (:data:`CALL_COLUMNS`), written with pyarrow (the ``export`` extra). Every other format
 is an exporter plugin's (hook ``cab_record_exporters``, :func:`cab_core.plugins.registry`): it gets
 each finished attempt's folder and writes into it (or below ``--out``, the attempt's path relative
-to the given folder kept). The columns and each exporter's output are described in ``docs/export.md``.
+to the given folder kept). A sweep exporter plugin (hook ``cab_sweep_exporters``) gets the whole
+folder once. ``leaderboard`` is the core's too (:mod:`cab_core.analysis.leaderboard`). The columns and
+each exporter's output are described in ``docs/export.md``.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import platform
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from cab_core.analysis import leaderboard, report, summary
 from cab_core.analysis.attempts import scan
 from cab_core.analysis.measures import AttemptMeasures
 from cab_core.errors import CabError, ConfigError, MissingDependency
 from cab_core.plugins import registry
 
 PARQUET = "parquet"
+LEADERBOARD = "leaderboard"
 ATTEMPTS_FILE = "attempts.parquet"
 CALLS_FILE = "calls.parquet"
 ERROR_TEXT_LIMIT = 500  # characters of a call's error message kept
@@ -279,10 +286,39 @@ def exporters() -> dict[str, Callable]:
     return registry("record_exporters")
 
 
+def sweep_exporters() -> dict[str, Callable]:
+    """The installed sweep exporter plugins (hook ``cab_sweep_exporters``), by format."""
+    return registry("sweep_exporters")
+
+
+def _python_refused(requires: str) -> str | None:
+    """``requires`` (a ``Requires-Python`` specifier) when this interpreter does not satisfy it."""
+    try:
+        from packaging.specifiers import InvalidSpecifier, SpecifierSet
+    except ImportError:  # pragma: no cover - packaging comes with pip
+        return None
+    try:
+        ok = platform.python_version() in SpecifierSet(requires)
+    except InvalidSpecifier:
+        return None
+    return None if ok else requires
+
+
 def missing_exporter(fmt: str, installed: list[str]) -> str:
-    """One line: the format is not installed, what is, and how to install it."""
+    """One line: the format is not installed, what is, and how to install it (or, for a plugin of
+    this checkout whose ``requires-python`` this interpreter does not meet, which Python it needs)."""
     here = Path(__file__).resolve().parents[2] / "plugins" / f"export_{fmt}"
-    how = (f"pip install -e {here}" if (here / "pyproject.toml").is_file()
+    meta = here / "pyproject.toml"
+    try:  # the line itself: tomllib is Python 3.11's, and cab runs on 3.10
+        found = re.search(r'^requires-python\s*=\s*"([^"]+)"', meta.read_text(), re.M) if meta.is_file() else None
+    except OSError:
+        found = None
+    refused = _python_refused(found.group(1)) if found else None
+    if refused:
+        return (f"no exporter {fmt!r} is installed: its plugin ({here.name}) needs Python {refused} and this is "
+                f"Python {platform.python_version()}; set up a venv of such a Python (PYTHON=3.12 "
+                f"CAB_VENV=.venv-py3.12 bash scripts/install.sh installs it there) and run cab-export from it")
+    how = (f"pip install -e {here}" if meta.is_file()
            else f"pip install the plugin that provides it (a distribution such as cab-export-{fmt})")
     return f"no exporter {fmt!r} is installed (installed: {', '.join(installed)}); install it with: {how}"
 
@@ -330,7 +366,7 @@ def main(argv: list[str] | None = None) -> None:
         description="Export attempt records: 'parquet' writes a sweep as attempts.parquet and calls.parquet; "
                     "any other format is an installed exporter plugin's, run on every finished attempt "
                     "(docs/export.md).",
-        epilog="formats: parquet, or an exporter plugin's (cab-export --list)")
+        epilog="formats: parquet, leaderboard, or an exporter plugin's (cab-export --list)")
     ap.add_argument("format", nargs="?", help="parquet, or an installed exporter's name")
     ap.add_argument("dir", nargs="?", type=Path, help="an attempt folder or a folder of attempts (a sweep)")
     ap.add_argument("--out", type=Path, default=None,
@@ -338,7 +374,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--list", action="store_true", help="list the formats installed and exit")
     a = ap.parse_args(argv)
     try:
-        installed = [PARQUET] + sorted(exporters())
+        installed = [PARQUET, LEADERBOARD] + sorted({*exporters(), *sweep_exporters()})
         if a.list:
             print("\n".join(installed))
             return
@@ -352,6 +388,26 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{p} ({p.stat().st_size / 1024:.0f} KiB)")
             print(f"{res['attempts']} attempts, {res['calls']} calls{_left_out(res)}")
             if not res["attempts"]:
+                sys.exit(1)
+            return
+        if a.format == LEADERBOARD:
+            rows = leaderboard.rows(a.dir, report.build(a.dir), summary.published())
+            path = leaderboard.write(rows, Path(a.out or a.dir) / leaderboard.FILE)
+            paper = sum(r["name_in_paper"] is not None for r in rows)
+            print(f"{path}: {len(rows)} configurations ({paper} with a paper configuration), "
+                  f"{sum(r['attempts'] for r in rows)} attempts")
+            if not rows:
+                sys.exit(1)
+            return
+        whole = sweep_exporters()
+        if a.format in whole:
+            out = Path(a.out or a.dir)
+            data = summary.sweep_data(a.dir, report.build(a.dir), summary.published())
+            paths = [Path(p) for p in whole[a.format](data, out) or []]
+            for p in paths:
+                print(f"{p} ({p.stat().st_size / 1024:.0f} KiB)")
+            print(f"{a.format}: {len(paths)} files")
+            if not paths:
                 sys.exit(1)
             return
         registered = exporters()

@@ -151,13 +151,16 @@ def cab_record_exporters() -> dict[str, Callable[[Any, Any], list]]:
 
 
 @hookspec
-def cab_sweep_exporters() -> dict[str, Callable[[Any, Any], list]]:
+def cab_sweep_exporters() -> dict[str, Callable[[dict, Any], list]]:
     """Formats a whole sweep can be exported to with ``cab-export <name> <sweep folder>``, for
     records that summarise many attempts (an aggregate with its instances): ``{"my_format": export}``.
-    ``export(sweep_dir, out_dir)`` reads the sweep's finished attempts (``cab_core.analysis``) and
-    writes its files below ``out_dir`` (created), returning the paths written; called once per
-    export. It raises ``MissingDependency`` when a library it needs is missing. A name is either a
-    record exporter's or a sweep exporter's, not both. Called once per process. All results are merged."""
+    ``export(sweep, out_dir)`` gets the sweep as plain data (``cab_core.analysis.summary.sweep_data``:
+    per configuration cab-report's figures with their Wilson intervals, success per task, the
+    combined comparison contract and the attempts' records; the installed suites' published figures
+    of the paper) and writes its files below ``out_dir`` (a :class:`pathlib.Path`, created by it),
+    returning the paths written; called once per export. It raises ``MissingDependency`` when a
+    library it needs is missing. A name is either a record exporter's or a sweep exporter's, not
+    both. Called once per process. All results are merged."""
 
 
 # --- configuration ----------------------------------------------------------------------------
