@@ -115,20 +115,25 @@ def published(name: str = "paper") -> dict:
     return dict(data)
 
 
-def _paper_side(row: Mapping) -> dict:
-    """A paper row as the measures this module compares: ``counts`` (k, n), ``values``."""
+def _paper_side(row: Mapping, source: Mapping) -> dict:
+    """A paper row as the measures this module compares: ``counts`` (k, n), ``values``. A count's
+    denominator comes from the row (attempts: the stopping conditions' sum; tasks: the
+    ``tasks_by_successes`` sum), else from the figures' ``source`` (``attempts_per_configuration``,
+    ``tasks``); a count without one is left out."""
     cons, use = row.get("consistency") or {}, row.get("resource_use") or {}
     term, prog, act = row.get("termination") or {}, row.get("programs") or {}, row.get("actions") or {}
-    n = sum((term.get("stopping") or {}).values()) or None
+    n = int(sum((term.get("stopping") or {}).values()) or source.get("attempts_per_configuration") or 0)
+    tasks = int(sum((cons.get("tasks_by_successes") or {}).values()) or source.get("tasks") or 0)
     counts: dict[str, tuple[int, int]] = {}
     values: dict[str, float | None] = {}
-    if "success" in cons:
-        counts["success"] = (int(cons["success"]), int(n or 75))
-    if "coverage" in cons:
-        counts["coverage"] = (int(cons["coverage"]), int(sum((cons.get("tasks_by_successes") or {}).values()) or 25))
+    if "success" in cons and n:
+        counts["success"] = (int(cons["success"]), n)
+    if "coverage" in cons and tasks:
+        counts["coverage"] = (int(cons["coverage"]), tasks)
     for kind, group in (("stop", term.get("stopping") or {}), ("claim", term.get("claims") or {})):
         for k, v in group.items():
-            counts[f"{kind}_{k}"] = (int(v), int(n or 75))
+            if n:
+                counts[f"{kind}_{k}"] = (int(v), n)
     if "program_errors" in prog:
         counts["program_errors"] = (int(prog["program_errors"]), int(prog["programs_returned"]))
     if "program_share_pct" in prog:
@@ -372,7 +377,8 @@ def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | Non
         if paper is None:
             out["unmatched"].append(c)
             continue
-        row = {"config": c, "other": paper["name"], **compare_sides(cab_sides[c], _paper_side(paper), False, alpha)}
+        row = {"config": c, "other": paper["name"], **compare_sides(cab_sides[c], _paper_side(paper, figures.get("source") or {}), False,
+                                                                  alpha)}
         held = len(facts[c]["contracts"])
         row["contract"] = {"cab": held, "on_what_the_paper_fixed": bool(held), "paper_fixed": list(PAPER_FIXED)}
         out["rows"].append(row)

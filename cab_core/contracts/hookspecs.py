@@ -67,7 +67,9 @@ def cab_published_figures() -> dict[str, Callable[[], dict]]:
     "harness": ...}, ...}`` and the measures the paper gives it (the keys
     :mod:`cab_core.analysis.against` reads: ``consistency``, ``resource_use``, ``termination``,
     ``programs``, ``actions``, ``tool_use``; any may be absent), and optionally ``tables`` (where each
-    block comes from) and ``source``. A task suite ships its paper's figures this way. Called once per process."""
+    block comes from) and ``source`` (``attempts_per_configuration`` and ``tasks``: the denominators
+    of the counts where a row does not give them). A task suite ships its paper's figures this way.
+    Called once per process."""
 
 
 # --- agents -----------------------------------------------------------------------------------
