@@ -16,7 +16,6 @@ from hydra import compose, initialize_config_module
 from cab_core.analysis.contract import (
     PARTS,
     ContractsDiffer,
-    attempt_contract,
     canonical_json,
     combined,
     differing,
@@ -27,6 +26,7 @@ from cab_core.analysis.contract import (
 from cab_core.analysis.report import build
 from cab_core.apps.cli import normalise_overrides
 from cab_core.apps.report_cli import main as report_main
+from cab_core.attempt.engine.contract import attempt_contract
 from cab_core.attempt.records.result_format import MalformedRecord, parse_record
 from cab_core.attempt.runner import attempt_spec
 from cab_core.errors import RecordError
@@ -36,8 +36,9 @@ SPEC_SCRIPT = """
 import json, sys
 from hydra import compose, initialize_config_module
 from cab_core.apps.cli import normalise_overrides
+from cab_core.attempt.engine.contract import attempt_contract
 from cab_core.attempt.runner import attempt_spec
-from cab_core.analysis.contract import attempt_contract
+from cab_core.attempt.engine.contract import attempt_contract
 with initialize_config_module(version_base=None, config_module="cab_core.conf"):
     cfg = compose(config_name="config", overrides=normalise_overrides(sys.argv[2:]))
 print(json.dumps(attempt_contract(attempt_spec(cfg, sys.argv[1]))))
@@ -214,7 +215,7 @@ def test_report_mixes_contracts_when_asked_and_marks_the_tables(two_sweeps, tmp_
 def test_the_manifests_spec_per_task_is_the_attempts(tmp_path, overrides):
     """sweep_contracts validates one spec per composition and takes each task's budgets and seed as
     attempt_spec does: the same spec, task by task."""
-    from cab_core.sweep.manifest import _with_task
+    from cab_core.apps.sweep_contracts import _with_task
 
     first = spec_here(tmp_path, "task=click_bell", "sim=mujoco", "model=idle", *overrides)
     for task in ("beat_block_hammer", "stack_blocks_three", "open_microwave"):

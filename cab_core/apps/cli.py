@@ -460,7 +460,11 @@ class SweepManifestCallback(Callback):
                     "which has one working directory): leave it false, or use hydra/launcher=joblib")
         _plan_or_preflight(config, multirun=True)
         try:
-            SweepManifest.from_hydra(config).open(config.hydra.sweep.dir, config.hydra.launcher._target_)
+            from cab_core.apps.sweep_contracts import sweep_contracts
+
+            manifest = SweepManifest.from_hydra(config)
+            manifest.contracts = sweep_contracts(config, manifest.jobs)  # each configuration's, in sweep.json
+            manifest.open(config.hydra.sweep.dir, config.hydra.launcher._target_)
             _SWEEP_DIR = str(config.hydra.sweep.dir)
         except (SweepConfigChanged, sweep_layout.SweepJobsCollide) as e:
             print(f"cab: refused: {e}", file=sys.stderr)

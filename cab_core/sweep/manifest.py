@@ -5,7 +5,7 @@ and the ``sweep.*`` infrastructure settings, which may legitimately differ betwe
 launcher, its worker count, output directories, retries), the list of jobs the sweep expands to,
 and a fingerprint of both, the keys the attempt folders name besides task, model, simulator, seed
 and attempt (``path_keys``, read back by each job: ``cab_core.sweep.layout``) and each job's folder, and the comparison contract of each configuration (``contracts``, by the label
-cab-report gives it: :func:`sweep_contracts`, :mod:`cab_core.analysis.contract`).
+cab-report gives it: :func:`cab_core.apps.sweep_contracts.sweep_contracts`).
 A sweep two of whose jobs would write to the same folder is refused before anything runs. Running a
 sweep into a directory that already has a manifest resumes it, provided the fingerprint is the same;
 otherwise it is refused, naming what changed. A directory written with the first layout
@@ -25,14 +25,13 @@ import os
 import socket
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cab_core.attempt.records.result_format import write_json_atomic
-from cab_core.attempt.spec import AttemptSpec, attempt_spec
+from cab_core.attempt.spec import attempt_spec
 from cab_core.errors import ConfigError
-from cab_core.plugins import task_info
 from cab_core.sweep.attempt_state import (
     GIVEN_UP,
     INTERRUPTED,
@@ -217,71 +216,6 @@ def _jobs_diff(old: list[list[str]], new: list[list[str]]) -> list[str]:
     return out
 
 
-#: the keys of a composed config an attempt's spec is made of (:func:`cab_core.attempt.spec.attempt_spec`)
-_SPEC_KEYS = ("task", "sim", "embodiment", "planner", "harness", "model", "seed", "attempt", "budget", "sandbox",
-              "record", "perturb", "randomize", "fork")
-
-
-def sweep_contracts(cfg: Any, jobs: list[list[str]]) -> dict[str, dict]:
-    """The comparison contract of each configuration of the sweep (:mod:`cab_core.analysis.contract`),
-    by the label cab-report gives it: each job's attempt contract from its spec, combined over the
-    configuration's jobs. One composition per job without its task, seed and attempt: an installed
-    task's option is ``{name: <task>}`` (:func:`cab_core.config.register_task_configs`); a task
-    option that is not an installed task's name is composed with the job."""
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.types import RunMode
-
-    from cab_core.analysis.configurations import configuration_labels
-    from cab_core.analysis.contract import attempt_contract, combined
-    from cab_core.plugins import task_names
-    from cab_core.sweep.layout import _fixed_overrides, _parsed, _strings
-
-    fixed = _fixed_overrides(cfg)
-    hydra_overrides = _strings(cfg.hydra.overrides.hydra)
-    loader = GlobalHydra.instance().config_loader()
-    composed: dict[tuple[str, ...], dict] = {}
-    specs = []
-    installed = set(task_names())
-    checked: dict[tuple[str, ...], AttemptSpec] = {}
-    for job in jobs:
-        values = dict(o.split("=", 1) for o in job)
-        task = values.get("task")
-        by_name = task in installed
-        key = tuple(o for o in job if o.split("=", 1)[0] not in ("seed", "attempt", *(("task",) if by_name else ())))
-        if key not in composed:
-            c = loader.load_configuration(config_name=cfg.hydra.job.config_name,
-                                          overrides=[*hydra_overrides, *fixed, *key], run_mode=RunMode.RUN)
-            composed[key] = {k: _plain(c[k]) for k in _SPEC_KEYS if k in c}
-        plain = dict(composed[key])
-        if by_name:
-            plain["task"] = {"name": task}
-        for k in ("seed", "attempt"):
-            if k in values:
-                plain[k] = _parsed(values[k])
-        if key not in checked:  # validated once per composition (0.1 s each), the tasks and seeds as the spec reads them
-            checked[key] = attempt_spec(plain, ".")
-        specs.append(_with_task(checked[key], plain) if checked[key].fork is None else attempt_spec(plain, "."))
-    labels = configuration_labels([{"model": s.model, "harness": s.harness, "sim": s.sim, "model_cfg": s.model_cfg,
-                                    "task": s.task} for s in specs])
-    by: dict[str, list[dict]] = {}
-    for label, s in zip(labels, specs):
-        by.setdefault(label, []).append(attempt_contract(s))
-    return {label: combined(cs) for label, cs in sorted(by.items())}
-
-
-def _with_task(spec: AttemptSpec, plain: dict) -> AttemptSpec:
-    """``spec`` (validated) for the task, seed and attempt of ``plain``: budgets and seed from the task's
-    suite where the config leaves them null, as :func:`attempt_spec` takes them."""
-    info = task_info(plain["task"]["name"])
-    b = plain.get("budget") or {}
-    seed = info.seed if plain.get("seed") is None else plain["seed"]
-    return replace(spec, task=info.name, seed=int(seed), attempt=int(plain.get("attempt", 1)),
-                   budget_tool_calls=int(info.budget_tool_calls if b.get("tool_calls") is None else b["tool_calls"]),
-                   budget_sim_seconds=float(info.budget_sim_s if b.get("sim_seconds") is None else b["sim_seconds"]),
-                   budget_wall_seconds=float(info.budget_wall_s if b.get("wall_seconds") is None
-                                             else b["wall_seconds"]))
-
-
 @dataclass
 class SweepManifest:
     """The pinned configuration of one sweep directory, and where each of its jobs writes."""
@@ -289,7 +223,9 @@ class SweepManifest:
     jobs: list[list[str]]
     path_keys: list[str]
     folders: list[str]
-    hydra_cfg: Any = field(default=None, repr=False, compare=False)  # what the contracts are composed from
+    #: each configuration's comparison contract (:func:`cab_core.apps.sweep_contracts.sweep_contracts`, which
+    #: ``cab`` computes before opening the sweep); not part of the fingerprint
+    contracts: dict | None = field(default=None, compare=False)
 
     @classmethod
     def from_hydra(cls, cfg: Any) -> SweepManifest:
@@ -299,7 +235,7 @@ class SweepManifest:
         keys = varying_keys(jobs)
         folders = attempt_folders(cfg, jobs, keys)
         check_distinct(folders, jobs)
-        return cls(_stable_config(cfg), jobs, keys, folders, cfg)
+        return cls(_stable_config(cfg), jobs, keys, folders)
 
     @property
     def fingerprint(self) -> str:
@@ -340,8 +276,8 @@ class SweepManifest:
             manifest = {"manifest_version": MANIFEST_VERSION, "fingerprint": self.fingerprint, "created": now,
                         "n_jobs": len(self.jobs), "jobs": self.jobs, "path_keys": self.path_keys,
                         "folders": self.folders, "config": self.config, "sessions": []}
-        if "contracts" not in manifest and self.hydra_cfg is not None:  # a new sweep, or one begun before cab kept them
-            manifest["contracts"] = sweep_contracts(self.hydra_cfg, self.jobs)
+        if "contracts" not in manifest and self.contracts is not None:  # a new sweep, or one begun before cab kept them
+            manifest["contracts"] = self.contracts
         manifest["sessions"].append({"started": now, "launcher": launcher,
                                      "complete_at_start": len(completed_results(Path(sweep_dir)))})
         write_json_atomic(path, manifest)

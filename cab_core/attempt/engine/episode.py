@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cab_core.analysis.contract import attempt_contract
 from cab_core.attempt.budget import BudgetLedger
+from cab_core.attempt.engine.contract import attempt_contract
 from cab_core.attempt.engine.finishing import VerdictTracker, attempt_checkpoints, versions
 from cab_core.attempt.engine.serving import CallServer, StepClock, ToolResponse
 from cab_core.attempt.engine.world import RECORD_CAMERA, BuiltWorld, close_quietly, with_parts
@@ -298,7 +298,7 @@ class Episode:
         return self.result
 
     def _contract(self) -> dict | None:
-        """The attempt's comparison contract (:mod:`cab_core.analysis.contract`): from its spec and,
+        """The attempt's comparison contract (:mod:`cab_core.attempt.engine.contract`): from its spec and,
         where the harness learnt it, the serving engine; None (the key left out) if it cannot be
         computed, which the attempt's events say."""
         serving = (self.agent or {}).get("serving") if isinstance(self.agent, dict) else None
