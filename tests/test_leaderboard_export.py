@@ -9,7 +9,7 @@ from collections import defaultdict
 import pytest
 from attempt_records import results
 
-from cab_core.analysis import contract, leaderboard, report
+from cab_core.analysis import contract, leaderboard, report, summary
 from cab_core.analysis.measures import wilson
 from cab_core.apps import export as ex
 from cab_core.errors import RecordError
@@ -94,6 +94,33 @@ def test_a_configuration_that_reproduces_a_papers_names_it(sweep, tmp_path):
     assert idle["name_in_paper"] is None and idle["reported_table"] is None and idle["paper_successes"] is None
     path = leaderboard.write(list(rows.values()), tmp_path / "lb.jsonl")
     assert leaderboard.read(path) == list(rows.values())
+
+
+@pytest.mark.sim
+def test_a_configuration_labelled_as_the_papers(sweep, tmp_path, capsys):
+    """``--as CONFIG=NAME`` (as cab-report --against paper takes it) with the installed suites' own
+    published figures: the oracle labelled as a paper configuration carries that row's counts."""
+    figures = summary.published()
+    if figures is None:
+        pytest.skip("no installed task suite ships published figures")
+    paper = figures["configurations"][1]
+    ex.main(["leaderboard", str(sweep), "--out", str(tmp_path), "--as", f"oracle={paper['name']}"])
+    rows = {r["config"]: r for r in leaderboard.read(tmp_path / leaderboard.FILE)}
+    assert "1 with a paper configuration" in capsys.readouterr().out
+    oracle = next(r for c, r in rows.items() if c.startswith("oracle "))
+    table = figures["tables"]["consistency"]
+    assert oracle["name_in_paper"] == paper["name"] and oracle["reported_table"] == f"{table['label']} {table['caption']}"
+    assert (oracle["paper_successes"], oracle["paper_tasks_covered"]) == \
+        (paper["consistency"]["success"], paper["consistency"]["coverage"])
+    assert (oracle["paper_attempts"], oracle["paper_tasks"]) == \
+        (figures["source"]["attempts_per_configuration"], figures["source"]["tasks"])
+    assert all(r["name_in_paper"] is None for c, r in rows.items() if r is not oracle)
+    for label, says in [(f"nosuch={paper['name']}", "no configuration of the sweep 'nosuch'"),
+                        ("oracle=No Such Model (Harness)", "no such configuration in the published figures")]:
+        with pytest.raises(SystemExit) as e:
+            ex.main(["leaderboard", str(sweep), "--out", str(tmp_path), "--as", label])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and says in err[0]
 
 
 @pytest.mark.sim

@@ -65,12 +65,13 @@ def _one(values: set) -> Any:
 
 
 def rows(root: Path, r: Mapping[str, Any], figures: Mapping[str, Any] | None = None,
-         now: float | None = None) -> list[dict]:
+         labels: Mapping[str, str] | None = None, now: float | None = None) -> list[dict]:
     """One row per configuration of the sweep below ``root`` (:data:`COLUMNS`), in cab-report's order:
     ``r`` is cab-report's build of it (:func:`cab_core.analysis.report.build`), read with the records
     by :func:`cab_core.analysis.summary.sweep_data`. ``figures``: published figures
-    (:func:`~cab_core.analysis.summary.published`) whose configurations give ``name_in_paper``."""
-    data = summary.sweep_data(Path(root), r, figures)
+    (:func:`~cab_core.analysis.summary.published`) whose configurations give ``name_in_paper``: the one
+    of the same model and harness, or the one ``labels`` names (``{configuration: paper name}``)."""
+    data = summary.sweep_data(Path(root), r, figures, labels)
     fingerprint = (data["sweep"] or {}).get("fingerprint")
     stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(time.time() if now is None else now))
     out = []

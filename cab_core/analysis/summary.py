@@ -18,7 +18,7 @@ from typing import Any
 from cab_core.analysis import contract
 from cab_core.analysis.attempts import scan
 from cab_core.analysis.measures import wilson
-from cab_core.errors import ConfigError
+from cab_core.errors import ConfigError, RecordError
 from cab_core.plugins import registry
 
 PAPER = "paper"  # the published figures compared with by default (cab-report --against paper)
@@ -46,6 +46,29 @@ def paper_configuration(figures: Mapping[str, Any] | None, model: Any, harness: 
     return None
 
 
+def labelled_configurations(configs: list[str], figures: Mapping[str, Any] | None,
+                            labels: Mapping[str, str]) -> dict[str, Mapping[str, Any]]:
+    """``labels`` (``{configuration: paper name}``, ``--as CONFIG=NAME`` as ``cab-report --against``
+    takes it: a configuration as the report names it or by a prefix of exactly one, a paper
+    configuration by its name or by ``model (harness)``) resolved: ``{configuration: paper row}``.
+    A label that names nothing, or names it ambiguously, is one line."""
+    confs = [c for c in (figures or {}).get("configurations") or [] if isinstance(c, Mapping)]
+    by_name = {str(c.get("name")): c for c in confs}
+    by_cab = {f"{c['cab'].get('model')} ({c['cab'].get('harness')})": c for c in confs if isinstance(c.get("cab"), Mapping)}
+    out = {}
+    for config, name in labels.items():
+        hits = [c for c in configs if c == config] or [c for c in configs if c.startswith(config)]
+        if len(hits) != 1:
+            raise RecordError(f"--as {config}={name}: {'ambiguous' if hits else 'no'} configuration of the sweep "
+                              f"{config!r}; choices: {'; '.join(hits or configs)}")
+        paper = by_name.get(name) or by_cab.get(name)
+        if paper is None:
+            raise ConfigError(f"--as {config}={name}: no such configuration in the published figures"
+                              + (f"; choices: {'; '.join(by_name)}" if by_name else " (none are installed)"))
+        out[hits[0]] = paper
+    return out
+
+
 def paper_counts(figures: Mapping[str, Any], conf: Mapping[str, Any]) -> dict[str, Any]:
     """A paper configuration's success and coverage counts, the table they come from and the Wilson
     95 % interval of its success: ``{"successes", "attempts", "tasks_covered", "tasks", "table",
@@ -67,7 +90,8 @@ def configuration_contract(results: list[Mapping[str, Any]]) -> dict | None:
     return contract.combined([c for c in cs if c is not None]) if cs and None not in cs else None
 
 
-def sweep_data(root: Path, r: Mapping[str, Any], figures: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def sweep_data(root: Path, r: Mapping[str, Any], figures: Mapping[str, Any] | None = None,
+               labels: Mapping[str, str] | None = None) -> dict[str, Any]:
     """The sweep below ``root`` as plain data, from ``r``, cab-report's figures of it
     (:func:`cab_core.analysis.report.build`, which the caller computes: this module sits below the
     report in the import graph, as :mod:`cab_core.analysis.against` does):
@@ -78,8 +102,9 @@ def sweep_data(root: Path, r: Mapping[str, Any], figures: Mapping[str, Any] | No
       (:class:`~cab_core.analysis.measures.ConfigSummary` as a dict: ``config``, ``attempts``,
       ``successes``, ``success_rate``, ``wilson95``, ``tasks``, ``coverage``, ``consistency``, ...),
       and ``per_task`` (task -> ``{"successes", "attempts", "wilson95"}``), ``contract`` (combined,
-      or None), ``paper`` (the paper configuration it reproduces with :func:`paper_counts` as
-      ``counts``, or None) and ``records``: its attempts' ``{"rel", "dir", "result", "events"}``,
+      or None), ``paper`` (the paper configuration it reproduces, the one ``labels`` gives it
+      (:func:`labelled_configurations`) or else the one of its model and harness, with
+      :func:`paper_counts` as ``counts``; or None) and ``records``: its attempts' ``{"rel", "dir", "result", "events"}``,
       sorted by folder;
     - ``figures``: the published figures given, each configuration with ``counts`` added, or None."""
     root = Path(root)
@@ -88,11 +113,12 @@ def sweep_data(root: Path, r: Mapping[str, Any], figures: Mapping[str, Any] | No
     for a in scan(root).attempts:
         if a.rel in counted:
             by_config[a.config].append(a)
+    labelled = labelled_configurations([c["config"] for c in r["configs"]], figures, labels or {})
     configs = []
     for c in r["configs"]:
         attempts = sorted(by_config[c["config"]], key=lambda a: a.rel)
         first = attempts[0].result if attempts else {}
-        conf = paper_configuration(figures, first.get("model"), first.get("harness"))
+        conf = labelled.get(c["config"]) or paper_configuration(figures, first.get("model"), first.get("harness"))
         per_task = {t: {"successes": cell[c["config"]][0], "attempts": cell[c["config"]][1],
                         "wilson95": list(wilson(*cell[c["config"]]))}
                     for t, cell in r["matrix"].items() if c["config"] in cell}

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from cab_core.analysis import leaderboard, report, summary
+from cab_core.analysis.against import parse_labels
 from cab_core.analysis.attempts import scan
 from cab_core.analysis.measures import AttemptMeasures
 from cab_core.errors import CabError, ConfigError, MissingDependency
@@ -371,6 +372,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("dir", nargs="?", type=Path, help="an attempt folder or a folder of attempts (a sweep)")
     ap.add_argument("--out", type=Path, default=None,
                     help="where to write (default: the folder itself; for an exporter, each attempt's folder)")
+    ap.add_argument("--as", dest="labels", action="append", metavar="CONFIG=NAME",
+                    help="leaderboard and sweep exporters: take configuration CONFIG of the sweep as the paper's "
+                         "configuration NAME (as cab-report --against paper --as); repeatable")
     ap.add_argument("--list", action="store_true", help="list the formats installed and exit")
     a = ap.parse_args(argv)
     try:
@@ -391,7 +395,7 @@ def main(argv: list[str] | None = None) -> None:
                 sys.exit(1)
             return
         if a.format == LEADERBOARD:
-            rows = leaderboard.rows(a.dir, report.build(a.dir), summary.published())
+            rows = leaderboard.rows(a.dir, report.build(a.dir), summary.published(), parse_labels(a.labels))
             path = leaderboard.write(rows, Path(a.out or a.dir) / leaderboard.FILE)
             paper = sum(r["name_in_paper"] is not None for r in rows)
             print(f"{path}: {len(rows)} configurations ({paper} with a paper configuration), "
@@ -402,7 +406,7 @@ def main(argv: list[str] | None = None) -> None:
         whole = sweep_exporters()
         if a.format in whole:
             out = Path(a.out or a.dir)
-            data = summary.sweep_data(a.dir, report.build(a.dir), summary.published())
+            data = summary.sweep_data(a.dir, report.build(a.dir), summary.published(), parse_labels(a.labels))
             paths = [Path(p) for p in whole[a.format](data, out) or []]
             for p in paths:
                 print(f"{p} ({p.stat().st_size / 1024:.0f} KiB)")

@@ -388,19 +388,18 @@ def export_sweep(sweep: Mapping[str, Any], out: Path, now: float | None = None) 
     out = Path(out)
     retrieved = str(time.time() if now is None else now)
     written: list[Path] = []
-    identities: dict[tuple[Any, Any], ModelInfo] = {}
+    identities: dict[str, ModelInfo] = {}  # a paper configuration's name -> cab's identity of its run
     for c in sweep["configs"]:
         if not c["records"]:
             continue
         log, text, repo_path = run_records(c, retrieved, sweep["id"])
         written.append(_write(out / repo_path, log.model_dump_json(exclude_none=True, indent=2) + "\n"))
         written.append(_write(out / (repo_path[:-len(".json")] + "_samples.jsonl"), text))
-        first = c["records"][0]["result"]
-        identities[(first.get("model"), first.get("harness"))] = log.model_info
+        if c.get("paper"):
+            identities[str(c["paper"].get("name"))] = log.model_info
     figures = sweep.get("figures") or {}
     for conf in figures.get("configurations") or []:
-        cab = conf.get("cab") or {}
-        info = identities.get((cab.get("model"), cab.get("harness"))) or paper_identity(conf)
+        info = identities.get(str(conf.get("name"))) or paper_identity(conf)
         made = documentation_record(figures, conf, info, retrieved) if info is not None else None
         if made is not None:
             log, repo_path = made

@@ -151,6 +151,19 @@ def test_the_papers_figures_are_documentation_beside_the_run(exported):
 
 
 @pytest.mark.sim
+def test_a_labelled_configuration_has_the_papers_record_beside_it(sweep, tmp_path):
+    """``--as idle=...``: the paper's row is filed beside the labelled configuration's record."""
+    from cab_export_eee.convert import export_sweep
+
+    export_sweep(sweep_data(sweep, build(sweep), FIGURES, {"idle": "Claude Opus 5 (Reference)"}), tmp_path)
+    docs = {rec["source_metadata"]["additional_details"]["name_in_paper"]: p for p, rec in _records(tmp_path)
+            if rec["source_metadata"]["source_type"] == "documentation"}
+    assert docs["Claude Opus 5 (Reference)"].parent.relative_to(tmp_path).as_posix() == "data/cab/cab/idle"
+    assert docs["Oracle (Direct)"].parent.relative_to(tmp_path).as_posix() == "data/cab/cab/oracle"
+    assert eee_validate([str(p) for p in tmp_path.rglob("*.json*")] + ["--format", "json"]) == 0
+
+
+@pytest.mark.sim
 def test_cab_export_eee_writes_and_lists(sweep, tmp_path, capsys):
     assert "eee" in ex.sweep_exporters()
     ex.main(["eee", str(sweep), "--out", str(tmp_path)])
