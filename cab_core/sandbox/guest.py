@@ -84,6 +84,7 @@ import struct
 import sys
 import traceback
 import types
+import warnings
 
 _HEADER = struct.Struct(">II")
 # The guest's own references for what it sends: bound before any program runs, and in no namespace a
@@ -489,8 +490,12 @@ def _raw_memory(np) -> dict:
     """numpy's names that take a raw buffer, an offset or strides, or hand out uninitialised memory,
     replaced by checked versions: no array a program makes can see outside the bytes it was given."""
     # np.char.chararray: numpy 2 deprecates the top-level np.chararray (a lazy name, so not among the
-    # module's public names: a program is offered the checked version under numpy 1 only)
-    real_nd, real_frombuffer, real_rec, real_char = np.ndarray, np.frombuffer, np.recarray, np.char.chararray
+    # module's public names: a program is offered the checked version under numpy 1 only); numpy 2.5
+    # (Python >= 3.12) warns on np.char.chararray too, yet still offers it, so it is still guarded
+    real_nd, real_frombuffer, real_rec = np.ndarray, np.frombuffer, np.recarray
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        real_char = np.char.chararray
 
     def frombuffer(buffer, dtype=float, count=-1, offset=0, **kwargs):
         if isinstance(buffer, real_nd) and buffer.dtype.hasobject:
