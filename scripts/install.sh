@@ -19,7 +19,7 @@ if [ -f "$VENV/pyvenv.cfg" ]; then
   have=$("$VENV/bin/python" -c "$ident" 2>/dev/null || echo "none (broken)")
   want=$("$PY" -c "$ident")
   if [ -n "${PYTHON:-}" ] && [ "$have" != "$want" ] || [ "$have" = "none (broken)" ]; then
-    echo "recreating $VENV: it runs Python ${have% *}, not ${want% *}"
+    echo "recreating $VENV: it runs ${have% *}, PYTHON is ${want% *}"
     rm -rf "$VENV"
   fi
 fi
