@@ -16,7 +16,8 @@ SIMS="${CAB_CHECK_SIMS:-sapien pybullet mujoco}"
 # attempts below (test_cli*.py and test_plugin_loading.py start a cab per test: 6 min more)
 TESTS="${CAB_CHECK_TESTS:-tests/test_config.py tests/test_config_plugins.py tests/test_cli_schema.py tests/test_plugins.py
   tests/test_sandbox.py tests/test_sandbox_policy.py tests/test_tools.py tests/test_stats.py tests/test_margins.py
-  tests/test_budget.py tests/test_record.py tests/test_core_layout.py tests/test_pythons.py}"
+  tests/test_budget.py tests/test_record.py tests/test_core_layout.py tests/test_pythons.py
+  tests/test_leaderboard_export.py plugins/export_eee/tests/test_eee_export.py}"
 WORKERS="${CAB_TEST_WORKERS:-$(nproc)}"
 
 rows=()

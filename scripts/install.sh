@@ -33,8 +33,17 @@ python -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || tr
 # pybullet 3.2.7 has wheels up to Python 3.11: elsewhere it is built from its sdist once, into a cache
 # that the installs below read (a second set-up, or another venv of the same Python, does not rebuild)
 WHEELS=.cab_cache/wheels
+# CAB_SKIP_PLUGINS="sim_pybullet ...": plugin folders not installed (CI's per-version check skips the
+# pybullet build this way: scripts/check-pythons.sh)
+skip=" ${CAB_SKIP_PLUGINS:-} "
+plugins=()
+for p in embodiment_aloha planner_pin sim_sapien sim_pybullet sim_mujoco suite_codeaction "harness_reference[all,inspect]" \
+         harness_mcp export_rerun inspect_cab; do
+  case "$skip" in *" ${p%%\[*} "*) continue ;; esac
+  plugins+=(-e "plugins/$p")
+done
 pybullet=$(grep -o '"pybullet[=<>!~][^"]*"' plugins/sim_pybullet/pyproject.toml | tr -d '"')
-if ! python -m pip install -q --dry-run --no-deps --only-binary=:all: --find-links "$WHEELS" "$pybullet" >/dev/null 2>&1; then
+if [[ "$skip" != *" sim_pybullet "* ]] && ! python -m pip install -q --dry-run --no-deps --only-binary=:all: --find-links "$WHEELS" "$pybullet" >/dev/null 2>&1; then
   pyver=$(python -c 'import sys; print("%d.%d" % sys.version_info[:2])')
   echo "building $pybullet from source for Python $pyver (no wheel; about 12 min on 2 cores), kept in $WHEELS"
   command -v c++ >/dev/null || { echo "building pybullet needs a C++ compiler: apt-get install g++" >&2; exit 1; }
@@ -52,9 +61,7 @@ if python -m pip show -q cab-planner-mplib >/dev/null 2>&1; then
   echo "planner_mplib removed from .venv: it needs numpy<2 (docs/planners.md: installing it on purpose)"
 fi
 python -m pip install -q "numpy>=2" -e ".[test,ray,slurm,export]" --config-settings editable_mode=strict 2>&1 | grep -v '^WARNING: Location' || true
-python -m pip install -q --find-links "$WHEELS" -e plugins/embodiment_aloha -e plugins/planner_pin \
-  -e plugins/sim_sapien -e plugins/sim_pybullet -e plugins/sim_mujoco -e plugins/suite_codeaction -e "plugins/harness_reference[all,inspect]" \
-  -e plugins/harness_mcp -e plugins/export_rerun -e plugins/inspect_cab 2>&1 | grep -v '^WARNING: Location' || true
+python -m pip install -q --find-links "$WHEELS" "${plugins[@]}" 2>&1 | grep -v '^WARNING: Location' || true
 # cab-export eee (plugins/export_eee): every-eval-ever declares Requires-Python >=3.12, so the plugin is
 # installed on 3.12 and newer only (on 3.11, cab-export eee says in one line which Python it needs)
 if python -c 'import sys; sys.exit(sys.version_info < (3, 12))'; then
