@@ -361,3 +361,16 @@ def test_provider_outage_is_an_infrastructure_failure_not_the_models(tmp_path):
         kept = json.loads((d / f["records"] / "result.json").read_text())
         assert kept["termination"]["reason"] == "provider_failure"
     assert check_attempt(d, ident).state == "partial"
+
+
+def test_the_default_fork_planner_leaves_a_sweeps_fingerprint_as_before():
+    """fork.planner (issue 30) at its default: a sweep begun before the key existed resumes."""
+    from omegaconf import OmegaConf
+
+    from cab_core.sweep.manifest import _stable_config
+
+    before = {"task": {"name": "click_bell"}, "fork": {"from": None, "at": None}}
+    now = {**before, "fork": {"from": None, "at": None, "planner": "parent"}}
+    assert _stable_config(OmegaConf.create(now)) == _stable_config(OmegaConf.create(before))
+    own = {**before, "fork": {"from": "d", "at": 3, "planner": "own"}}
+    assert _stable_config(OmegaConf.create(own))["fork"] == {"from": "d", "at": 3, "planner": "own"}

@@ -180,6 +180,8 @@ def _stable_config(cfg: Any) -> dict:
     out = {k: _plain(cfg[k]) for k in cfg if k not in VOLATILE}
     if isinstance(out.get("perturb"), dict) and out["perturb"].get("seed") is None:
         del out["perturb"]  # off: a sweep from before perturbations existed keeps its fingerprint
+    if isinstance(out.get("fork"), dict) and out["fork"].get("planner") == "parent":  # the default: likewise
+        out["fork"] = {k: v for k, v in out["fork"].items() if k != "planner"}  # for sweeps before fork.planner
     if isinstance(out.get("sim"), dict) and "slot_memory_mb" in out["sim"]:  # a measured figure for the
         out["sim"] = {k: v for k, v in out["sim"].items() if k != "slot_memory_mb"}  # launcher, not the attempt's
     return out
