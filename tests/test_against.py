@@ -175,3 +175,111 @@ def test_as_without_against_is_refused(sweep, capsys):
     with pytest.raises(SystemExit) as e:
         report_main([str(sweep), "--as", f"oracle={OPUS}"])
     assert e.value.code == 2 and "--as CONFIG=NAME goes with --against" in capsys.readouterr().err
+
+
+# --- against an exported result (cab-export leaderboard) -----------------------------------------
+def _export(sweep: Path, folder: Path) -> Path:
+    from cab_core.apps import export as ex
+
+    ex.main(["leaderboard", str(sweep), "--out", str(folder)])
+    return folder / "leaderboard.jsonl"
+
+
+def _edit(path: Path, config_prefix: str, change) -> None:
+    """Rewrite the row of ``path`` whose configuration starts with ``config_prefix`` through ``change``."""
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    for row in rows:
+        if row["config"].startswith(config_prefix):
+            change(row)
+    path.write_text("".join(json.dumps(row) + "\n" for row in rows))
+
+
+def test_against_its_own_export_every_configuration_is_consistent(sweep, tmp_path, capsys):
+    lb = _export(sweep, tmp_path / "lb")
+    exported = {r["config"]: r for r in map(json.loads, lb.read_text().splitlines())}
+    report_main([str(sweep), "--out", str(tmp_path / "out"), "--no-views", "--against", str(lb)])
+    out = capsys.readouterr().out
+    a = json.loads((tmp_path / "out" / "against.json").read_text())
+    assert a["kind"] == "export" and a["unmatched"] == [] and len(a["rows"]) == 3
+    for row in a["rows"]:
+        e = exported[row["config"]]
+        assert row["other"] == row["config"] and row["verdict"] == "consistent with the exported run"
+        assert [(t["cab"], t["other"]) for t in row["tested"]] == [
+            ([e["successes"], e["attempts"]], [e["successes"], e["attempts"]]),
+            ([e["tasks_covered"], e["tasks"]], [e["tasks_covered"], e["tasks"]])]
+        assert [t["fisher_p"] for t in row["tested"]] == [1.0, 1.0] and row["per_task"] == []
+        assert row["contract"]["cab"] == e["contract_digest"] is not None and not row["contract"]["exploratory"]
+        assert f"{row['config']}: the exported row carries no per-task success: per-task success is not compared" in out
+    assert "| exported run |" in out and "EXPLORATORY" not in out
+    # a folder holding the file (and no attempt records) is read the same way
+    report_main([str(sweep), "--out", str(tmp_path / "out2"), "--no-views", "--no-figure-files",
+                 "--against", str(tmp_path / "lb")])
+    assert json.loads((tmp_path / "out2" / "against.json").read_text())["rows"] == a["rows"]
+
+
+def test_against_an_edited_export_the_verdict_and_the_contract_change(sweep, tmp_path, capsys):
+    from cab_core.analysis.measures import wilson
+
+    lb = _export(sweep, tmp_path / "lb")
+
+    def no_successes(row):  # one count edited (the interval with it, else the file is refused)
+        row.update(successes=0, success_rate=0.0, wilson95=list(wilson(0, row["attempts"])), tasks_covered=0,
+                   per_task={"beat_block_hammer": {"successes": 0, "attempts": 2}})
+
+    def other_budget(row):
+        row["contract_parts"]["budget"] = "9" * 64
+        row["contract_digest"] = "0" * 64
+
+    _edit(lb, "oracle", no_successes)
+    _edit(lb, "idle", other_budget)
+    report_main([str(sweep), "--out", str(tmp_path / "out"), "--no-views", "--no-figure-files", "--against", str(lb)])
+    out = capsys.readouterr().out
+    a = json.loads((tmp_path / "out" / "against.json").read_text())
+    oracle = next(r for r in a["rows"] if r["config"].startswith("oracle"))
+    assert oracle["tested"][0]["cab"] == [4, 4] and oracle["tested"][0]["other"] == [0, 4]
+    assert oracle["tested"][0]["fisher_p"] == pytest.approx(sps.fisher_exact([[4, 0], [0, 4]]).pvalue)
+    assert oracle["verdict"].startswith("differs: success 4/4 vs 0/4 (")
+    assert oracle["per_task"] == [{"task": "beat_block_hammer", "cab": [2, 2], "other": [0, 2],
+                                   "fisher_p": pytest.approx(sps.fisher_exact([[2, 0], [0, 2]]).pvalue)}]
+    assert oracle["contract"]["differs_in"] == []
+    idle = next(r for r in a["rows"] if r["config"].startswith("idle"))
+    assert idle["verdict"] == "consistent with the exported run"
+    assert idle["contract"]["differs_in"] == ["budget"] and idle["contract"]["exploratory"]
+    assert re.search(r"idle \(direct, \w+\): EXPLORATORY, its contract and the exported row's differ in budget\.", out)
+    assert not re.search(r"oracle \(direct, \w+\): the exported row carries no per-task success", out)
+
+
+def test_an_exported_row_without_a_contract_is_noted(sweep, tmp_path, capsys):
+    lb = _export(sweep, tmp_path / "lb")
+    _edit(lb, "scripted", lambda row: row.update(contract_digest=None, contract_parts={}))
+    report_main([str(sweep), "--out", str(tmp_path / "out"), "--no-views", "--no-figure-files", "--against", str(lb)])
+    assert re.search(r"scripted \([^)]*\): not checked for comparability: the exported row scripted \([^)]*\) carries "
+                     r"no comparison contract\.", capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("content,message", [
+    ("not json\n", "leaderboard.jsonl:1: not JSON"),
+    ("", "no leaderboard row to compare with"),
+    ('{"format": "cab-leaderboard/1"}\n', "leaderboard.jsonl:1: missing config"),
+])
+def test_a_bad_exported_file_is_one_line_and_exit_2(sweep, tmp_path, capsys, content, message):
+    (tmp_path / "leaderboard.jsonl").write_text(content)
+    with pytest.raises(SystemExit) as e:
+        report_main([str(sweep), "--out", str(tmp_path / "out"), "--no-views", "--no-figure-files",
+                     "--against", str(tmp_path / "leaderboard.jsonl")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("cab-report: ") and message in err[-1] and not (tmp_path / "out" / "against.json").exists()
+
+
+def test_an_exported_row_of_another_name_is_met_through_as(sweep, tmp_path, capsys):
+    lb = _export(sweep, tmp_path / "lb")
+    _edit(lb, "oracle", lambda row: row.update(config="oracle, last year", model="oracle-0"))
+    report_main([str(sweep), "--out", str(tmp_path / "a"), "--no-views", "--no-figure-files", "--against", str(lb)])
+    assert [u.split(" ")[0] for u in json.loads((tmp_path / "a" / "against.json").read_text())["unmatched"]] == ["oracle"]
+    report_main([str(sweep), "--out", str(tmp_path / "b"), "--no-views", "--no-figure-files", "--against", str(lb),
+                 "--as", "oracle=oracle, last"])
+    a = json.loads((tmp_path / "b" / "against.json").read_text())
+    oracle = next(r for r in a["rows"] if r["config"].startswith("oracle"))
+    assert a["unmatched"] == [] and oracle["other"] == "oracle, last year"
+    assert oracle["verdict"] == "consistent with the exported run"

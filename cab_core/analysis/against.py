@@ -1,16 +1,24 @@
-"""``cab-report <dir> --against paper|<earlier sweep>``: each configuration of a sweep beside the same
-configuration elsewhere, with cab's uncertainty and tests.
+"""``cab-report <dir> --against paper|<earlier sweep>|<leaderboard.jsonl>``: each configuration of a
+sweep beside the same configuration elsewhere, with cab's uncertainty and tests.
 
-The other side is either a paper's published figures (what a plugin offers through the hook
-``cab_published_figures``, e.g. the task suite's ``paper``: :func:`published`) or an earlier cab run
-(any folder ``cab-report`` reads). A configuration of the sweep meets:
+The other side is a paper's published figures (what a plugin offers through the hook
+``cab_published_figures``, e.g. the task suite's ``paper``: :func:`published`), an earlier cab run
+(any folder ``cab-report`` reads) or an exported result (``cab-export leaderboard``'s rows:
+a ``leaderboard.jsonl`` file, or a folder holding one and no attempt records; :func:`source_kind`,
+:func:`exported_rows`). A configuration of the sweep meets:
 
 * a paper's row whose ``cab`` names its model and harness (``opus5`` under ``reference`` meets
   "Claude Opus 5 (Reference)"), or the row a label gives it (``labels``: ``{configuration: paper
   name}``, ``cab-report --as CONFIG=NAME``; a configuration is named as the report names it, or by a
   prefix of exactly one; a paper row by its name or by ``model (harness)``);
-* in an earlier run, the configuration of the same name, else the one of the same model and harness,
-  or the one a label names.
+* in an earlier run or an exported result, the configuration of the same name, else the one of the
+  same model and harness, or the one a label names.
+
+Against an exported result only success and coverage (the counts a row carries) are tested, per-task
+success only where a row carries ``per_task`` (``{task: {"successes", "attempts"}}``), and the
+contracts are compared through the row's ``contract_digest``/``contract_parts`` against this
+sweep's configuration contract combined as the exporter combines it
+(:func:`cab_core.analysis.summary.configuration_contract`).
 
 For each pair, success (successes over attempts) and task coverage (tasks solved at least once
 over tasks) get cab's Wilson 95 % interval, the other side's value, the exact two-sided binomial
@@ -45,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis import contract
+from cab_core.analysis import contract, leaderboard, summary
 from cab_core.analysis.attempts import read_json
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, wilson
 from cab_core.errors import ConfigError, RecordError
@@ -151,6 +159,50 @@ def _paper_side(row: Mapping, source: Mapping) -> dict:
     return {"counts": counts, "values": values, "intervals": {}, "per_task": None}
 
 
+def source_kind(source: str) -> str:
+    """What ``--against SOURCE`` names: ``"export"`` (a file, taken as leaderboard rows, or a folder
+    holding :data:`cab_core.analysis.leaderboard.FILE` and no ``result.json`` below it), ``"run"``
+    (any other folder) or ``"paper"`` (published figures by name)."""
+    path = Path(source)
+    if path.is_file():
+        return "export"
+    if path.is_dir():
+        if (path / leaderboard.FILE).is_file() and next(path.rglob("result.json"), None) is None:
+            return "export"
+        return "run"
+    return "paper"
+
+
+def exported_rows(source: str) -> list[dict]:
+    """The leaderboard rows at ``source`` (the file, or the folder's
+    :data:`~cab_core.analysis.leaderboard.FILE`), each checked by
+    :func:`cab_core.analysis.leaderboard.read`; a RecordError line for a bad or empty file."""
+    path = Path(source)
+    if path.is_dir():
+        path = path / leaderboard.FILE
+    rows = leaderboard.read(path)
+    if not rows:
+        raise RecordError(f"{path}: no leaderboard row to compare with")
+    for i, row in enumerate(rows, 1):
+        pt = row.get("per_task")
+        if pt is not None and not (isinstance(pt, Mapping) and all(
+                isinstance(v, Mapping) and isinstance(v.get("successes"), int) and isinstance(v.get("attempts"), int)
+                and 0 <= v["successes"] <= v["attempts"] for v in pt.values())):
+            raise RecordError(f"{path}: row {i} ({row['config']}): per_task should map each task to "
+                              "{'successes': k, 'attempts': n} with 0 <= k <= n")
+    return rows
+
+
+def _export_side(row: Mapping) -> dict:
+    """An exported leaderboard row as the measures this module compares: success and coverage, and
+    per-task success where the row carries it."""
+    pt = row.get("per_task")
+    return {"counts": {"success": (int(row["successes"]), int(row["attempts"])),
+                       "coverage": (int(row["tasks_covered"]), int(row["tasks"]))},
+            "values": {}, "intervals": {},
+            "per_task": {t: (int(v["successes"]), int(v["attempts"])) for t, v in pt.items()} if pt else None}
+
+
 def _cab_side(c: Mapping, rows: list[Mapping], matrix: Mapping, boot: Mapping) -> dict:
     """A configuration of a cab report as the same measures, with cab's intervals for the values."""
     n = int(c["attempts"])
@@ -203,7 +255,8 @@ def _inside(v: float | None, ci: tuple[float, float] | None) -> bool | None:
     return None if v is None or ci is None else bool(ci[0] - 1e-12 <= v <= ci[1] + 1e-12)
 
 
-def compare_sides(cab: Mapping, other: Mapping, other_is_cab: bool, alpha: float = ALPHA) -> dict:
+def compare_sides(cab: Mapping, other: Mapping, other_is_cab: bool, alpha: float = ALPHA,
+                  whom: str | None = None) -> dict:
     """The comparison of one configuration (``cab``) with its counterpart (``other``), both as
     :func:`_cab_side`/:func:`_paper_side` give them: the tested measures, the others side by side,
     per-task success where both have it, and the verdict."""
@@ -249,7 +302,7 @@ def compare_sides(cab: Mapping, other: Mapping, other_is_cab: bool, alpha: float
             (ka, na), (kb, nb) = cab["per_task"][task], other["per_task"][task]
             per_task.append({"task": task, "cab": [ka, na], "other": [kb, nb],
                              "fisher_p": fisher_exact(ka, na - ka, kb, nb - kb)})
-    whom = "the earlier run" if other_is_cab else "the paper"
+    whom = whom or ("the earlier run" if other_is_cab else "the paper")
     return {"tested": tested, "measures": side, "per_task": per_task,
             "outside": [r["label"] for r in side if r["other_inside"] is False],
             "verdict": ("differs: " + "; ".join(differs)) if differs else
@@ -268,7 +321,8 @@ def _config_facts(root: Path, r: Mapping) -> dict[str, dict]:
         where = f"{m['rel']}/result.json"
         res = read_json(Path(root) / m["rel"] / "result.json")
         f = out.setdefault(m["config"], {"model": res.get("model"), "harness": res.get("harness"),
-                                         "sim": res.get("sim"), "contracts": {}})
+                                         "sim": res.get("sim"), "contracts": {}, "results": []})
+        f["results"].append(res)
         c = contract.of_result(res, where)
         if c is not None:
             f["contracts"][(m["task"], m["seed"], m["attempt"])] = c
@@ -318,10 +372,12 @@ def differing_parts(a: Mapping[tuple, Mapping], b: Mapping[tuple, Mapping]) -> l
 # the comparison
 # ---------------------------------------------------------------------------------------------
 def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | None = None, alpha: float = ALPHA,
-            bootstrap_cfg: Mapping | None = None, earlier: Mapping | None = None) -> dict:
+            bootstrap_cfg: Mapping | None = None, earlier: Mapping | None = None,
+            exported: list[dict] | None = None) -> dict:
     """Compare report ``r`` (of the sweep ``root``, :func:`cab_core.analysis.report.build`) with
-    ``source``: the name of published figures (``paper``), or an earlier run's folder whose report
-    (the same function's) is ``earlier``."""
+    ``source``: the name of published figures (``paper``), an earlier run's folder whose report
+    (the same function's) is ``earlier``, or exported leaderboard rows ``exported``
+    (:func:`exported_rows` of ``source``)."""
     boot = {"resamples": 10_000, "confidence": 0.95, "seed": 0, **(bootstrap_cfg or {})}
     labels = dict(labels or {})
     facts = _config_facts(root, r)
@@ -331,6 +387,35 @@ def against(root: Path, r: Mapping, source: str, labels: Mapping[str, str] | Non
     cab_sides = {c["config"]: _cab_side(c, rows_of[c["config"]], r["matrix"], boot) for c in r["configs"]}
     other_dir = Path(source)
     out: dict[str, Any] = {"against_version": AGAINST_VERSION, "alpha": alpha, "rows": [], "unmatched": []}
+    if exported is not None:
+        out.update(kind="export", source=str(other_dir), note=None)
+        onames = [row["config"] for row in exported]
+        by_model = {f"{row['model']} ({row['harness']})": row for row in exported}
+        for c in names:
+            orow: dict | None
+            if c in labels:
+                want = labels[c]
+                orow = by_model.get(want) or next(x for x in exported if x["config"] == _named(
+                    onames, want, f"configuration of the exported result {other_dir}"))
+            elif c in onames:
+                orow = next(x for x in exported if x["config"] == c)
+            else:
+                alike = [x for x in exported if (x["model"], x["harness"]) == (facts[c]["model"], facts[c]["harness"])]
+                orow = alike[0] if len(alike) == 1 else None
+            if orow is None:
+                out["unmatched"].append(c)
+                continue
+            row = {"config": c, "other": orow["config"],
+                   **compare_sides(cab_sides[c], _export_side(orow), True, alpha, whom="the exported run")}
+            mine = summary.configuration_contract(facts[c]["results"])
+            theirs = ({"digest": orow["contract_digest"], "parts": dict(orow.get("contract_parts") or {})}
+                      if orow.get("contract_digest") else None)
+            parts = contract.differing(mine, theirs) if mine and theirs and mine["digest"] != theirs["digest"] else []
+            row["contract"] = {"cab": mine["digest"] if mine else None, "other": theirs["digest"] if theirs else None,
+                               "differs_in": parts, "exploratory": bool(parts),
+                               "per_task_in_row": orow.get("per_task") is not None}
+            out["rows"].append(row)
+        return out
     if earlier is not None:
         other = earlier
         if not other["attempts"]:
@@ -402,10 +487,14 @@ def _val(key: str, x: float | None) -> str:
     return _pct(x) if any(key == k for k, _ in SHARES) else f"{x:,.2f}"
 
 
+def _whom(a: Mapping) -> str:
+    return {"paper": "paper", "run": "earlier run", "export": "exported run"}[a["kind"]]
+
+
 def tables(a: Mapping) -> list[tuple[str, list[str], list[list[str]]]]:
     """(title, header, rows) of the comparison: the side-by-side table with the tests and verdicts,
     then per configuration its other measures and (an earlier run) its per-task success."""
-    whom = "paper" if a["kind"] == "paper" else "earlier run"
+    whom = _whom(a)
     head = ["configuration", whom, "measure", "cab", "cab 95% interval", whom, "binomial p", "Fisher p", "verdict"]
     rows = []
     for row in a["rows"]:
@@ -417,6 +506,12 @@ def tables(a: Mapping) -> list[tuple[str, list[str], list[list[str]]]]:
                          _p(t["binomial_p"]), _p(t["fisher_p"]), row["verdict"] if i == 0 else ""])
     out = [(f"Against the {whom}: success and task coverage", head, rows)]
     for row in a["rows"]:
+        if not row["measures"] and a["kind"] == "export":
+            if row["per_task"]:
+                out.append((f"{row['config']} beside {row['other']}: per-task success", ["task", "cab", whom, "Fisher p"],
+                            [[t["task"], f"{t['cab'][0]}/{t['cab'][1]}", f"{t['other'][0]}/{t['other'][1]}",
+                              _p(t["fisher_p"])] for t in row["per_task"]]))
+            continue
         body = [[m["label"], _val(m["measure"], m["cab"]),
                  "–" if not m.get("interval") else f"{_val(m['measure'], m['interval'][0])}–{_val(m['measure'], m['interval'][1])}",
                  _val(m["measure"], m["other"]), {True: "yes", False: "no", None: "–"}[m["other_inside"]]]
@@ -441,6 +536,23 @@ def notes(a: Mapping) -> list[str]:
                 out.append(f"{row['config']}: {row['contract']['cab']} attempt(s) hold a comparison contract; the "
                            f"paper fixes only its parts {', '.join(PAPER_FIXED)}: compared on what the paper fixed.")
         out.append("The paper gives per-task success only as a figure: per-task success is not compared.")
+    elif a["kind"] == "export":
+        for row in a["rows"]:
+            c = row["contract"]
+            if c["exploratory"]:
+                out.append(f"{row['config']}: EXPLORATORY, its contract and the exported row's differ in "
+                           f"{', '.join(c['differs_in'])}.")
+            elif c["other"] is None:
+                out.append(f"{row['config']}: not checked for comparability: the exported row {row['other']} carries "
+                           "no comparison contract.")
+            elif c["cab"] is None:
+                out.append(f"{row['config']}: not checked for comparability: this sweep's records hold no comparison "
+                           "contract (written before cab kept one).")
+            else:
+                out.append(f"{row['config']}: its comparison contract and the exported row's agree ({c['cab'][:12]}).")
+            if not c["per_task_in_row"]:
+                out.append(f"{row['config']}: the exported row carries no per-task success: per-task success is not "
+                           "compared; only success and task coverage are.")
     else:
         for row in a["rows"]:
             if row["contract"]["exploratory"]:
@@ -463,7 +575,7 @@ def forest(a: Mapping):
     from cab_core.analysis import figures as fg
 
     name = "against_forest"
-    title = f"Success and coverage against the {'paper' if a['kind'] == 'paper' else 'earlier run'}"
+    title = f"Success and coverage against the {_whom(a)}"
     items = [(f"{row['config']}: {t['label']}", t) for row in a["rows"] for t in row["tested"]]
     with fg.style(name):
         fig = fg.CabFigure(name, title, 1.2 + 0.32 * max(len(items), 1))
@@ -488,7 +600,7 @@ def forest(a: Mapping):
 
         fig.legend([Line2D([], [], marker="o", color=fg.PALETTE[0], ls="-"),
                     Line2D([], [], marker="D", color=fg.PALETTE[2], ls="")],
-                   ["cab (Wilson 95%)", "paper" if a["kind"] == "paper" else "earlier run"], loc="outside lower left",
+                   ["cab (Wilson 95%)", _whom(a)], loc="outside lower left",
                    ncols=2)
     return fig
 

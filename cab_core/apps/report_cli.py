@@ -36,7 +36,8 @@ def _parser() -> argparse.ArgumentParser:
                          "such a directory is refused, naming them (docs/comparing.md)")
     ap.add_argument("--against", metavar="SOURCE",
                     help="put each configuration beside the same one elsewhere: 'paper' (the published figures a "
-                         "plugin offers, e.g. the suite's paper) or an earlier sweep's folder; Wilson intervals, "
+                         "plugin offers, e.g. the suite's paper), an earlier sweep's folder or an exported result "
+                         "(cab-export leaderboard's leaderboard.jsonl, or a folder holding one); Wilson intervals, "
                          "exact binomial and Fisher tests, a forest plot and a verdict per configuration, written "
                          "to against.md/.json (docs/comparing.md)")
     ap.add_argument("--as", dest="labels", action="append", metavar="CONFIG=NAME",
@@ -161,10 +162,12 @@ def _against(a: argparse.Namespace, r: dict) -> None:
     from cab_core.analysis import against
 
     try:
-        earlier = build(Path(a.against), mix_contracts=a.mix_contracts) if Path(a.against).is_dir() else None
+        kind = against.source_kind(a.against)
+        earlier = build(Path(a.against), mix_contracts=a.mix_contracts) if kind == "run" else None
+        exported = against.exported_rows(a.against) if kind == "export" else None
         cmp = against.against(Path(a.dir), r, a.against, against.parse_labels(a.labels),
                               bootstrap_cfg={"resamples": a.resamples, "confidence": a.confidence,
-                                             "seed": a.bootstrap_seed}, earlier=earlier)
+                                             "seed": a.bootstrap_seed}, earlier=earlier, exported=exported)
         against.write(cmp, Path(a.out or a.dir), figure_files=not a.no_figure_files)
     except CabError as e:
         print(f"cab-report: {e}", file=sys.stderr)
