@@ -283,3 +283,13 @@ def test_an_exported_row_of_another_name_is_met_through_as(sweep, tmp_path, caps
     oracle = next(r for r in a["rows"] if r["config"].startswith("oracle"))
     assert a["unmatched"] == [] and oracle["other"] == "oracle, last year"
     assert oracle["verdict"] == "consistent with the exported run"
+
+
+def test_an_exported_per_task_count_that_does_not_fit_is_one_line(sweep, tmp_path, capsys):
+    lb = _export(sweep, tmp_path / "lb")
+    _edit(lb, "oracle", lambda row: row.update(per_task={"beat_block_hammer": {"successes": 3, "attempts": 2}}))
+    with pytest.raises(SystemExit) as e:
+        report_main([str(sweep), "--out", str(tmp_path / "out"), "--no-views", "--no-figure-files", "--against", str(lb)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert re.match(r"cab-report: .*leaderboard\.jsonl: row 1 \(oracle \(direct, \w+\)\): per_task should map each task", err)

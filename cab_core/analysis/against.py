@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from cab_core.analysis import contract, leaderboard, summary
+from cab_core.analysis import contract, summary
 from cab_core.analysis.attempts import read_json
 from cab_core.analysis.measures import ACTION_CAUSES, CLAIMS, ESTIMATION_TOOLS, STOPPING, wilson
 from cab_core.errors import ConfigError, RecordError
@@ -159,28 +159,25 @@ def _paper_side(row: Mapping, source: Mapping) -> dict:
     return {"counts": counts, "values": values, "intervals": {}, "per_task": None}
 
 
-def source_kind(source: str) -> str:
+def source_kind(source: str, export_file: str = "leaderboard.jsonl") -> str:
     """What ``--against SOURCE`` names: ``"export"`` (a file, taken as leaderboard rows, or a folder
-    holding :data:`cab_core.analysis.leaderboard.FILE` and no ``result.json`` below it), ``"run"``
-    (any other folder) or ``"paper"`` (published figures by name)."""
+    holding ``export_file`` (:data:`cab_core.analysis.leaderboard.FILE`, which the caller passes:
+    this module sits below the exporter in the import graph) and no ``result.json`` below it),
+    ``"run"`` (any other folder) or ``"paper"`` (published figures by name)."""
     path = Path(source)
     if path.is_file():
         return "export"
     if path.is_dir():
-        if (path / leaderboard.FILE).is_file() and next(path.rglob("result.json"), None) is None:
+        if (path / export_file).is_file() and next(path.rglob("result.json"), None) is None:
             return "export"
         return "run"
     return "paper"
 
 
-def exported_rows(source: str) -> list[dict]:
-    """The leaderboard rows at ``source`` (the file, or the folder's
-    :data:`~cab_core.analysis.leaderboard.FILE`), each checked by
-    :func:`cab_core.analysis.leaderboard.read`; a RecordError line for a bad or empty file."""
-    path = Path(source)
-    if path.is_dir():
-        path = path / leaderboard.FILE
-    rows = leaderboard.read(path)
+def exported_rows(rows: list[dict], path: Path) -> list[dict]:
+    """Leaderboard rows as :func:`cab_core.analysis.leaderboard.read` read them from ``path``, checked
+    for what this comparison needs besides: at least one row, and a ``per_task`` (where a row has
+    one) of counts that fit; a RecordError line otherwise."""
     if not rows:
         raise RecordError(f"{path}: no leaderboard row to compare with")
     for i, row in enumerate(rows, 1):

@@ -159,12 +159,15 @@ def main(argv: list[str] | None = None) -> None:
 def _against(a: argparse.Namespace, r: dict) -> None:
     """``--against``: the comparison printed (tables, notes) and written beside the report; exit 2
     with one line when the source or a label names nothing."""
-    from cab_core.analysis import against
+    from cab_core.analysis import against, leaderboard
 
     try:
-        kind = against.source_kind(a.against)
+        kind = against.source_kind(a.against, leaderboard.FILE)
         earlier = build(Path(a.against), mix_contracts=a.mix_contracts) if kind == "run" else None
-        exported = against.exported_rows(a.against) if kind == "export" else None
+        exported = None
+        if kind == "export":
+            path = Path(a.against) / leaderboard.FILE if Path(a.against).is_dir() else Path(a.against)
+            exported = against.exported_rows(leaderboard.read(path), path)
         cmp = against.against(Path(a.dir), r, a.against, against.parse_labels(a.labels),
                               bootstrap_cfg={"resamples": a.resamples, "confidence": a.confidence,
                                              "seed": a.bootstrap_seed}, earlier=earlier, exported=exported)
