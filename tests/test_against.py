@@ -138,16 +138,23 @@ def test_against_an_earlier_run_the_same_records_are_consistent(sweep, tmp_path,
     assert "EXPLORATORY" not in capsys.readouterr().out
 
 
+
+def _oracle_differs(a: dict) -> dict:
+    """The oracle's row of against.json when the other side's oracle succeeded 0 of 4 times."""
+    oracle = next(r for r in a["rows"] if r["config"].startswith("oracle"))
+    assert oracle["tested"][0]["cab"] == [4, 4] and oracle["tested"][0]["other"] == [0, 4]
+    assert oracle["tested"][0]["fisher_p"] == pytest.approx(sps.fisher_exact([[4, 0], [0, 4]]).pvalue)
+    assert oracle["verdict"].startswith("differs: success 4/4 vs 0/4 (")
+    return oracle
+
+
 def test_against_an_earlier_run_a_real_difference_and_a_contract_that_differs(sweep, tmp_path, capsys):
     mine = earlier_run(sweep, tmp_path / "mine")
     earlier = earlier_run(sweep, tmp_path / "earlier", fail_oracle=True, budget="9")
     report_main([str(mine), "--out", str(tmp_path / "out"), "--no-views", "--against", str(earlier)])
     out = capsys.readouterr().out
     a = json.loads((tmp_path / "out" / "against.json").read_text())
-    oracle = next(r for r in a["rows"] if r["config"].startswith("oracle"))
-    assert oracle["tested"][0]["cab"] == [4, 4] and oracle["tested"][0]["other"] == [0, 4]
-    assert oracle["tested"][0]["fisher_p"] == pytest.approx(sps.fisher_exact([[4, 0], [0, 4]]).pvalue)
-    assert oracle["verdict"].startswith("differs: success 4/4 vs 0/4 (")
+    oracle = _oracle_differs(a)
     assert [t["other"] for t in oracle["per_task"]] == [[0, 2], [0, 2]]
     idle = next(r for r in a["rows"] if r["config"].startswith("idle"))
     assert idle["verdict"] == "consistent with the earlier run"
@@ -235,10 +242,7 @@ def test_against_an_edited_export_the_verdict_and_the_contract_change(sweep, tmp
     report_main([str(sweep), "--out", str(tmp_path / "out"), "--no-views", "--no-figure-files", "--against", str(lb)])
     out = capsys.readouterr().out
     a = json.loads((tmp_path / "out" / "against.json").read_text())
-    oracle = next(r for r in a["rows"] if r["config"].startswith("oracle"))
-    assert oracle["tested"][0]["cab"] == [4, 4] and oracle["tested"][0]["other"] == [0, 4]
-    assert oracle["tested"][0]["fisher_p"] == pytest.approx(sps.fisher_exact([[4, 0], [0, 4]]).pvalue)
-    assert oracle["verdict"].startswith("differs: success 4/4 vs 0/4 (")
+    oracle = _oracle_differs(a)
     assert oracle["per_task"] == [{"task": "beat_block_hammer", "cab": [2, 2], "other": [0, 2],
                                    "fisher_p": pytest.approx(sps.fisher_exact([[2, 0], [0, 2]]).pvalue)}]
     assert oracle["contract"]["differs_in"] == []
